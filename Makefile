@@ -1,0 +1,31 @@
+# Two commands on a fresh machine: `make run` (the main job on the embedded default scenario)
+# and `make test` (the whole test suite). Both depend on `make setup`, which (re)installs the
+# project into .venv/ only when pyproject.toml changed.
+PY ?= python3
+VENV := .venv
+BIN := $(VENV)/bin
+STAMP := $(VENV)/.installed
+
+.PHONY: setup run test bench clean
+
+setup: $(STAMP)
+
+$(STAMP): pyproject.toml
+	test -x $(BIN)/python || $(PY) -m venv $(VENV)
+	$(BIN)/pip install --quiet --upgrade pip
+	# torch first, pinned: the CPU wheel on local disk (a looser pin pulls a multi-GB CUDA build)
+	$(BIN)/pip install --quiet torch==2.13.0
+	$(BIN)/pip install --quiet -e '.[dev,vision,viz,reid]'
+	touch $(STAMP)
+
+run: setup
+	$(BIN)/sim_cluster run --scenario terrace-sim --topology chain --config dkf+lda+dtm --seed 0 --out runs/latest
+
+test: setup
+	$(BIN)/python -m pytest -q
+
+bench: setup
+	$(BIN)/sim_cluster bench
+
+clean:
+	rm -rf $(VENV) runs .pytest_cache

@@ -1,0 +1,1 @@
+"""One camera of the network: the pure tracker core, its geometry, and (later) the process runtime."""

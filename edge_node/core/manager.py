@@ -1,0 +1,127 @@
+"""Distributed Tracker Manager rules (paper Section III-C) as pure functions.
+
+* eq. 9, the drop counter ``ell``: 0 when a camera associates a measurement, otherwise the
+  minimum over the inclusive neighbourhood plus one; a tracker is dropped once ``ell > kappa``.
+* the distributed global data association: trackers of the same target coming from different
+  cameras are found by Euclidean ground distance (``V = I``) and gallery appearance, and merged
+  under a deterministic winner (the smallest ``(camera, counter)`` id) so that every camera
+  converges on the same id.
+* re-identification: a new local tracker whose gallery matches an *old* (dropped) tracker's
+  within ``epsilon`` takes the old id back.
+"""
+from __future__ import annotations
+
+from collections.abc import Iterable, Mapping, Sequence
+from dataclasses import dataclass
+
+import numpy as np
+
+from edge_node.core.config import TrackerConfig
+from edge_node.core.gallery import Gallery
+from protocol.messages import TrackerId
+
+
+def ell_sent(observed: bool, ell_prev: int) -> int:
+    """The counter a camera reports for frame ``k``: 0 if its camera saw the target, else
+    its previous consensus value plus one (the two branches of eq. 9)."""
+    return 0 if observed else ell_prev + 1
+
+
+def ell_consensus(own: int, received: Iterable[int]) -> int:
+    """Eq. 9: the minimum over the inclusive neighbourhood of the reported counters.
+
+    A neighbour that saw the target reports 0, so the information that *someone* saw it
+    spreads one hop per frame; when nobody sees it every camera's counter grows by one per
+    frame and all drop it within ``kappa`` plus the network diameter.
+    """
+    return min([own, *received])
+
+
+@dataclass(frozen=True)
+class MergeView:
+    """What the global association needs of one tracker on this node."""
+
+    id: TrackerId
+    xy: np.ndarray
+    gallery: Gallery
+    new: bool  # born or adopted this frame (the paper's simultaneous-initialisation case)
+    seen_by: frozenset[int]  # cameras of this node that associated a measurement this frame
+
+
+def pair_score(a: MergeView, b: MergeView, cfg: TrackerConfig) -> float | None:
+    """Global association score ``s_a * d / alpha_gda`` (eqs. 5-7 with ``V = I``) or ``None``
+    when the pair cannot be the same target.
+
+    Two trackers that this node's camera associated to two different measurements in the same
+    frame are two different targets, whatever they look like.
+    """
+    if a.seen_by & b.seen_by:
+        return None
+    d = float(np.linalg.norm(a.xy - b.xy))
+    if d >= cfg.m(cfg.tau_gda):
+        return None
+    s_a = a.gallery.distance_to(b.gallery)
+    if np.isnan(s_a):
+        s_a = cfg.unknown_appearance
+    if s_a > cfg.merge_appearance:
+        return None
+    return max(s_a, 1e-3) * d / cfg.m(cfg.alpha_gda)
+
+
+def find_merges(views: Sequence[MergeView], streaks: dict[tuple[TrackerId, TrackerId], int],
+                cfg: TrackerConfig) -> list[tuple[TrackerId, TrackerId]]:
+    """Pairs ``(loser, winner)`` to merge this frame; updates ``streaks`` in place.
+
+    A pair involving a new tracker merges at once (the paper's cases 2 and 3); two established
+    trackers must agree for ``merge_frames`` consecutive frames (duplicates that arise later,
+    e.g. one fed by a neighbour and one by the local camera). Each tracker merges at most once
+    per frame, best score first; ties broken by ids, so the outcome is deterministic.
+    """
+    scored: list[tuple[float, TrackerId, TrackerId, bool]] = []
+    alive: set[tuple[TrackerId, TrackerId]] = set()
+    ordered = sorted(views, key=lambda v: v.id)
+    for i, a in enumerate(ordered):
+        for b in ordered[i + 1:]:
+            s = pair_score(a, b, cfg)
+            if s is None:
+                continue
+            key = (a.id, b.id)
+            alive.add(key)
+            streaks[key] = streaks.get(key, 0) + 1
+            ready = a.new or b.new or streaks[key] >= cfg.merge_frames
+            scored.append((s, a.id, b.id, ready))
+    for key in list(streaks):
+        if key not in alive:
+            del streaks[key]
+    merges: list[tuple[TrackerId, TrackerId]] = []
+    taken: set[TrackerId] = set()
+    for s, ida, idb, ready in sorted(scored):
+        if not ready or ida in taken or idb in taken:
+            continue
+        winner, loser = min(ida, idb), max(ida, idb)
+        merges.append((loser, winner))
+        taken.update((ida, idb))
+        streaks.pop((ida, idb), None)
+    return merges
+
+
+def reidentify(gallery: Gallery, old: Mapping[TrackerId, Gallery], cfg: TrackerConfig
+               ) -> TrackerId | None:
+    """The old tracker whose gallery best matches ``gallery`` with ``s_a < epsilon`` (eq. 7)."""
+    best: tuple[float, TrackerId] | None = None
+    for tid, g in old.items():
+        s = gallery.distance_to(g)
+        if np.isnan(s) or s >= cfg.epsilon:
+            continue
+        if best is None or (s, tid) < best:
+            best = (s, tid)
+    return None if best is None else best[1]
+
+
+def resolve(tid: TrackerId, aliases: Mapping[TrackerId, TrackerId]) -> TrackerId:
+    """Follow merge announcements ``loser -> winner`` to the surviving id."""
+    seen = set()
+    while tid in aliases and tid not in seen:
+        seen.add(tid)
+        tid = aliases[tid]
+    return tid

@@ -1,0 +1,35 @@
+"""Inputs and outputs of the tracker core."""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from protocol.messages import TrackerId
+
+
+@dataclass(frozen=True, eq=False)
+class Detection:
+    """One detector output in one image: a box ``(x, y, w, h)`` in pixels (top-left, size)
+    and, when a re-id network ran, its appearance descriptor ``(D,)``."""
+
+    box: np.ndarray
+    descriptor: np.ndarray | None = None
+    score: float = 1.0
+
+
+@dataclass(frozen=True, eq=False)
+class Track:
+    """One target as a node knows it after ``update`` of frame ``frame``.
+
+    ``x`` is the corrected state ``x_hat = (x, y, w, h, vx, vy)``; ``P`` its covariance (the
+    information-form ``M`` of eq. 4); ``observed`` is whether this node's own camera associated
+    a detection to it this frame; ``ell`` the drop counter of eq. 9.
+    """
+
+    id: TrackerId
+    frame: int
+    x: np.ndarray
+    P: np.ndarray
+    observed: bool
+    ell: int

@@ -1,0 +1,162 @@
+"""Camera geometry on a ground plane: pure numpy, no OpenCV.
+
+A camera is known by its image-to-ground homography ``G`` (3x3; ``g ~ G [s*u, s*v, 1]^T`` with
+``s`` the calibration's pixel scale, EPFL convention) and, when its full calibration is known,
+a projection ``P`` (3x4, ground coordinates ``(x, y, z=height)`` to pixels). ``P`` gives target
+heights and exact cylinder boxes; without it heights come from the box's aspect ratio.
+
+Boxes are ``(x, y, w, h)`` in pixels: top-left corner, width, height (MOTChallenge convention).
+Cylinders are ``(x, y, w, h)`` on the ground: centre of the base, width, height (paper III-A).
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+
+class GeometryError(ValueError):
+    """A camera description that cannot be used (singular homography, bad shapes)."""
+
+
+def _h(pts: np.ndarray) -> np.ndarray:
+    return np.hstack([pts, np.ones((pts.shape[0], 1))])
+
+
+def apply_homography(Hm: np.ndarray, pts: np.ndarray) -> np.ndarray:
+    """Map ``(n, 2)`` points through a 3x3 homography (with the perspective divide)."""
+    pts = np.atleast_2d(np.asarray(pts, dtype=float))
+    q = _h(pts) @ Hm.T
+    return q[:, :2] / q[:, 2:3]
+
+
+def homography_jacobian(Hm: np.ndarray, p: np.ndarray) -> np.ndarray:
+    """``d(H p)/dp`` at the image point ``p`` (2x2), for propagating pixel noise to the ground."""
+    x = np.array([p[0], p[1], 1.0])
+    q = Hm @ x
+    w = q[2]
+    J = (Hm[:2, :2] * w - np.outer(q[:2], Hm[2, :2])) / (w * w)
+    return J
+
+
+@dataclass(frozen=True)
+class Camera:
+    """One calibrated camera. ``id`` is the node's index in the network (``0..N-1``)."""
+
+    id: int
+    image_size: tuple[int, int]  # (width, height) in pixels
+    G: np.ndarray  # image (scaled pixels) -> ground, 3x3
+    P: np.ndarray | None = None  # ground (x, y, z) -> image pixels, 3x4
+    pixel_scale: float = 1.0  # EPFL: g = G [u*s, v*s, 1]
+    fps: float = 25.0
+    G_inv: np.ndarray = field(init=False, repr=False, compare=False)
+
+    def __post_init__(self) -> None:
+        G = np.asarray(self.G, dtype=float)
+        if G.shape != (3, 3) or not np.all(np.isfinite(G)):
+            raise GeometryError(f"camera {self.id}: homography must be a finite 3x3 matrix")
+        if abs(np.linalg.det(G)) < 1e-15:
+            raise GeometryError(f"camera {self.id}: homography is singular")
+        object.__setattr__(self, "G", G)
+        object.__setattr__(self, "G_inv", np.linalg.inv(G))
+        if self.P is not None:
+            P = np.asarray(self.P, dtype=float)
+            if P.shape != (3, 4) or not np.all(np.isfinite(P)):
+                raise GeometryError(f"camera {self.id}: projection must be a finite 3x4 matrix")
+            object.__setattr__(self, "P", P)
+        if self.pixel_scale <= 0 or self.fps <= 0:
+            raise GeometryError(f"camera {self.id}: pixel_scale and fps must be positive")
+
+    # -- points ---------------------------------------------------------------------------
+    def to_ground(self, uv: np.ndarray) -> np.ndarray:
+        """Image pixels ``(n, 2)`` to ground ``(n, 2)``."""
+        return apply_homography(self.G, np.atleast_2d(uv) * self.pixel_scale)
+
+    def to_image(self, xy: np.ndarray) -> np.ndarray:
+        """Ground ``(n, 2)`` (height 0) to image pixels ``(n, 2)``."""
+        return apply_homography(self.G_inv, xy) / self.pixel_scale
+
+    def ground_jacobian(self, uv: np.ndarray) -> np.ndarray:
+        """Jacobian of image->ground at pixel ``uv`` (ground units per pixel), 2x2."""
+        return homography_jacobian(self.G, np.asarray(uv, float) * self.pixel_scale) * self.pixel_scale
+
+    def in_front(self, xy: np.ndarray) -> np.ndarray:
+        """Whether ground points project in front of the camera (positive depth)."""
+        xy = np.atleast_2d(xy)
+        if self.P is not None:
+            q = np.hstack([xy, np.zeros((len(xy), 1)), np.ones((len(xy), 1))]) @ self.P.T
+        else:
+            q = _h(xy) @ self.G_inv.T
+        return q[:, 2] > 0
+
+    def center(self) -> np.ndarray | None:
+        """The camera centre ``(x, y, z)`` in ground coordinates, when ``P`` is known."""
+        if self.P is None:
+            return None
+        _, _, vt = np.linalg.svd(self.P)
+        c = vt[-1]
+        return c[:3] / c[3]
+
+    # -- boxes <-> cylinders ----------------------------------------------------------------
+    def box_to_cylinder(self, box: np.ndarray) -> np.ndarray:
+        """Box ``(x, y, w, h)`` px to cylinder ``(x, y, w, h)`` on the ground (paper III-A).
+
+        Base centre: the box's bottom centre through ``G``. Width: distance between the
+        projected bottom corners. Height: from ``P`` when known (the height whose top projects
+        on the box's top edge), else the width times the box's aspect ratio.
+        """
+        bx, by, bw, bh = (float(v) for v in box)
+        foot = np.array([bx + bw / 2.0, by + bh])
+        corners = self.to_ground(np.array([[bx, by + bh], [bx + bw, by + bh]]))
+        c = self.to_ground(foot)[0]
+        w = float(np.linalg.norm(corners[1] - corners[0]))
+        h = self._height(c, by) if self.P is not None else w * bh / max(bw, 1e-9)
+        if not np.isfinite(h) or h <= 0:
+            h = w * bh / max(bw, 1e-9)
+        return np.array([c[0], c[1], w, h])
+
+    def _height(self, c: np.ndarray, v_top: float) -> float:
+        P = self.P
+        p = P[:, :2] @ c + P[:, 3]
+        q = P[:, 2]
+        den = v_top * q[2] - q[1]
+        if abs(den) < 1e-12:
+            return float("nan")
+        return float((p[1] - v_top * p[2]) / den)
+
+    def cylinder_to_box(self, cyl: np.ndarray) -> np.ndarray:
+        """Cylinder ``(x, y, w, h)`` to the box ``(x, y, w, h)`` px that frames it in this image."""
+        x, y, w, h = (float(v) for v in cyl[:4])
+        if self.P is not None:
+            # Sample the cylinder's silhouette: base and top circles.
+            ang = np.linspace(0.0, 2 * np.pi, 16, endpoint=False)
+            r = w / 2.0
+            ring = np.stack([x + r * np.cos(ang), y + r * np.sin(ang)], axis=1)
+            pts = np.vstack([
+                np.hstack([ring, np.zeros((16, 1))]),
+                np.hstack([ring, np.full((16, 1), h)]),
+            ])
+            q = np.hstack([pts, np.ones((len(pts), 1))]) @ self.P.T
+            uv = q[:, :2] / q[:, 2:3]
+            u0, v0 = uv.min(axis=0)
+            u1, v1 = uv.max(axis=0)
+            return np.array([u0, v0, u1 - u0, v1 - v0])
+        foot = self.to_image(np.array([[x, y]]))[0]
+        J = self.ground_jacobian(foot)
+        # Pixels per ground unit along the image's horizontal axis at the foot point.
+        px_per_unit = 1.0 / max(float(np.linalg.norm(J[:, 0])), 1e-12)
+        bw = w * px_per_unit
+        bh = bw * h / max(w, 1e-9)
+        return np.array([foot[0] - bw / 2.0, foot[1] - bh, bw, bh])
+
+    def footprint(self, max_range: float | None = None) -> np.ndarray:
+        """The ground polygon the image sees (bottom image corners and the horizon-clipped top)."""
+        W, H = self.image_size
+        vs = np.linspace(0, H, 9)
+        pts = []
+        for u in (0.0, float(W)):
+            for v in (vs if u == 0.0 else vs[::-1]):
+                g = self.to_ground(np.array([[u, v]]))[0]
+                if self.in_front(g[None])[0] and (max_range is None or np.all(np.isfinite(g))):
+                    pts.append(g)
+        return np.array(pts)

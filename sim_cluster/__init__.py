@@ -1,0 +1,1 @@
+"""Many cameras: scenarios, topologies, the in-process network, evaluation, and the CLI."""

@@ -1,0 +1,156 @@
+"""``sim_cluster``: run camera networks in one process (reference runs, experiments, benchmarks).
+
+    sim_cluster run --scenario terrace-sim --topology ring --config dkf+lda+dtm --seed 0 --out DIR
+    sim_cluster bench
+    sim_cluster scenarios
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from pathlib import Path
+
+from edge_node.core.config import ABLATIONS, ConfigError, TrackerConfig
+
+
+class CliError(Exception):
+    """A user error: printed as one line, exit status 2."""
+
+
+def _scenario(args):
+    from sim_cluster.scenario import ScenarioError, load_scenario
+
+    try:
+        return load_scenario(args.scenario, seed=args.seed, frames=args.frames,
+                             data_root=getattr(args, "data_root", None))
+    except (ScenarioError, OSError) as e:
+        raise CliError(str(e)) from None
+
+
+def _tracker_config(args) -> TrackerConfig:
+    try:
+        cfg = TrackerConfig.for_ablation(args.config)
+        if getattr(args, "tracker_config", None):
+            import tomllib
+
+            path = Path(args.tracker_config)
+            try:
+                table = tomllib.loads(path.read_text())
+            except (OSError, tomllib.TOMLDecodeError) as e:
+                raise CliError(f"{path}: {e}") from None
+            cfg = TrackerConfig.from_dict({**cfg.to_dict(), **table.get("tracker", table)},
+                                          where=str(path))
+        return cfg
+    except ConfigError as e:
+        raise CliError(str(e)) from None
+
+
+def run_once(data, topology: str, cfg: TrackerConfig, *, order=None, show_progress: bool = False,
+             evaluate: bool = True, ground_threshold_m: float = 1.0):
+    """One in-process run plus its evaluation; returns ``(RunResult, summary dict)``."""
+    from sim_cluster import topology as topo
+    from sim_cluster.network import CENTRALIZED, run_network
+    from sim_cluster.progress import progress_bar
+
+    adj = CENTRALIZED if topology == CENTRALIZED else topo.build(topology, data.num_cameras, order)
+    update, close = progress_bar(f"{data.name} {topology}", data.frames, show_progress)
+    try:
+        result = run_network(data, adj, cfg, topology_name=Path(topology).stem
+                             if topology not in topo.NAMES + (CENTRALIZED,) else topology,
+                             progress=update)
+    finally:
+        close()
+    summary = result.summary()
+    if order is not None:
+        summary["order"] = list(order)
+    if evaluate:
+        from sim_cluster.evaluation import evaluate as ev
+
+        summary["metrics"] = ev(result.tracks, data, ground_threshold_m=ground_threshold_m)
+    return result, summary
+
+
+def cmd_run(args) -> int:
+    from sim_cluster.report import run_table
+    from sim_cluster.tracks_io import write_tracks
+
+    data = _scenario(args)
+    cfg = _tracker_config(args)
+    result, summary = run_once(data, args.topology, cfg, show_progress=not args.quiet,
+                               ground_threshold_m=args.ground_threshold)
+    out = Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+    for node, frames in result.tracks.items():
+        write_tracks(out / f"tracks_node{node}.csv", frames)
+    (out / "summary.json").write_text(json.dumps(summary, indent=2, sort_keys=True))
+    print(run_table(summary))
+    print(f"wrote {out}/summary.json and {len(result.tracks)} track files")
+    return 0
+
+
+def cmd_scenarios(args) -> int:
+    from sim_cluster.scenario import list_presets
+
+    for name in list_presets():
+        print(name)
+    return 0
+
+
+def cmd_bench(args) -> int:
+    from sim_cluster.bench import main as bench_main
+
+    return bench_main(args)
+
+
+def build_parser() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(prog="sim_cluster", description=__doc__,
+                                formatter_class=argparse.RawDescriptionHelpFormatter)
+    sub = p.add_subparsers(dest="cmd", required=True)
+
+    def scenario_args(sp, frames_help="frames to run (default: the scenario's)"):
+        sp.add_argument("--scenario", default="terrace-sim",
+                        help="preset name (sim_cluster scenarios) or path to a scenario TOML")
+        sp.add_argument("--seed", type=int, default=0)
+        sp.add_argument("--frames", type=int, default=None, help=frames_help)
+        sp.add_argument("--data-root", default=None,
+                        help="folder holding epfl_pom/ (default: $DMTT_DATA or ../shared/data)")
+
+    r = sub.add_parser("run", help="run a network in one process and evaluate it")
+    scenario_args(r)
+    r.add_argument("--topology", default="ring",
+                   help="complete | ring | chain | disconnected | star | centralized | edge-list file")
+    r.add_argument("--config", default="dkf+lda+dtm", choices=ABLATIONS)
+    r.add_argument("--tracker-config", default=None, help="TOML file overriding tracker parameters")
+    r.add_argument("--ground-threshold", type=float, default=1.0,
+                   help="ground matching threshold in metres (default 1)")
+    r.add_argument("--out", default="runs/latest")
+    r.add_argument("--quiet", action="store_true", help="no progress bar")
+    r.set_defaults(func=cmd_run)
+
+    s = sub.add_parser("scenarios", help="list the scenario presets")
+    s.set_defaults(func=cmd_scenarios)
+
+    b = sub.add_parser("bench", help="time prepare+update per node per frame; bytes per tracker")
+    b.add_argument("--targets", default="5,20,50")
+    b.add_argument("--neighbours", type=int, default=4)
+    b.add_argument("--frames", type=int, default=60)
+    b.add_argument("--repeats", type=int, default=3)
+    b.set_defaults(func=cmd_bench)
+    return p
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = build_parser().parse_args(argv)
+    try:
+        return args.func(args)
+    except CliError as e:
+        print(f"sim_cluster: error: {e}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        print("sim_cluster: interrupted", file=sys.stderr)
+        return 130
+
+
+if __name__ == "__main__":
+    sys.exit(main())

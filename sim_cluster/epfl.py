@@ -1,0 +1,557 @@
+"""Real data: the EPFL multi-camera pedestrian ground truth (Terrace, Campus) as a scenario.
+
+Two annotation formats are read, one file per camera, with identities consistent across cameras:
+
+``mot-csv`` (the files under ``<data root>/epfl_pom/``, see its PROVENANCE.md):
+    ``frame,id,x,y,w,h,lost,occluded,generated,label`` integers, CRLF, 0-based frames at 25 fps,
+    boxes top-left + size in the 360x288 annotation images. Rows with ``lost = 1`` are skipped.
+``vatic`` (the original EPFL/VATIC text files):
+    ``track_id xmin ymin xmax ymax frame lost occluded generated label`` separated by spaces
+    (``label`` may be quoted); ``w = xmax - xmin``, ``h = ymax - ymin``; ``lost = 1`` rows skipped.
+
+Calibration is a JSON file (``epfl_pom/homographies.json``) holding per sequence the image-to-ground
+homographies ``H`` (camera order = list order), the ``image_scale`` they expect
+(``g = H [u s, v s, 1]``, taken from the file, never assumed) and the annotation image size.
+
+Ground truth built from the annotations (``GroundTruth``):
+
+* ``ids[k]``: everyone annotated in at least one camera at frame ``k`` (a person hidden from every
+  camera is not in the ground truth: there is no other source of their position).
+* ``xy[k]``: the mean of that person's box foot points ``(x + w/2, y + h)`` projected through the
+  homographies of the cameras that see them. Across cameras these projections disagree by a median
+  of about 25 ground units (0.8 m) on Terrace (calibration and foot-point error), so the mean is
+  itself an estimate, good to a few tens of centimetres.
+* ``wh[k]``: a per-person typical cylinder: the median over that person's annotations (boxes not
+  touching the image border) of ``Camera.box_to_cylinder``'s width and height, in ground units;
+  about 0.5 m x 1.75 m (``units_per_metre`` scaled) when a person has no usable box.
+* ``boxes[c][k]``: camera ``c``'s annotated boxes at frame ``k``.
+
+Detections ("gt-replay"): each camera's annotated boxes go through ``detector_model.detect``, the
+same miss / false-positive / box-noise model as the synthetic world, with the visible fraction of
+each box computed from the boxes in front of it in the same image (a larger bottom edge is closer to
+the camera), and synthetic appearance per real identity from ``AppearanceModel``.
+
+Data root resolution (first that applies): an explicit ``data_root`` argument (the CLI's
+``--data-root``, or ``[source] data_root`` in a scenario file) > environment ``DMTT_DATA`` >
+``<repo root>/../shared/data`` (repo root = parent of the ``sim_cluster`` package directory) >
+``./../shared/data`` from the working directory. Never copy the data into the repository.
+"""
+from __future__ import annotations
+
+import json
+import os
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from edge_node.core.types import Detection
+from edge_node.geometry import Camera, GeometryError
+from sim_cluster.data import GroundTruth, ScenarioData
+
+ENV_DATA_ROOT = "DMTT_DATA"
+EPFL_DIR = "epfl_pom"
+CALIBRATION_FILE = "homographies.json"
+DEFAULT_FPS = 25.0
+PERSON_WIDTH_M = 0.5
+PERSON_HEIGHT_M = 1.75
+
+
+class DataNotFoundError(FileNotFoundError):
+    """The data root or a data file is missing; the message names every path tried."""
+
+
+class EpflFormatError(ValueError):
+    """An annotation or calibration file that cannot be parsed; the message names file and field."""
+
+
+# -- data root --------------------------------------------------------------------------------------
+def repo_root() -> Path:
+    """The repository root: the parent of the ``sim_cluster`` package directory."""
+    return Path(__file__).resolve().parent.parent
+
+
+def data_root_candidates(data_root: str | os.PathLike[str] | None = None) -> list[Path]:
+    """The data roots to try, in order: explicit argument, else ``$DMTT_DATA``, else the defaults."""
+    if data_root is not None and str(data_root) != "":
+        return [Path(data_root).expanduser()]
+    env = os.environ.get(ENV_DATA_ROOT, "")
+    if env:
+        return [Path(env).expanduser()]
+    return [repo_root().parent / "shared" / "data", Path.cwd() / ".." / "shared" / "data"]
+
+
+def resolve_data_root(data_root: str | os.PathLike[str] | None = None) -> Path:
+    """The first existing data root (see the module docstring); ``DataNotFoundError`` otherwise.
+
+    An explicit argument or ``$DMTT_DATA`` that does not exist is an error, not a fall-through.
+    """
+    tried = data_root_candidates(data_root)
+    for p in tried:
+        if p.is_dir():
+            return p.resolve()
+    source = ("argument data_root" if data_root not in (None, "")
+              else f"${ENV_DATA_ROOT}" if os.environ.get(ENV_DATA_ROOT) else "default locations")
+    raise DataNotFoundError(
+        f"data root not found ({source}); tried: {', '.join(str(p) for p in tried)}. "
+        f"Pass --data-root or set {ENV_DATA_ROOT} to the folder holding {EPFL_DIR}/.")
+
+
+def epfl_dir(data_root: str | os.PathLike[str] | None = None) -> Path:
+    """The folder with ``homographies.json``: ``<root>/epfl_pom`` or the root itself."""
+    root = resolve_data_root(data_root)
+    tried = [root / EPFL_DIR, root]
+    for d in tried:
+        if (d / CALIBRATION_FILE).is_file():
+            return d
+    raise DataNotFoundError(f"no {CALIBRATION_FILE} in: {', '.join(str(d) for d in tried)}")
+
+
+# -- annotation files -------------------------------------------------------------------------------
+@dataclass
+class Annotations:
+    """One camera's annotated boxes, one row per box, sorted by frame (stable)."""
+
+    frames: np.ndarray  # (n,) int, 0-based
+    ids: np.ndarray  # (n,) int
+    boxes: np.ndarray  # (n, 4) float (x, y, w, h) px
+    generated: np.ndarray  # (n,) bool, interpolated by VATIC
+
+    def sorted(self) -> Annotations:
+        o = np.argsort(self.frames, kind="stable")
+        return Annotations(self.frames[o], self.ids[o], self.boxes[o], self.generated[o])
+
+
+def _rows(path: Path) -> list[tuple[int, str]]:
+    try:
+        text = path.read_text(encoding="utf-8")
+    except FileNotFoundError as exc:
+        raise DataNotFoundError(f"annotation file not found: {path}") from exc
+    return [(i + 1, ln.strip()) for i, ln in enumerate(text.splitlines())
+            if ln.strip() and not ln.lstrip().startswith("#")]
+
+
+def _num(path: Path, line: int, field: str, s: str) -> float:
+    try:
+        return float(s)
+    except ValueError as exc:
+        raise EpflFormatError(f"{path}:{line}: field {field!r} is not a number: {s!r}") from exc
+
+
+def read_mot_csv(path: str | os.PathLike[str]) -> Annotations:
+    """Read ``frame,id,x,y,w,h,lost,occluded,generated,label`` (CRLF or LF; optional header)."""
+    path = Path(path)
+    fast = _read_csv_fast(path)
+    if fast is not None:
+        return fast
+    names = ("frame", "id", "x", "y", "w", "h", "lost", "occluded", "generated", "label")
+    out: list[list[float]] = []
+    for n, (line, text) in enumerate(_rows(path)):
+        f = [s.strip() for s in text.split(",")]
+        if n == 0 and f and not f[0].lstrip("-").replace(".", "", 1).isdigit():
+            continue  # a header line
+        if len(f) < 6:
+            raise EpflFormatError(f"{path}:{line}: expected at least 6 comma-separated fields "
+                                  f"({','.join(names)}), got {len(f)}")
+        vals = [_num(path, line, names[i], f[i]) for i in range(min(len(f), 9))]
+        lost = vals[6] if len(vals) > 6 else 0.0
+        if lost == 1:
+            continue
+        gen = vals[8] if len(vals) > 8 else 0.0
+        out.append([vals[0], vals[1], vals[2], vals[3], vals[4], vals[5], gen])
+    return _annotations(path, out)
+
+
+def _read_csv_fast(path: Path) -> Annotations | None:
+    """The common case (numeric, >= 9 columns, no header) through numpy; None to parse slowly."""
+    try:
+        a = np.loadtxt(path, delimiter=",", dtype=float, ndmin=2, comments="#")
+    except FileNotFoundError as exc:
+        raise DataNotFoundError(f"annotation file not found: {path}") from exc
+    except ValueError:
+        return None  # header, ragged rows or bad fields: the line parser names the culprit
+    if a.shape[0] == 0 or a.shape[1] < 9:
+        return None
+    a = a[a[:, 6] != 1]
+    return _annotations(path, np.column_stack([a[:, :6], a[:, 8]]).tolist())
+
+
+def read_vatic(path: str | os.PathLike[str]) -> Annotations:
+    """Read ``track_id xmin ymin xmax ymax frame lost occluded generated label`` (spaces)."""
+    path = Path(path)
+    names = ("track_id", "xmin", "ymin", "xmax", "ymax", "frame", "lost", "occluded", "generated")
+    out: list[list[float]] = []
+    for line, text in _rows(path):
+        f = text.split()
+        if len(f) < 9:
+            raise EpflFormatError(f"{path}:{line}: expected 10 space-separated fields "
+                                  f"({' '.join(names)} label), got {len(f)}")
+        v = [_num(path, line, names[i], f[i]) for i in range(9)]
+        if v[6] == 1:
+            continue
+        out.append([v[5], v[0], v[1], v[2], v[3] - v[1], v[4] - v[2], v[8]])
+    return _annotations(path, out)
+
+
+def _annotations(path: Path, rows: list[list[float]]) -> Annotations:
+    a = np.array(rows, dtype=float).reshape(-1, 7)
+    if np.any(a[:, 4:6] <= 0):
+        line = int(np.argmax(np.any(a[:, 4:6] <= 0, axis=1)))
+        raise EpflFormatError(f"{path}: box {line + 1} (data row) has non-positive width or height")
+    if np.any(a[:, 0] < 0):
+        raise EpflFormatError(f"{path}: negative frame index")
+    return Annotations(a[:, 0].astype(np.int64), a[:, 1].astype(np.int64), a[:, 2:6].copy(),
+                       a[:, 6] != 0).sorted()
+
+
+def _first_row(path: Path) -> str:
+    try:
+        with path.open(encoding="utf-8") as fh:
+            for line in fh:
+                if line.strip() and not line.lstrip().startswith("#"):
+                    return line
+    except FileNotFoundError as exc:
+        raise DataNotFoundError(f"annotation file not found: {path}") from exc
+    return ""
+
+
+def read_annotations(path: str | os.PathLike[str], fmt: str = "auto") -> Annotations:
+    """Read one camera's annotations; ``fmt`` is ``mot-csv``, ``vatic`` or ``auto`` (by content)."""
+    path = Path(path)
+    if fmt == "auto":
+        fmt = "mot-csv" if "," in _first_row(path) else "vatic"
+    if fmt == "mot-csv":
+        return read_mot_csv(path)
+    if fmt == "vatic":
+        return read_vatic(path)
+    raise EpflFormatError(f"{path}: unknown annotation format {fmt!r} (mot-csv, vatic, auto)")
+
+
+# -- calibration ------------------------------------------------------------------------------------
+def read_calibration(path: str | os.PathLike[str], sequence: str,
+                     fps: float = DEFAULT_FPS) -> tuple[list[Camera], dict[str, Any]]:
+    """Cameras of ``sequence`` (a key of the calibration JSON) and its entry (for ``sequence`` name).
+
+    Each camera gets ``G = H[c]``, ``pixel_scale = image_scale``, ``image_size`` from
+    ``image_size_annotations`` (default 360x288).
+    """
+    path = Path(path)
+    try:
+        doc = json.loads(path.read_text(encoding="utf-8"))
+    except FileNotFoundError as exc:
+        raise DataNotFoundError(f"calibration file not found: {path}") from exc
+    except json.JSONDecodeError as exc:
+        raise EpflFormatError(f"{path}: not valid JSON ({exc})") from exc
+    if sequence not in doc or not isinstance(doc[sequence], dict):
+        keys = [k for k, v in doc.items() if isinstance(v, dict)]
+        raise EpflFormatError(f"{path}: no sequence {sequence!r} (has {keys})")
+    entry = doc[sequence]
+    if "H" not in entry:
+        raise EpflFormatError(f"{path}: {sequence}.H (per-camera homographies) is missing")
+    scale = float(entry.get("image_scale", 1.0))
+    size = entry.get("image_size_annotations", [360, 288])
+    cams = []
+    for c, H in enumerate(entry["H"]):
+        try:
+            cams.append(Camera(id=c, image_size=(int(size[0]), int(size[1])),
+                               G=np.asarray(H, dtype=float), pixel_scale=scale, fps=fps))
+        except (GeometryError, ValueError, TypeError) as exc:
+            raise EpflFormatError(f"{path}: {sequence}.H[{c}]: {exc}") from exc
+    return cams, entry
+
+
+# -- a sequence -------------------------------------------------------------------------------------
+@dataclass
+class EpflSequence:
+    """A sequence's cameras and per-camera annotations (frames as in the files)."""
+
+    name: str
+    cameras: list[Camera]
+    annotations: list[Annotations]
+
+    @property
+    def frame_range(self) -> tuple[int, int]:
+        """First and last annotated frame over all cameras (inclusive)."""
+        fr = [a.frames for a in self.annotations if len(a.frames)]
+        if not fr:
+            return (0, -1)
+        return int(min(f.min() for f in fr)), int(max(f.max() for f in fr))
+
+
+def load_sequence(sequence: str, data_root: str | os.PathLike[str] | None = None,
+                  annotations: list[str] | None = None, calibration: str | None = None,
+                  fmt: str = "auto", fps: float = DEFAULT_FPS) -> EpflSequence:
+    """Load ``sequence`` (``terrace``, ``campus``: a key of the calibration file).
+
+    By default the files are ``<epfl dir>/<key>/<entry sequence>-c<i>.gt.csv``; ``annotations``
+    (paths relative to the data root, or absolute) and ``calibration`` override, e.g. for the
+    original VATIC files.
+    """
+    if calibration is not None:
+        root = resolve_data_root(data_root)
+        cal = Path(calibration) if Path(calibration).is_absolute() else root / calibration
+        base = root
+    else:
+        base = epfl_dir(data_root)
+        cal = base / CALIBRATION_FILE
+    cams, entry = read_calibration(cal, sequence, fps)
+    if annotations is None:
+        stem = str(entry.get("sequence", sequence))
+        files = [base / sequence / f"{stem}-c{c}.gt.csv" for c in range(len(cams))]
+    else:
+        root = resolve_data_root(data_root)
+        files = [Path(p) if Path(p).is_absolute() else root / p for p in annotations]
+        if len(files) != len(cams):
+            raise EpflFormatError(f"{len(files)} annotation files for {len(cams)} cameras of "
+                                  f"{sequence!r} in {cal}")
+    missing = [str(f) for f in files if not f.is_file()]
+    if missing:
+        raise DataNotFoundError(f"annotation files not found: {', '.join(missing)}")
+    return EpflSequence(sequence, cams, [read_annotations(f, fmt) for f in files])
+
+
+# -- ground truth -----------------------------------------------------------------------------------
+def _foot_points(cam: Camera, boxes: np.ndarray) -> np.ndarray:
+    uv = np.stack([boxes[:, 0] + boxes[:, 2] / 2.0, boxes[:, 1] + boxes[:, 3]], axis=1)
+    return cam.to_ground(uv) if len(uv) else np.zeros((0, 2))
+
+
+def _cylinder_sizes(cam: Camera, boxes: np.ndarray) -> np.ndarray:
+    """``Camera.box_to_cylinder``'s (w, h) for many boxes; vectorised when the camera has no P."""
+    if cam.P is not None:
+        return np.array([cam.box_to_cylinder(b)[2:] for b in boxes]).reshape(-1, 2)
+    bl = cam.to_ground(np.stack([boxes[:, 0], boxes[:, 1] + boxes[:, 3]], axis=1))
+    br = cam.to_ground(np.stack([boxes[:, 0] + boxes[:, 2], boxes[:, 1] + boxes[:, 3]], axis=1))
+    w = np.linalg.norm(br - bl, axis=1)
+    return np.stack([w, w * boxes[:, 3] / np.maximum(boxes[:, 2], 1e-9)], axis=1)
+
+
+def _typical_sizes(seq: EpflSequence, units_per_metre: float) -> dict[int, np.ndarray]:
+    """Per person: median cylinder (w, h) from box_to_cylinder over boxes off the image border."""
+    samples: dict[int, list[np.ndarray]] = {}
+    for cam, ann in zip(seq.cameras, seq.annotations):
+        W, H = cam.image_size
+        b = ann.boxes
+        inner = (b[:, 0] > 1) & (b[:, 1] > 1) & (b[:, 0] + b[:, 2] < W - 1) & (b[:, 1] + b[:, 3] < H - 1)
+        if cam.P is not None and inner.sum() > 2000:  # the per-box path: an even subsample suffices
+            keep = np.flatnonzero(inner)
+            inner = np.zeros_like(inner)
+            inner[keep[np.linspace(0, len(keep) - 1, 2000).astype(int)]] = True
+        wh = _cylinder_sizes(cam, b[inner])
+        ok = np.all(np.isfinite(wh), axis=1) & np.all(wh > 0, axis=1)
+        for pid in np.unique(ann.ids[inner][ok]):
+            samples.setdefault(int(pid), []).append(wh[ok][ann.ids[inner][ok] == pid])
+    default = np.array([PERSON_WIDTH_M, PERSON_HEIGHT_M]) * units_per_metre
+    ids = set(samples) | {int(i) for a in seq.annotations for i in np.unique(a.ids)}
+    return {pid: (np.median(np.vstack(samples[pid]), axis=0) if pid in samples else default.copy())
+            for pid in ids}
+
+
+def build_ground_truth(seq: EpflSequence, start: int, frames: int,
+                       units_per_metre: float) -> GroundTruth:
+    """Ground truth for sequence frames ``start .. start+frames-1`` (scenario frames ``0..``)."""
+    all_ids = sorted({int(i) for a in seq.annotations for i in np.unique(a.ids)})
+    col = {pid: j for j, pid in enumerate(all_ids)}
+    n_id = len(all_ids)
+    sum_xy = np.zeros((frames, n_id, 2))
+    count = np.zeros((frames, n_id), dtype=int)
+    boxes: list[list[tuple[np.ndarray, np.ndarray]]] = []
+    for cam, ann in zip(seq.cameras, seq.annotations):
+        lo, hi = np.searchsorted(ann.frames, [start, start + frames])
+        fr, ids, bx = ann.frames[lo:hi] - start, ann.ids[lo:hi], ann.boxes[lo:hi]
+        cols = np.array([col[int(i)] for i in ids], dtype=int)
+        xy = _foot_points(cam, bx)
+        ok = np.all(np.isfinite(xy), axis=1)
+        np.add.at(sum_xy, (fr[ok], cols[ok]), xy[ok])
+        np.add.at(count, (fr[ok], cols[ok]), 1)
+        cuts = np.searchsorted(fr, np.arange(frames + 1))
+        boxes.append([(ids[cuts[k]:cuts[k + 1]].copy(), bx[cuts[k]:cuts[k + 1]].copy())
+                      for k in range(frames)])
+    sizes = _typical_sizes(seq, units_per_metre)
+    id_arr = np.array(all_ids, dtype=np.int64)
+    size_arr = np.array([sizes[p] for p in all_ids]).reshape(-1, 2)
+    t_ids, t_xy, t_wh = [], [], []
+    for k in range(frames):
+        present = count[k] > 0
+        t_ids.append(id_arr[present])
+        t_xy.append(sum_xy[k, present] / count[k, present][:, None])
+        t_wh.append(size_arr[present].copy())
+    return GroundTruth(ids=t_ids, xy=t_xy, wh=t_wh, boxes=boxes)
+
+
+def visible_fractions(boxes: np.ndarray, frame: np.ndarray | None = None,
+                      grid: tuple[int, int] = (6, 12)) -> np.ndarray:
+    """Fraction of each box not covered by boxes closer to the camera in the same frame.
+
+    Closer means a larger bottom edge (ground-plane cameras looking down). ``boxes`` (m, 4),
+    ``frame`` (m,) the frame of each box (all one frame when None). Estimated on a ``grid``
+    (columns, rows) of sample points per box; ``(m,)`` in ``[0, 1]``.
+    """
+    b = np.asarray(boxes, dtype=float).reshape(-1, 4)
+    m = len(b)
+    fr = np.zeros(m, dtype=np.int64) if frame is None else np.asarray(frame, dtype=np.int64)
+    if m == 0:
+        return np.ones(0)
+    order = np.argsort(fr, kind="stable")
+    b, fr = b[order], fr[order]
+    _, start, size = np.unique(fr, return_index=True, return_counts=True)
+    grp = np.repeat(np.arange(len(start)), size)
+    n_pairs = size[grp]  # partners per row (its frame's size, itself included)
+    I = np.repeat(np.arange(m), n_pairs)
+    first = np.repeat(np.cumsum(n_pairs) - n_pairs, n_pairs)
+    J = np.repeat(start[grp], n_pairs) + (np.arange(len(I)) - first)
+    bottom = b[:, 1] + b[:, 3]
+    sel = bottom[J] > bottom[I]  # J stands in front of I
+    I, J = I[sel], J[sel]
+    gx = (np.arange(grid[0]) + 0.5) / grid[0]
+    gy = (np.arange(grid[1]) + 0.5) / grid[1]
+    u = (b[I, 0:1] + b[I, 2:3] * np.tile(gx, grid[1])[None, :])  # (pairs, S)
+    v = (b[I, 1:2] + b[I, 3:4] * np.repeat(gy, grid[0])[None, :])
+    inside = ((u >= b[J, 0:1]) & (u <= b[J, 0:1] + b[J, 2:3])
+              & (v >= b[J, 1:2]) & (v <= b[J, 1:2] + b[J, 3:4]))
+    covered = np.zeros((m, grid[0] * grid[1]), dtype=bool)
+    np.logical_or.at(covered, I, inside)
+    vis = np.empty(m)
+    vis[order] = 1.0 - covered.mean(axis=1)
+    return vis
+
+
+# -- the scenario -----------------------------------------------------------------------------------
+def replay_detections(seq_truth: GroundTruth, cameras: list[Camera], detector: Any,
+                      appearance: Any, seed: int
+                      ) -> tuple[list[list[list[Detection]]], list[list[np.ndarray]]]:
+    """GT-replay: every camera's annotated boxes through ``detector_model.detect_frames``.
+
+    One random stream per camera (``default_rng([seed, c])``), so a camera's detections do not
+    depend on the other cameras. Returns ``(detections[k][c], true_ids[k][c])``.
+    """
+    from sim_cluster.detector_model import detect_frames  # lazy: a sibling module
+
+    frames = len(seq_truth.ids)
+    dets: list[list[list[Detection]]] = [[[] for _ in cameras] for _ in range(frames)]
+    truth: list[list[np.ndarray]] = [[np.zeros(0, np.int64) for _ in cameras] for _ in range(frames)]
+    for c, cam in enumerate(cameras):
+        per = seq_truth.boxes[c]
+        fr = np.repeat(np.arange(frames), [len(ids) for ids, _ in per])
+        ids = np.concatenate([np.asarray(i, dtype=np.int64) for i, _ in per]) if frames else np.zeros(0)
+        bx = np.vstack([np.asarray(b, dtype=float).reshape(-1, 4) for _, b in per]) if frames \
+            else np.zeros((0, 4))
+        out = detect_frames(cam, fr, ids, bx, visible_fractions(bx, fr), frames, detector,
+                            appearance, np.random.default_rng([seed, c]))
+        for k, (d, t) in enumerate(out):
+            dets[k][c] = list(d)
+            truth[k][c] = np.asarray(t, dtype=np.int64)
+    return dets, truth
+
+
+def load_epfl_gt(sequence: str, *, seed: int = 0, frames: int | None = None,
+                 start_frame: int | None = None, units_per_metre: float = 30.0,
+                 detector: Any = None, appearance: Any = None,
+                 data_root: str | os.PathLike[str] | None = None, name: str | None = None,
+                 annotations: list[str] | None = None, calibration: str | None = None,
+                 fmt: str = "auto", fps: float = DEFAULT_FPS) -> ScenarioData:
+    """An EPFL sequence as a ``ScenarioData`` with GT-replay detections.
+
+    ``start_frame`` defaults to the first annotated frame; ``frames`` to the rest of the sequence
+    (clipped to the last annotated frame). ``detector``/``appearance`` are ``DetectorParams`` and
+    ``AppearanceParams`` (defaults when None).
+    """
+    from sim_cluster.appearance import AppearanceModel, AppearanceParams
+    from sim_cluster.detector_model import DetectorParams
+
+    if units_per_metre <= 0:
+        raise EpflFormatError(f"units_per_metre must be positive, got {units_per_metre}")
+    seq = load_sequence(sequence, data_root, annotations, calibration, fmt, fps)
+    first, last = seq.frame_range
+    start = first if start_frame is None else int(start_frame)
+    if start < 0 or start > last:
+        raise EpflFormatError(f"start_frame {start} outside the annotated frames {first}..{last} "
+                              f"of {sequence!r}")
+    n = last - start + 1 if frames is None else min(int(frames), last - start + 1)
+    if n <= 0:
+        raise EpflFormatError(f"frames must be positive, got {frames}")
+    truth = build_ground_truth(seq, start, n, units_per_metre)
+    detector = detector if detector is not None else DetectorParams()
+    app = AppearanceModel(appearance if appearance is not None else AppearanceParams(), seed)
+    dets, det_truth = replay_detections(truth, seq.cameras, detector, app, seed)
+    allxy = np.vstack([xy for xy in truth.xy if len(xy)] or [np.zeros((1, 2))])
+    lo, hi = allxy.min(axis=0), allxy.max(axis=0)
+    margin = 0.05 * float(np.max(hi - lo)) if len(allxy) > 1 else 1.0
+    return ScenarioData(
+        name=name or f"{sequence}-gt", cameras=seq.cameras, frames=n, fps=fps,
+        units_per_metre=float(units_per_metre), detections=dets, truth=truth,
+        detection_truth=det_truth,
+        area=(float(lo[0] - margin), float(hi[0] + margin), float(lo[1] - margin), float(hi[1] + margin)),
+        seed=seed)
+
+
+def detector_from_table(t: Any) -> Any:
+    """``DetectorParams`` from a scenario ``[detector]`` table (a ``scenario.Table``); the
+    dataclass validates the values, unknown keys are errors naming the field."""
+    from dataclasses import fields
+
+    from sim_cluster.detector_model import DetectorParams, DetectorParamsError
+
+    kwargs: dict[str, Any] = {}
+    for f in fields(DetectorParams):
+        if t.has(f.name):
+            v = t.raw(f.name)
+            kwargs[f.name] = tuple(v) if isinstance(v, list) else v
+    t.finish()
+    try:
+        return DetectorParams(**kwargs)
+    except (DetectorParamsError, TypeError) as exc:
+        raise t.error(None, str(exc)) from None
+
+
+def scenario_from_table(raw: dict[str, Any], path: Path, seed: int, frames: int | None,
+                        data_root: str | os.PathLike[str] | None = None) -> ScenarioData:
+    """Registry entry for ``[source] kind = "epfl-gt"`` (``SCENARIO_KINDS["epfl-gt"]``).
+
+    Top level: ``name``, ``description``, ``seed``, ``frames`` (the ``frames`` argument overrides
+    it), ``fps``. ``[source]``: ``kind``, ``sequence`` (required; a key of the calibration file),
+    ``start_frame``, ``units_per_metre``, ``data_root`` (relative to the scenario file),
+    ``annotations`` (list of per-camera files), ``calibration``, ``format``. ``[detector]`` and
+    ``[appearance]`` as in synthetic scenarios. ``data_root`` (the CLI's ``--data-root``)
+    overrides ``[source] data_root``. Errors are ``ScenarioError`` naming file and field;
+    missing data raises ``DataNotFoundError`` (an ``OSError``).
+    """
+    from sim_cluster.scenario import ScenarioError, Table, _appearance  # lazy: no import cycle
+
+    file = Path(path).name
+    top = Table(raw, file)
+    name = top.string("name", Path(path).stem)
+    top.string("description", "")
+    top.integer("seed", 0, lo=0)  # validated; the resolved seed is passed in
+    n = top.integer("frames", None, lo=1)
+    n = frames if frames is not None else n
+    fps = top.number("fps", DEFAULT_FPS, lo=0.0, lo_open=True)
+    src = top.table("source")
+    src.string("kind")
+    sequence = src.string("sequence")
+    start = src.integer("start_frame", None, lo=0)
+    upm = src.number("units_per_metre", 30.0, lo=0.0, lo_open=True)
+    root = src.string("data_root", None)
+    ann = src.raw("annotations", None)
+    if ann is not None and (not isinstance(ann, list) or not all(isinstance(a, str) for a in ann)):
+        raise src.error("annotations", f"must be a list of file paths, got {ann!r}")
+    cal = src.string("calibration", None)
+    fmt = src.string("format", "auto")
+    if fmt not in ("auto", "mot-csv", "vatic"):
+        raise src.error("format", f"must be one of auto, mot-csv, vatic, got {fmt!r}")
+    src.finish()
+    detector = detector_from_table(top.table("detector"))
+    appearance = _appearance(top.table("appearance"))
+    top.finish()
+    if data_root is None and root:
+        data_root = Path(root).expanduser()
+        if not data_root.is_absolute():
+            data_root = Path(path).parent / data_root  # relative to the scenario file
+    try:
+        return load_epfl_gt(sequence, seed=seed, frames=n, start_frame=start,
+                            units_per_metre=upm, detector=detector, appearance=appearance,
+                            data_root=data_root, name=name, annotations=ann, calibration=cal,
+                            fmt=fmt, fps=fps)
+    except EpflFormatError as exc:
+        raise ScenarioError(file, None, str(exc)) from None

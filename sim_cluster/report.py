@@ -1,0 +1,35 @@
+"""Human-readable tables of a run's summary."""
+from __future__ import annotations
+
+
+def _f(v, fmt="{:.3f}") -> str:
+    return "-" if v is None else fmt.format(v)
+
+
+def run_table(summary: dict) -> str:
+    """Per node: neighbours, track ids, ground and image MOTA / IDF1, bytes sent per frame."""
+    m = summary.get("metrics", {})
+    g, im = m.get("ground", {}), m.get("image", {})
+    bw = summary["bandwidth"]
+    sent: dict[str, float] = {}
+    for link, b in bw["per_link"].items():
+        src = link.split("->")[0]
+        sent[src] = sent.get(src, 0.0) + b
+    lines = [f"{summary['scenario']}  topology={summary['topology']}  config={summary['config']}  "
+             f"seed={summary['seed']}  frames={summary['frames']}",
+             f"{'node':>4} {'ids':>5} {'gMOTA':>7} {'gIDF1':>7} {'gMOTP[m]':>9} {'iMOTA':>7} "
+             f"{'iIDF1':>7} {'sent B/frame':>12}"]
+    for node, nids in summary["tracks"]["ids_per_node"].items():
+        gn = g.get("per_node", {}).get(node, {})
+        inn = im.get("per_node", {}).get(node, {})
+        lines.append(f"{node:>4} {nids:>5} {_f(gn.get('mota')):>7} {_f(gn.get('idf1')):>7} "
+                     f"{_f(gn.get('motp_m')):>9} {_f(inn.get('mota')):>7} {_f(inn.get('idf1')):>7} "
+                     f"{_f(sent.get(node), '{:.0f}'):>12}")
+    gm, imm = g.get("median", {}), im.get("median", {})
+    if gm or imm:
+        lines.append(f"{'med':>4} {'':>5} {_f(gm.get('mota')):>7} {_f(gm.get('idf1')):>7} "
+                     f"{_f(gm.get('motp_m')):>9} {_f(imm.get('mota')):>7} {_f(imm.get('idf1')):>7}")
+    lines.append(f"bandwidth: {bw['bytes_per_frame'] / 1000:.2f} kB/frame network-wide, "
+                 f"{bw['bytes_per_tracker_frame']:.0f} B per tracker per frame, "
+                 f"{bw['appearance_bytes_per_new_tracker']:.0f} B per new tracker's appearance")
+    return "\n".join(lines)

@@ -1,0 +1,517 @@
+"""Scenario files: TOML schema, validation and loading.
+
+A scenario is a TOML file. Presets ship in ``sim_cluster/presets/`` (``list_presets()``); a user
+can pass the path of their own file. ``[source] kind`` selects how the file becomes a
+:class:`~sim_cluster.data.ScenarioData`; it defaults to ``"synthetic"`` (the seeded world of
+:mod:`sim_cluster.world`). Other kinds register a loader in :data:`SCENARIO_KINDS`.
+
+Synthetic schema (metres, degrees, pixels; see the presets for commented examples)::
+
+    name = "my-scene"          # optional, defaults to the file name
+    seed = 0                   # optional (default 0); load_scenario(seed=...) overrides
+    frames = 600               # load_scenario(frames=...) overrides
+    fps = 25.0                 # every camera's frame rate (frames are synchronised)
+
+    [source]                   # optional
+    kind = "synthetic"
+
+    [area]                     # the walkable ground rectangle
+    xmin = 0.0  xmax = 10.0  ymin = 0.0  ymax = 10.0
+
+    [[cameras]]                # one table per camera; ids are 0.. in file order
+    image_size = [360, 288]    # width, height in pixels
+    position = [x, y, z]       # camera centre (z = height above the ground, > 0)
+    look_at = [x, y, z]        # what the optical axis points at; or yaw_deg + pitch_deg
+    # yaw_deg = 45.0           # heading on the ground, counter-clockwise from +x
+    # pitch_deg = 20.0         # tilt below the horizon, in [-90, 90]
+    # roll_deg = 0.0           # rotation about the optical axis
+    fov_deg = 60.0             # horizontal field of view; or focal_px
+    # principal_point = [180.0, 144.0]   # default: the image centre
+    # ... or instead of the pose: homography = [[..], [..], [..]] (image -> ground),
+    #     pixel_scale = 1.0, projection = [[4 numbers] x 3] (optional, ground xyz -> image)
+
+    [people]     concurrent, initial, speed_mps, width_m, height_m, stay_s, entry_gap_s,
+                 turn_rate_dps, pause_probability, pause_s, spawn_margin_m, waypoint_margin_m,
+                 personal_space_m                   (see world.PeopleParams; ranges [lo, hi])
+    [detector]   miss_rate, occlusion_miss_threshold, false_positives_per_frame, box_noise_px,
+                 min_box_height_px, fp_person_height_m, fp_height_frac  (detector_model.DetectorParams)
+    [appearance] dim and either the weights identity, view, noise, shared or the expected
+                 distances same_camera_distance, cross_camera_distance, different_person_distance
+    [truth]      min_visible                         (world module docstring)
+
+Every error is a :class:`ScenarioError` naming the file and the field, e.g.
+``terrace-sim.toml: cameras[2].fov_deg must be in (0, 180), got 200``. Unknown fields are errors
+(a typo must not silently fall back to a default).
+"""
+from __future__ import annotations
+
+from dataclasses import fields
+import importlib
+import math
+from pathlib import Path
+import tomllib
+from typing import Any, Callable
+
+import numpy as np
+
+from edge_node.geometry import Camera, GeometryError
+from sim_cluster.appearance import AppearanceError, AppearanceParams
+from sim_cluster.data import ScenarioData
+from sim_cluster.detector_model import DetectorParams, DetectorParamsError
+from sim_cluster.world import PeopleParams, WorldConfig, WorldError, generate
+
+PRESET_DIR = Path(__file__).resolve().parent / "presets"
+
+_REQUIRED = object()
+
+
+class ScenarioError(ValueError):
+    """A scenario that cannot be loaded; the message names the file and the field."""
+
+    def __init__(self, file: str, field: str | None, message: str):
+        self.file = file
+        self.field = field
+        super().__init__(f"{file}: {field} {message}" if field else f"{file}: {message}")
+
+
+# -- a small validating reader for TOML tables ------------------------------------------------
+
+
+class Table:
+    """Typed, range-checked access to one TOML table; errors name ``file`` and ``where.key``.
+
+    Call :meth:`finish` after reading to reject unknown keys. Reusable by other scenario kinds.
+    """
+
+    def __init__(self, data: Any, file: str, where: str = ""):
+        if not isinstance(data, dict):
+            raise ScenarioError(file, where or None, f"must be a table, got {type(data).__name__}")
+        self.data = data
+        self.file = file
+        self.where = where
+        self._used: set[str] = set()
+
+    def name(self, key: str) -> str:
+        return f"{self.where}.{key}" if self.where else key
+
+    def error(self, key: str | None, message: str) -> ScenarioError:
+        return ScenarioError(self.file, self.name(key) if key else (self.where or None), message)
+
+    def has(self, key: str) -> bool:
+        return key in self.data
+
+    def raw(self, key: str, default: Any = _REQUIRED) -> Any:
+        self._used.add(key)
+        if key not in self.data:
+            if default is _REQUIRED:
+                raise self.error(key, "is required")
+            return default
+        return self.data[key]
+
+    def number(self, key: str, default: Any = _REQUIRED, *, lo: float | None = None,
+               hi: float | None = None, lo_open: bool = False, hi_open: bool = False) -> float:
+        if not self.has(key) and default is not _REQUIRED:
+            self._used.add(key)
+            return default
+        v = self.raw(key)
+        return self._check_number(key, v, lo, hi, lo_open, hi_open)
+
+    def _check_number(self, key: str, v: Any, lo: float | None, hi: float | None,
+                      lo_open: bool, hi_open: bool, label: str | None = None) -> float:
+        label = label or key
+        if isinstance(v, bool) or not isinstance(v, (int, float)):
+            raise self.error(label, f"must be a number, got {v!r}")
+        if not math.isfinite(v):
+            raise self.error(label, f"must be finite, got {v!r}")
+        bad = (lo is not None and (v <= lo if lo_open else v < lo)) or (
+            hi is not None and (v >= hi if hi_open else v > hi))
+        if bad:
+            if lo is not None and hi is not None:
+                rng = f"{'(' if lo_open else '['}{lo:g}, {hi:g}{')' if hi_open else ']'}"
+                raise self.error(label, f"must be in {rng}, got {v!r}")
+            if lo is not None:
+                raise self.error(label, f"must be {'>' if lo_open else '>='} {lo:g}, got {v!r}")
+            raise self.error(label, f"must be {'<' if hi_open else '<='} {hi:g}, got {v!r}")
+        return float(v)
+
+    def integer(self, key: str, default: Any = _REQUIRED, *, lo: int | None = None,
+                hi: int | None = None) -> int:
+        if not self.has(key) and default is not _REQUIRED:
+            self._used.add(key)
+            return default
+        v = self.raw(key)
+        if isinstance(v, bool) or not isinstance(v, int):
+            raise self.error(key, f"must be an integer, got {v!r}")
+        if (lo is not None and v < lo) or (hi is not None and v > hi):
+            if hi is None:
+                raise self.error(key, f"must be >= {lo}, got {v!r}")
+            raise self.error(key, f"must be in [{lo}, {hi}], got {v!r}")
+        return v
+
+    def string(self, key: str, default: Any = _REQUIRED) -> str:
+        if not self.has(key) and default is not _REQUIRED:
+            self._used.add(key)
+            return default
+        v = self.raw(key)
+        if not isinstance(v, str):
+            raise self.error(key, f"must be a string, got {v!r}")
+        return v
+
+    def vector(self, key: str, n: int, default: Any = _REQUIRED, *, lo: float | None = None,
+               lo_open: bool = False) -> np.ndarray:
+        if not self.has(key) and default is not _REQUIRED:
+            self._used.add(key)
+            return default
+        v = self.raw(key)
+        if not isinstance(v, list) or len(v) != n:
+            raise self.error(key, f"must be a list of {n} numbers, got {v!r}")
+        return np.array([self._check_number(key, x, lo, None, lo_open, False, f"{key}[{i}]")
+                         for i, x in enumerate(v)])
+
+    def span(self, key: str, default: Any = _REQUIRED, *, lo: float = 0.0, lo_open: bool = False,
+             hi: float | None = None) -> tuple[float, float]:
+        """A range ``[lo, hi]`` (or a single number meaning ``[x, x]``), ``lo <= hi``."""
+        if not self.has(key) and default is not _REQUIRED:
+            self._used.add(key)
+            return default
+        v = self.raw(key)
+        if not isinstance(v, list):
+            x = self._check_number(key, v, lo, hi, lo_open, False)
+            return (x, x)
+        if len(v) != 2:
+            raise self.error(key, f"must be a number or a range [lo, hi], got {v!r}")
+        a = self._check_number(key, v[0], lo, hi, lo_open, False, f"{key}[0]")
+        b = self._check_number(key, v[1], lo, hi, lo_open, False, f"{key}[1]")
+        if a > b:
+            raise self.error(key, f"must have lo <= hi, got {v!r}")
+        return (a, b)
+
+    def matrix(self, key: str, rows: int, cols: int) -> np.ndarray:
+        v = self.raw(key)
+        ok = isinstance(v, list) and len(v) == rows and all(
+            isinstance(r, list) and len(r) == cols for r in v)
+        if not ok:
+            raise self.error(key, f"must be a {rows}x{cols} list of lists, got {v!r}")
+        return np.array([[self._check_number(key, x, None, None, False, False, f"{key}[{i}][{j}]")
+                          for j, x in enumerate(r)] for i, r in enumerate(v)])
+
+    def table(self, key: str) -> "Table":
+        """A sub-table (an empty one when absent)."""
+        return Table(self.raw(key, {}), self.file, self.name(key))
+
+    def tables(self, key: str) -> list["Table"]:
+        v = self.raw(key)
+        if not isinstance(v, list) or not v:
+            raise self.error(key, "must be a non-empty array of tables ([[...]])")
+        return [Table(t, self.file, f"{self.name(key)}[{i}]") for i, t in enumerate(v)]
+
+    def finish(self) -> None:
+        unknown = sorted(set(self.data) - self._used)
+        if unknown:
+            raise self.error(unknown[0], f"is not a known field (known: {', '.join(sorted(self._used))})")
+
+
+# -- cameras ----------------------------------------------------------------------------------
+
+
+def look_at_angles(position: np.ndarray, target: np.ndarray) -> tuple[float, float]:
+    """``(yaw_deg, pitch_deg)`` of an optical axis from ``position`` towards ``target`` (xyz)."""
+    d = np.asarray(target, float) - np.asarray(position, float)
+    horiz = math.hypot(d[0], d[1])
+    yaw = math.degrees(math.atan2(d[1], d[0])) if horiz > 1e-12 else 0.0
+    pitch = math.degrees(math.atan2(-d[2], horiz))
+    return yaw, pitch
+
+
+def camera_from_pose(
+    id: int,
+    image_size: tuple[int, int],
+    position: np.ndarray,
+    yaw_deg: float,
+    pitch_deg: float,
+    roll_deg: float = 0.0,
+    *,
+    focal_px: float | None = None,
+    fov_deg: float | None = None,
+    principal_point: tuple[float, float] | None = None,
+    fps: float = 25.0,
+) -> Camera:
+    """A pinhole camera: ``P = K [R | -R C]``, ``G = inv(K [r1 r2 -R C])`` (ground z = 0).
+
+    World axes: x, y on the ground, z up. Camera axes: x right, y down, z forward. ``yaw`` is
+    the optical axis' heading counter-clockwise from +x, ``pitch`` its tilt below the horizon,
+    ``roll`` a rotation about it. Give ``focal_px`` or the horizontal ``fov_deg``.
+    """
+    W, H = image_size
+    if (focal_px is None) == (fov_deg is None):
+        raise GeometryError(f"camera {id}: give exactly one of focal_px and fov_deg")
+    f = focal_px if focal_px is not None else (W / 2.0) / math.tan(math.radians(fov_deg) / 2.0)
+    cx, cy = principal_point if principal_point is not None else (W / 2.0, H / 2.0)
+    K = np.array([[f, 0.0, cx], [0.0, f, cy], [0.0, 0.0, 1.0]])
+    y, p, r = (math.radians(a) for a in (yaw_deg, pitch_deg, roll_deg))
+    fwd = np.array([math.cos(p) * math.cos(y), math.cos(p) * math.sin(y), -math.sin(p)])
+    right = np.array([math.sin(y), -math.cos(y), 0.0])
+    down = np.cross(fwd, right)
+    right, down = math.cos(r) * right + math.sin(r) * down, -math.sin(r) * right + math.cos(r) * down
+    R = np.stack([right, down, fwd])
+    C = np.asarray(position, float)
+    t = -R @ C
+    P = K @ np.hstack([R, t[:, None]])
+    Hg = K @ np.stack([R[:, 0], R[:, 1], t], axis=1)  # ground (x, y, 1) -> pixels
+    if abs(np.linalg.det(Hg)) < 1e-12 * max(1.0, np.abs(Hg).max()) ** 3:
+        raise GeometryError(f"camera {id}: the ground plane is seen edge-on (camera at height 0?)")
+    G = np.linalg.inv(Hg)
+    G = G / np.abs(G).max()
+    return Camera(id=id, image_size=(int(W), int(H)), G=G, P=P, pixel_scale=1.0, fps=fps)
+
+
+def _camera(t: Table, cid: int, fps: float) -> Camera:
+    size = t.raw("image_size")
+    if (not isinstance(size, list) or len(size) != 2
+            or not all(isinstance(v, int) and not isinstance(v, bool) and v > 0 for v in size)):
+        raise t.error("image_size", f"must be [width, height] positive integers, got {size!r}")
+    image_size = (size[0], size[1])
+    try:
+        if t.has("homography"):
+            for k in ("position", "look_at", "yaw_deg", "pitch_deg", "fov_deg", "focal_px"):
+                if t.has(k):
+                    raise t.error(k, "cannot be combined with homography (give a pose or a homography)")
+            G = t.matrix("homography", 3, 3)
+            scale = t.number("pixel_scale", 1.0, lo=0.0, lo_open=True)
+            P = t.matrix("projection", 3, 4) if t.has("projection") else None
+            cam = Camera(id=cid, image_size=image_size, G=G, P=P, pixel_scale=scale, fps=fps)
+        else:
+            pos = t.vector("position", 3)
+            if pos[2] <= 0:
+                raise t.error("position", f"height (z) must be > 0, got {pos[2]:g}")
+            if t.has("look_at"):
+                if t.has("yaw_deg") or t.has("pitch_deg"):
+                    raise t.error("look_at", "cannot be combined with yaw_deg/pitch_deg")
+                target = t.vector("look_at", 3)
+                if np.allclose(target, pos):
+                    raise t.error("look_at", "must differ from position")
+                yaw, pitch = look_at_angles(pos, target)
+            elif t.has("yaw_deg") or t.has("pitch_deg"):
+                yaw = t.number("yaw_deg", lo=-360.0, hi=360.0)
+                pitch = t.number("pitch_deg", lo=-90.0, hi=90.0)
+            else:
+                raise t.error(None, "needs look_at, yaw_deg + pitch_deg, or a homography")
+            roll = t.number("roll_deg", 0.0, lo=-180.0, hi=180.0)
+            if t.has("fov_deg") == t.has("focal_px"):
+                raise t.error("fov_deg", "give exactly one of fov_deg and focal_px")
+            fov = t.number("fov_deg", lo=0.0, hi=180.0, lo_open=True, hi_open=True) if t.has("fov_deg") else None
+            focal = t.number("focal_px", lo=0.0, lo_open=True) if t.has("focal_px") else None
+            pp = t.vector("principal_point", 2) if t.has("principal_point") else None
+            cam = camera_from_pose(cid, image_size, pos, yaw, pitch, roll, focal_px=focal,
+                                   fov_deg=fov, principal_point=None if pp is None else tuple(pp),
+                                   fps=fps)
+    except GeometryError as e:
+        raise t.error(None, str(e)) from None
+    t.finish()
+    return cam
+
+
+# -- the synthetic kind -----------------------------------------------------------------------
+
+
+def _dataclass_from(t: Table, cls: type, spans: dict[str, dict], numbers: dict[str, dict],
+                    ints: dict[str, dict]) -> Any:
+    kwargs: dict[str, Any] = {}
+    for f in fields(cls):
+        if not t.has(f.name):
+            continue
+        if f.name in spans:
+            kwargs[f.name] = t.span(f.name, **spans[f.name])
+        elif f.name in ints:
+            kwargs[f.name] = t.integer(f.name, **ints[f.name])
+        elif f.name in numbers:
+            kwargs[f.name] = t.number(f.name, **numbers[f.name])
+    t.finish()
+    return cls(**kwargs)
+
+
+def parse_synthetic(raw: dict, path: Path, seed: int, frames: int | None = None) -> WorldConfig:
+    """Validate a synthetic scenario's TOML (already parsed) into a :class:`WorldConfig`."""
+    file = path.name
+    top = Table(raw, file)
+    src = top.table("source")
+    src.string("kind", "synthetic")
+    src.finish()
+    name = top.string("name", path.stem)
+    top.string("description", "")
+    top.integer("seed", 0, lo=0)  # validated; the resolved seed is passed in
+    n_frames = top.integer("frames", lo=1) if frames is None else frames
+    fps = top.number("fps", 25.0, lo=0.0, lo_open=True)
+
+    a = top.table("area")
+    xmin, xmax = a.number("xmin"), a.number("xmax")
+    ymin, ymax = a.number("ymin"), a.number("ymax")
+    if xmax <= xmin:
+        raise a.error("xmax", f"must be > xmin ({xmin:g}), got {xmax:g}")
+    if ymax <= ymin:
+        raise a.error("ymax", f"must be > ymin ({ymin:g}), got {ymax:g}")
+    a.finish()
+
+    cameras = [_camera(t, i, fps) for i, t in enumerate(top.tables("cameras"))]
+
+    pt = top.table("people")
+    pos = {"lo": 0.0, "lo_open": True}
+    try:
+        people = _dataclass_from(
+            pt, PeopleParams,
+            spans={"speed_mps": pos, "width_m": pos, "height_m": pos, "stay_s": {"lo": 0.0},
+                   "pause_s": {"lo": 0.0}},
+            numbers={"entry_gap_s": {"lo": 0.0}, "turn_rate_dps": pos,
+                     "pause_probability": {"lo": 0.0, "hi": 1.0}, "spawn_margin_m": {"lo": 0.0},
+                     "waypoint_margin_m": {"lo": 0.0}, "personal_space_m": {"lo": 0.0}},
+            ints={"concurrent": {"lo": 0, "hi": 1000}, "initial": {"lo": 0, "hi": 1000}},
+        )
+    except WorldError as e:
+        raise pt.error(None, str(e)) from None
+
+    detector = detector_params_from_table(top.table("detector"))
+    appearance = appearance_params_from_table(top.table("appearance"))
+
+    tt = top.table("truth")
+    min_visible = tt.number("min_visible", 0.1, lo=0.0, hi=1.0)
+    tt.finish()
+    top.finish()
+    try:
+        return WorldConfig(name=name, area=(xmin, xmax, ymin, ymax), cameras=cameras,
+                           frames=n_frames, fps=fps, seed=seed, people=people, detector=detector,
+                           appearance=appearance, min_visible=min_visible)
+    except WorldError as e:
+        raise ScenarioError(file, None, str(e)) from None
+
+
+def appearance_params_from_table(t: Table) -> AppearanceParams:
+    """``AppearanceParams`` from an ``[appearance]`` table: ``dim`` and either the weights
+    (``identity``, ``view``, ``noise``, ``shared``) or the expected distances
+    (``same_camera_distance``, ``cross_camera_distance``, ``different_person_distance``)."""
+    dim = t.integer("dim", 512, lo=2, hi=65536)
+    weights = ("identity", "view", "noise", "shared")
+    dists = ("same_camera_distance", "cross_camera_distance", "different_person_distance")
+    has_w = [k for k in weights if t.has(k)]
+    has_d = [k for k in dists if t.has(k)]
+    try:
+        if has_w and has_d:
+            raise t.error(has_d[0], f"cannot be combined with {has_w[0]} (give weights or distances)")
+        if has_d:
+            d = AppearanceParams.from_distances()
+            ref = d.expected_distances()
+            same = t.number("same_camera_distance", ref["same_camera"], lo=0.0, hi=1.0)
+            cross = t.number("cross_camera_distance", ref["cross_camera"], lo=0.0, hi=1.0)
+            diff = t.number("different_person_distance", ref["different_person"], lo=0.0, hi=1.0)
+            params = AppearanceParams.from_distances(same, cross, diff, dim=dim)
+        else:
+            dflt = AppearanceParams()
+            kw = {k: t.number(k, getattr(dflt, k), lo=0.0) for k in weights}
+            params = AppearanceParams(dim=dim, **kw)
+    except AppearanceError as e:
+        raise t.error(None, str(e)) from None
+    t.finish()
+    return params
+
+
+_appearance = appearance_params_from_table  # older private name, used by sibling loaders
+
+
+def detector_params_from_table(t: Table) -> DetectorParams:
+    """``DetectorParams`` from a ``[detector]`` table (every field optional, range-checked)."""
+    unit = {"lo": 0.0, "hi": 1.0}
+    try:
+        return _dataclass_from(
+            t, DetectorParams,
+            spans={"fp_person_height_m": {"lo": 0.0, "lo_open": True},
+                   "fp_height_frac": {"lo": 0.0, "lo_open": True, "hi": 1.0}},
+            numbers={"miss_rate": unit, "occlusion_miss_threshold": unit,
+                     "false_positives_per_frame": {"lo": 0.0}, "box_noise_px": {"lo": 0.0},
+                     "min_box_height_px": {"lo": 0.0}},
+            ints={},
+        )
+    except DetectorParamsError as e:
+        raise t.error(None, str(e)) from None
+
+
+def _load_synthetic(raw: dict, path: Path, seed: int, frames: int | None) -> ScenarioData:
+    return generate(parse_synthetic(raw, path, seed, frames))
+
+
+# -- registry and entry points ----------------------------------------------------------------
+
+ScenarioLoader = Callable[[dict, Path, int, "int | None"], ScenarioData]
+
+
+def lazy_loader(module: str, attr: str) -> ScenarioLoader:
+    """A loader imported on first use (``SCENARIO_KINDS["x"] = lazy_loader("pkg.mod", "fn")``),
+    so optional kinds cost nothing and cannot create import cycles."""
+
+    def load(raw: dict, path: Path, seed: int, frames: int | None) -> ScenarioData:
+        return getattr(importlib.import_module(module), attr)(raw, path, seed, frames)
+
+    load.__qualname__ = f"lazy_loader({module}.{attr})"
+    return load
+
+
+#: ``[source] kind`` -> loader ``(raw toml dict, file path, resolved seed, frames override or
+#: None) -> ScenarioData``. A loader validates its own fields (see :class:`Table`) and raises
+#: :class:`ScenarioError`.
+SCENARIO_KINDS: dict[str, ScenarioLoader] = {
+    "synthetic": _load_synthetic,
+    "epfl-gt": lazy_loader("sim_cluster.epfl", "scenario_from_table"),
+    "det-files": lazy_loader("sim_cluster.detfiles", "scenario_from_table"),
+}
+
+
+def list_presets() -> list[str]:
+    """Names of the scenario presets shipped with the package."""
+    return sorted(p.stem for p in PRESET_DIR.glob("*.toml"))
+
+
+def resolve_scenario_path(name_or_path: str | Path) -> Path:
+    """A preset name -> ``presets/<name>.toml``; anything path-like -> that file."""
+    s = str(name_or_path)
+    p = Path(s)
+    if p.suffix == ".toml" or "/" in s or "\\" in s or p.exists():
+        if not p.is_file():
+            raise ScenarioError(p.name or s, None, f"no such scenario file: {s}")
+        return p
+    preset = PRESET_DIR / f"{s}.toml"
+    if not preset.is_file():
+        raise ScenarioError(s, None, f"unknown scenario preset (presets: {', '.join(list_presets())})")
+    return preset
+
+
+def read_scenario_toml(path: Path) -> dict:
+    """Parse a scenario file, turning I/O and syntax errors into :class:`ScenarioError`."""
+    try:
+        with open(path, "rb") as fh:
+            return tomllib.load(fh)
+    except tomllib.TOMLDecodeError as e:
+        raise ScenarioError(path.name, None, f"invalid TOML: {e}") from None
+    except OSError as e:
+        raise ScenarioError(path.name, None, f"cannot read: {e.strerror or e}") from None
+
+
+def load_scenario(name_or_path: str | Path, seed: int | None = None,
+                  frames: int | None = None) -> ScenarioData:
+    """Load a scenario by preset name or file path. ``seed`` / ``frames`` override the file's.
+
+    Same file + same seed gives identical detections.
+    """
+    path = resolve_scenario_path(name_or_path)
+    raw = read_scenario_toml(path)
+    file = path.name
+    top = Table(raw, file)
+    if seed is None:
+        seed = top.integer("seed", 0, lo=0)
+    elif isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or seed < 0:
+        raise ScenarioError(file, "seed", f"must be an integer >= 0, got {seed!r}")
+    if frames is not None and (isinstance(frames, bool) or not isinstance(frames, (int, np.integer))
+                               or frames < 1):
+        raise ScenarioError(file, "frames", f"must be an integer >= 1, got {frames!r}")
+    src = top.table("source")
+    kind = src.raw("kind", "synthetic")
+    if kind not in SCENARIO_KINDS:
+        raise src.error("kind", f"must be one of {sorted(SCENARIO_KINDS)}, got {kind!r}")
+    return SCENARIO_KINDS[kind](raw, path, int(seed), None if frames is None else int(frames))

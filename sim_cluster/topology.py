@@ -1,0 +1,114 @@
+"""Communication graphs between cameras ``0..N-1`` (paper Sec. IV-B: complete, ring, chain,
+disconnected; plus star and an explicit edge list).
+
+A topology is an undirected adjacency ``{node: (neighbours...)}``. Ring and chain take an optional
+``order`` (a permutation of the nodes), as the paper's Fig. 4 averages several orderings.
+"""
+from __future__ import annotations
+
+import itertools
+from collections.abc import Sequence
+from pathlib import Path
+
+Adjacency = dict[int, tuple[int, ...]]
+NAMES = ("complete", "ring", "chain", "disconnected", "star")
+
+
+class TopologyError(ValueError):
+    """An unknown topology name or an edge list that does not describe a graph on ``0..N-1``."""
+
+
+def _from_edges(n: int, edges) -> Adjacency:
+    adj: dict[int, set[int]] = {i: set() for i in range(n)}
+    for a, b in edges:
+        if a == b:
+            continue
+        adj[a].add(b)
+        adj[b].add(a)
+    return {i: tuple(sorted(v)) for i, v in adj.items()}
+
+
+def build(name: str, n: int, order: Sequence[int] | None = None) -> Adjacency:
+    """The graph ``name`` on ``n`` nodes (``name`` may also be a path to an edge-list file)."""
+    if n < 1:
+        raise TopologyError(f"a network needs at least one node, got {n}")
+    order = list(range(n)) if order is None else list(order)
+    if sorted(order) != list(range(n)):
+        raise TopologyError(f"order {order} is not a permutation of 0..{n - 1}")
+    if name == "complete":
+        return _from_edges(n, itertools.combinations(range(n), 2))
+    if name == "chain":
+        return _from_edges(n, zip(order, order[1:]))
+    if name == "ring":
+        return _from_edges(n, zip(order, order[1:] + order[:1]) if n > 2 else zip(order, order[1:]))
+    if name == "disconnected":
+        return _from_edges(n, ())
+    if name == "star":
+        return _from_edges(n, ((order[0], o) for o in order[1:]))
+    path = Path(name)
+    if path.suffix or path.exists():
+        return from_file(path, n)
+    raise TopologyError(f"unknown topology {name!r}: use one of {', '.join(NAMES)}, "
+                        "'centralized', or a path to an edge-list file")
+
+
+def from_file(path: Path, n: int) -> Adjacency:
+    """An edge list: one edge per line as ``a b`` or ``a-b``; ``#`` starts a comment."""
+    try:
+        text = Path(path).read_text()
+    except OSError as e:
+        raise TopologyError(f"{path}: cannot read edge list ({e.strerror})") from None
+    edges = []
+    for lineno, line in enumerate(text.splitlines(), 1):
+        line = line.split("#", 1)[0].strip()
+        if not line:
+            continue
+        parts = line.replace("-", " ").replace(",", " ").split()
+        try:
+            a, b = (int(p) for p in parts)
+        except ValueError:
+            raise TopologyError(f"{path}:{lineno}: expected two node ids, got {line!r}") from None
+        for v in (a, b):
+            if not 0 <= v < n:
+                raise TopologyError(f"{path}:{lineno}: node {v} is not in 0..{n - 1}")
+        edges.append((a, b))
+    return _from_edges(n, edges)
+
+
+def orderings(name: str, n: int, count: int) -> list[list[int]]:
+    """Up to ``count`` distinct orderings of a ring or chain (distinct graphs), deterministic."""
+    if name not in ("ring", "chain"):
+        return [list(range(n))]
+    seen, out = set(), []
+    for perm in itertools.permutations(range(n)):
+        g = tuple(sorted((min(a, b), max(a, b)) for a, lst in build(name, n, perm).items()
+                         for b in lst))
+        if g not in seen:
+            seen.add(g)
+            out.append(list(perm))
+        if len(out) >= count:
+            break
+    return out
+
+
+def diameter(adj: Adjacency) -> int:
+    """Longest shortest path (hops) between connected nodes; 0 for isolated nodes."""
+    best = 0
+    for s in adj:
+        dist = {s: 0}
+        frontier = [s]
+        while frontier:
+            nxt = []
+            for u in frontier:
+                for v in adj[u]:
+                    if v not in dist:
+                        dist[v] = dist[u] + 1
+                        nxt.append(v)
+            frontier = nxt
+        best = max(best, max(dist.values()))
+    return best
+
+
+def links(adj: Adjacency) -> list[tuple[int, int]]:
+    """Directed links ``(src, dst)``: one message per frame on each."""
+    return [(a, b) for a in sorted(adj) for b in adj[a]]

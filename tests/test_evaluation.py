@@ -1,0 +1,168 @@
+"""Metrics on hand-built cases whose values are counted by hand here."""
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+from edge_node.core.types import Track
+from edge_node.geometry import Camera
+from sim_cluster.data import GroundTruth, ScenarioData
+from sim_cluster.evaluation import (
+    EvaluationError,
+    evaluate,
+    evaluate_ground,
+    evaluate_image,
+    iou_matrix,
+    visible_box,
+)
+
+UPM = 30.0  # ground units per metre in these cases, to exercise the conversion
+A, B = 1, 2
+FRAMES = 4
+
+
+def identity_camera(i: int) -> Camera:
+    """G = I: a ground point (x, y) is the pixel (x, y) and a cylinder (cx, fy, w, h) frames the
+    box (cx - w/2, fy - h, w, h): boxes are written down directly."""
+    return Camera(id=i, image_size=(1000, 1000), G=np.eye(3))
+
+
+def box_state(box: tuple[float, float, float, float]) -> np.ndarray:
+    """The state whose cylinder projects to ``box`` in an identity camera."""
+    x, y, w, h = box
+    return np.array([x + w / 2, y + h, w, h, 0.0, 0.0])
+
+
+BOX_A = (100.0, 100.0, 50.0, 100.0)
+BOX_B = (400.0, 100.0, 50.0, 100.0)
+XY_A = np.array([0.0, 0.0])  # metres
+XY_B = np.array([5.0, 0.0])
+
+
+def shifted(box, dx):
+    return (box[0] + dx, box[1], box[2], box[3])
+
+
+def scenario() -> ScenarioData:
+    ids = [np.array([A, B])] * FRAMES
+    xy = [np.stack([XY_A, XY_B]) * UPM] * FRAMES
+    wh = [np.array([[15.0, 52.0], [15.0, 52.0]])] * FRAMES
+    cam_boxes = [(np.array([A, B]), np.array([BOX_A, BOX_B]))] * FRAMES
+    truth = GroundTruth(ids=ids, xy=xy, wh=wh, boxes=[list(cam_boxes) for _ in range(3)])
+    return ScenarioData(name="hand", cameras=[identity_camera(i) for i in range(3)], frames=FRAMES,
+                        fps=25.0, units_per_metre=UPM, detections=[[[] for _ in range(3)]] * FRAMES,
+                        truth=truth)
+
+
+def test_iou_matrix_by_hand():
+    a = np.array([[0, 0, 10, 10]])
+    b = np.array([[5, 0, 10, 10], [0, 0, 10, 10], [20, 20, 5, 5]])
+    np.testing.assert_allclose(iou_matrix(a, b), [[50 / 150, 1.0, 0.0]])
+    assert iou_matrix(np.zeros((0, 4)), b).shape == (0, 3)
+
+
+def test_visible_box_filters_and_clips():
+    cam = identity_camera(0)
+    np.testing.assert_allclose(visible_box(cam, box_state((-20, 100, 50, 100))), [0, 100, 30, 100])
+    assert visible_box(cam, box_state((-200, 100, 50, 100))) is None  # entirely left of the image
+    assert visible_box(cam, box_state((100, 1000, 50, 100))) is None  # below the image
+
+
+# --- image view ------------------------------------------------------------------------------------
+def image_tracks_node1():
+    """t1 follows A; B is tracked by t2, missed, then t3 (one switch); t9 is a false positive;
+    t8 lies outside the image (ignored); at frame 3 t3 drifts below IoU 0.5 (FN + FP)."""
+    fp_box = (700.0, 500.0, 50.0, 100.0)
+    out_box = (-500.0, 100.0, 50.0, 100.0)
+    return [
+        [((1, 1), box_state(shifted(BOX_A, 0))), ((1, 2), box_state(shifted(BOX_B, 5)))],
+        [((1, 1), box_state(shifted(BOX_A, 10))), ((1, 9), box_state(fp_box)),
+         ((1, 8), box_state(out_box))],
+        [((1, 1), box_state(shifted(BOX_A, 0))), ((1, 3), box_state(shifted(BOX_B, 0)))],
+        [((1, 1), box_state(shifted(BOX_A, 5))), ((1, 3), box_state(shifted(BOX_B, 20)))],
+    ]
+
+
+def perfect_tracks(node: int):
+    """Track objects (core.types.Track) following A and B exactly."""
+    return [[Track(id=(node, 1), frame=k, x=box_state(BOX_A), P=np.eye(6), observed=True, ell=0),
+             Track(id=(node, 2), frame=k, x=box_state(BOX_B), P=np.eye(6), observed=True, ell=0)]
+            for k in range(FRAMES)]
+
+
+def test_image_view_by_hand():
+    tracks = {0: perfect_tracks(0), 1: image_tracks_node1(), 2: [[] for _ in range(FRAMES)]}
+    res = evaluate_image(tracks, scenario())
+    n1 = res["per_node"]["1"]
+    gt, fn, fp, idsw = 8, 2, 2, 1
+    assert (n1["num_objects"], n1["num_misses"], n1["num_false_positives"], n1["num_switches"]) == (
+        gt, fn, fp, idsw)
+    assert n1["num_predictions"] == 8  # t1 x4, t2, t9, t3 x2; t8 is outside the image
+    assert n1["mota"] == pytest.approx(1 - (fn + fp + idsw) / gt)
+    ious = [1.0, 45 / 55, 40 / 60, 1.0, 1.0, 45 / 55]  # IoU of a 50-px box shifted by dx: (50-dx)/(50+dx)
+    assert n1["num_matches"] + n1["num_switches"] == len(ious)
+    assert n1["motp"] == pytest.approx(np.mean(ious))
+    idtp = 4 + 1  # A<->t1 four frames; B<->t2 or B<->t3 one frame each within IoU 0.5
+    assert n1["idp"] == pytest.approx(idtp / 8)
+    assert n1["idr"] == pytest.approx(idtp / gt)
+    assert n1["idf1"] == pytest.approx(2 * idtp / (gt + 8))
+
+    n0, n2 = res["per_node"]["0"], res["per_node"]["2"]
+    assert n0["mota"] == 1.0 and n0["idf1"] == 1.0 and n0["motp"] == pytest.approx(1.0)
+    assert n2["mota"] == 0.0 and n2["num_misses"] == 8 and n2["motp"] is None and n2["idp"] is None
+
+    med = res["median"]
+    assert med["mota"] == pytest.approx(np.median([1.0, 1 - 5 / 8, 0.0]))
+    assert med["motp"] == pytest.approx((1.0 + np.mean(ious)) / 2)  # node 2 has no matches
+    assert med["num_misses"] == 2
+
+
+# --- ground view -----------------------------------------------------------------------------------
+def ground_tracks():
+    """Distances in metres to the matched person; t9 a far false positive at frames 1 and 3."""
+    def at(p, off):
+        return np.array([*(p + np.asarray(off)) * UPM, 15.0, 52.0, 0.0, 0.0])
+    far = np.array([20.0, 20.0])
+    return [
+        [((0, 1), at(XY_A, (0.3, 0))), ((0, 2), at(XY_B, (0, 0.4)))],
+        [((0, 1), at(XY_A, (0.3, 0.4))), ((0, 9), at(far, (0, 0)))],
+        [((0, 1), at(XY_A, (0, 0.2))), ((0, 3), at(XY_B, (0.1, 0)))],
+        [((0, 1), at(XY_A, (0, 0))), ((0, 3), at(XY_B, (0, -0.6))), ((0, 9), at(far, (0, 0)))],
+    ]
+
+
+def test_ground_view_by_hand():
+    res = evaluate_ground({0: ground_tracks()}, scenario(), threshold_m=1.0)
+    g = res["per_node"]["0"]
+    gt, fn, fp, idsw, npred = 8, 1, 2, 1, 9
+    assert (g["num_objects"], g["num_misses"], g["num_false_positives"], g["num_switches"],
+            g["num_predictions"]) == (gt, fn, fp, idsw, npred)
+    assert g["mota"] == pytest.approx(1 - (fn + fp + idsw) / gt)
+    assert g["motp_m"] == pytest.approx(np.mean([0.3, 0.4, 0.5, 0.2, 0.1, 0.0, 0.6]))
+    idtp = 4 + 2  # A<->t1, B<->t3
+    assert g["idp"] == pytest.approx(idtp / npred)
+    assert g["idr"] == pytest.approx(idtp / gt)
+    assert g["idf1"] == pytest.approx(2 * idtp / (gt + npred))
+    assert "motp" not in g
+    # A tighter threshold (0.45 m) turns the 0.5 m and 0.6 m matches into FN + FP.
+    t = evaluate_ground({0: ground_tracks()}, scenario(), threshold_m=0.45)["per_node"]["0"]
+    assert (t["num_misses"], t["num_false_positives"]) == (3, 4)
+
+
+def test_evaluate_is_json_and_median_over_three_nodes():
+    tracks = {0: perfect_tracks(0), 1: image_tracks_node1(), 2: [[] for _ in range(FRAMES)]}
+    res = evaluate(tracks, scenario())
+    json.dumps(res, allow_nan=False)
+    assert set(res) >= {"image", "ground", "ground_threshold_m"}
+    assert res["ground_threshold_m"] == 1.0 and res["frames"] == FRAMES
+    assert set(res["image"]["per_node"]) == {"0", "1", "2"}
+    assert set(res["ground"]["per_node"]) == {"0", "1", "2"}
+
+
+def test_bad_node_is_an_error():
+    with pytest.raises(EvaluationError, match="node 5"):
+        evaluate_image({5: [[]]}, scenario())
+    with pytest.raises(EvaluationError, match="track entry"):
+        evaluate_ground({0: [[42]]}, scenario())

@@ -1,0 +1,658 @@
+"""The wire contract: codec round trips, hostile input, reason tags, sizes, key expressions."""
+from __future__ import annotations
+
+import math
+import struct
+from typing import Any, Callable
+
+import msgpack
+import numpy as np
+import pytest
+from hypothesis import HealthCheck, assume, given, settings
+from hypothesis import strategies as st
+from hypothesis.extra import numpy as hnp
+
+from protocol import (
+    MAX_DESCRIPTORS,
+    MAX_NODE_ID,
+    MAX_WIRE_INT,
+    SCHEMA_VERSION,
+    FrameMessage,
+    Limits,
+    Merge,
+    ProtocolError,
+    TrackerInfo,
+    alive_key,
+    alive_pattern,
+    all_links_key,
+    decode,
+    encode,
+    inbox_key,
+    is_valid_network,
+    link_key,
+    parse_alive_key,
+    parse_link_key,
+    quantize,
+)
+
+SETTINGS = settings(max_examples=250, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+
+# ------------------------------------------------------------------------------------------------
+# Strategies
+
+node_ids = st.one_of(st.integers(0, 300), st.integers(0, MAX_NODE_ID))
+tracker_ids = st.tuples(node_ids, node_ids)
+networks = st.one_of(
+    st.sampled_from(["net", "terrace-sim", "lab_1", "réseau"]),
+    st.text(min_size=1, max_size=20).filter(is_valid_network),
+)
+f64 = st.floats(min_value=-1e30, max_value=1e30, allow_nan=False, allow_infinity=False)
+vec6 = hnp.arrays(np.float64, 6, elements=f64)
+mat6 = hnp.arrays(np.float64, (6, 6), elements=f64)
+
+
+@st.composite
+def appearances(draw: st.DrawFn) -> np.ndarray | None:
+    if draw(st.booleans()):
+        return None
+    n = draw(st.integers(1, MAX_DESCRIPTORS))
+    d = draw(st.integers(1, 16))
+    return draw(hnp.arrays(np.float64, (n, d), elements=st.floats(-6e4, 6e4)))
+
+
+@st.composite
+def trackers(draw: st.DrawFn, tid: tuple[int, int]) -> TrackerInfo:
+    measured = draw(st.booleans())
+    u = draw(vec6) if measured else np.zeros(6)
+    U = draw(mat6) if measured else np.zeros((6, 6))
+    return TrackerInfo(tid, draw(vec6), u, U, draw(st.integers(0, 10**6)), draw(appearances()))
+
+
+@st.composite
+def messages(draw: st.DrawFn, max_trackers: int = 6) -> FrameMessage:
+    ids = draw(st.lists(tracker_ids, max_size=max_trackers, unique=True))
+    merges = draw(st.lists(st.tuples(tracker_ids, tracker_ids).filter(lambda p: p[0] != p[1]), max_size=3))
+    return FrameMessage(
+        network=draw(networks),
+        sender=draw(node_ids),
+        frame=draw(st.integers(0, MAX_WIRE_INT)),
+        trackers=tuple(draw(trackers(tid)) for tid in ids),
+        merges=tuple(Merge(a, b) for a, b in merges),
+        sent_at=draw(st.one_of(st.just(0.0), st.floats(0, 4e9))),
+    )
+
+
+def assert_accepts_or_rejects(data: Any, **kw: Any) -> None:
+    """The decoder contract: a valid message (stable under re-encoding) or a ProtocolError."""
+    try:
+        m = decode(data, **kw)
+    except ProtocolError as e:
+        assert e.reason in ProtocolError.REASONS
+        assert not e.detail.startswith("internal:"), e.detail  # safety net must never fire
+        return
+    assert isinstance(m, FrameMessage)
+    again = encode(m)
+    assert decode(again) == m
+    assert encode(decode(again)) == again
+
+
+def sample_message(n: int = 2, appearance: bool = True) -> FrameMessage:
+    rng = np.random.default_rng(n)
+    ts = []
+    for i in range(n):
+        a = rng.normal(size=(6, 6))
+        app = rng.normal(size=(2, 8)) if appearance and i == 0 else None
+        ts.append(TrackerInfo((1, 100 + i), rng.normal(size=6) * 100, rng.normal(size=6), a @ a.T, i, app))
+    return FrameMessage("net", 1, 42, tuple(ts), (Merge((2, 5), (1, 100)),), sent_at=1.7e9)
+
+
+def wire_obj(m: FrameMessage | None = None) -> list[Any]:
+    return msgpack.unpackb(encode(m or sample_message()), raw=False)
+
+
+def pack(obj: Any) -> bytes:
+    return msgpack.packb(obj, use_bin_type=True)
+
+
+# ------------------------------------------------------------------------------------------------
+# Round trips
+
+
+@SETTINGS
+@given(messages())
+def test_round_trip_is_exact_on_quantised_values(m: FrameMessage) -> None:
+    data = encode(m)
+    q = quantize(m)
+    assert decode(data) == q
+    assert encode(q) == data
+    assert encode(decode(data)) == data
+    assert decode(encode(q)) == q
+    for t in decode(data).trackers:
+        for a in (t.x_bar, t.u, t.U) + (() if t.appearance is None else (t.appearance,)):
+            assert a.dtype == np.float64 and not a.flags.writeable
+        assert np.array_equal(t.U, t.U.T)
+
+
+def test_quantize_rounds_like_the_wire() -> None:
+    x = np.array([0.1, 1 / 3, 1e-3, 123456.789, -2.5, 7.0])
+    t = TrackerInfo((0, 1), x, x, np.diag(x), 0, np.full((1, 4), 0.1))
+    q = quantize(FrameMessage("n", 0, 0, (t,))).trackers[0]
+    assert np.array_equal(q.x_bar, x.astype(np.float32).astype(np.float64))
+    assert np.array_equal(q.appearance, np.full((1, 4), np.float16(0.1), dtype=np.float64))
+
+
+def test_U_upper_triangle_is_sent_and_rebuilt_symmetric() -> None:
+    U = np.arange(36, dtype=float).reshape(6, 6)  # not symmetric
+    t = TrackerInfo((0, 1), np.ones(6), np.ones(6), U, 0)
+    got = decode(encode(FrameMessage("n", 0, 0, (t,)))).trackers[0].U
+    assert np.array_equal(got, np.triu(U) + np.triu(U, 1).T)
+
+
+def test_tracker_without_measurement_sends_x_bar_only() -> None:
+    x = np.arange(6.0)
+    bare = TrackerInfo((0, 1), x, np.zeros(6), np.zeros((6, 6)), 0)
+    full = TrackerInfo((0, 1), x, np.ones(6), np.eye(6), 0)
+    n_bare = len(encode(FrameMessage("n", 0, 0, (bare,))))
+    n_full = len(encode(FrameMessage("n", 0, 0, (full,))))
+    assert n_full - n_bare == 4 * (6 + 21)
+    got = decode(encode(FrameMessage("n", 0, 0, (bare,)))).trackers[0]
+    assert got == bare
+
+
+def test_encode_accepts_numpy_scalars_and_lists() -> None:
+    t = TrackerInfo((np.int64(3), np.uint16(4)), [1, 2, 3, 4, 5, 6], np.zeros(6, np.float32),
+                    np.eye(6, dtype=np.int32), np.int32(2), [[0.5, 0.25]])
+    m = FrameMessage("n", np.int64(3), np.int64(9), (t,), sent_at=np.float32(1.5))
+    got = decode(encode(m))
+    assert got.sender == 3 and type(got.sender) is int and got.trackers[0].id == (3, 4)
+    assert got == quantize(m)
+
+
+def test_decode_accepts_bytearray_and_memoryview() -> None:
+    data = encode(sample_message())
+    assert decode(bytearray(data)) == decode(memoryview(data)) == decode(data)
+
+
+# ------------------------------------------------------------------------------------------------
+# Sizes: the headline bandwidth figures
+
+
+def _size_with(n: int, **kw: Any) -> int:
+    rng = np.random.default_rng(0)
+    ts = []
+    for i in range(n):
+        a = rng.normal(size=(6, 6))
+        ts.append(TrackerInfo((3, 1000 + i), rng.normal(size=6) * 500, rng.normal(size=6), a @ a.T, 4, **kw))
+    return len(encode(FrameMessage("terrace", 3, 123456, tuple(ts), sent_at=1.7e9)))
+
+
+def test_bytes_per_tracker_under_200() -> None:
+    per_tracker = (_size_with(11) - _size_with(1)) / 10
+    assert per_tracker < 200, per_tracker
+    assert per_tracker == 1 + 1 + 3 + 1 + 2 + 4 * 33  # array, camera, counter, ell, bin header, floats
+
+
+def test_bytes_per_appearance_2x512() -> None:
+    app = np.random.default_rng(1).normal(size=(2, 512))
+    per_appearance = _size_with(1, appearance=app) - _size_with(1)
+    assert per_appearance == 2 * 512 * 2 + 8  # float16 payload + [n, D, bin16] framing
+
+
+# ------------------------------------------------------------------------------------------------
+# Hostile input: only ProtocolError may come out
+
+
+@SETTINGS
+@given(st.binary(max_size=400))
+def test_random_bytes(data: bytes) -> None:
+    assert_accepts_or_rejects(data)
+
+
+@pytest.mark.parametrize("bad", [None, "text", 17, [1, 2], {"a": 1}, 1.5])
+def test_non_bytes_input(bad: Any) -> None:
+    with pytest.raises(ProtocolError) as e:
+        decode(bad)
+    assert e.value.reason == "malformed"
+
+
+_MUTATIONS: list[Callable[[bytes, st.DrawFn], bytes]] = [
+    lambda b, d: b[: d(st.integers(0, len(b) - 1))],  # truncate
+    lambda b, d: b + d(st.binary(min_size=1, max_size=8)),  # trailing bytes
+    lambda b, d: _set_byte(b, d(st.integers(0, len(b) - 1)), d(st.integers(0, 255))),
+    lambda b, d: _flip_bit(b, d(st.integers(0, 8 * len(b) - 1))),
+    lambda b, d: _splice(b, d(st.integers(0, len(b))), d(st.integers(0, 8)), d(st.binary(max_size=8))),
+]
+
+
+def _set_byte(b: bytes, i: int, v: int) -> bytes:
+    return b[:i] + bytes([v]) + b[i + 1 :]
+
+
+def _flip_bit(b: bytes, bit: int) -> bytes:
+    i = bit // 8
+    return b[:i] + bytes([b[i] ^ (1 << (bit % 8))]) + b[i + 1 :]
+
+
+def _splice(b: bytes, i: int, n: int, ins: bytes) -> bytes:
+    return b[:i] + ins + b[i + n :]
+
+
+@SETTINGS
+@given(messages(max_trackers=3), st.data())
+def test_byte_mutations(m: FrameMessage, data: st.DataObject) -> None:
+    raw = encode(m)
+    for _ in range(data.draw(st.integers(1, 3))):
+        raw = data.draw(st.sampled_from(_MUTATIONS))(raw, data.draw) or b"\x00"
+    assert_accepts_or_rejects(raw)
+
+
+nasty_values = st.one_of(
+    st.none(),
+    st.booleans(),
+    st.integers(-(2**63), 2**64 - 1),
+    st.sampled_from([0, 1, -1, 2, SCHEMA_VERSION + 1, 2**63, 2**64 - 1, -(2**63)]),
+    st.floats(),  # NaN and inf included
+    st.sampled_from([math.nan, math.inf, -math.inf, -0.0, -1.0, 0.0]),
+    st.text(max_size=8),
+    st.binary(max_size=140),
+    st.sampled_from([struct.pack("<6f", *[math.nan] * 6), struct.pack("<33f", *[math.inf] * 33),
+                     b"\x00\x7e" * 16, b"\x00\x7c" * 4, b"\x00" * 24, b"\x00" * 132]),
+    st.lists(st.integers(-3, 3), max_size=6),
+    st.dictionaries(st.text(max_size=3), st.integers(-5, 5), max_size=2),
+    st.builds(msgpack.ExtType, st.integers(0, 127), st.binary(max_size=4)),
+)
+
+
+def _paths(obj: Any, prefix: tuple[int, ...] = ()) -> list[tuple[int, ...]]:
+    out = [prefix]
+    if isinstance(obj, list):
+        for i, v in enumerate(obj):
+            out += _paths(v, prefix + (i,))
+    return out
+
+
+def _get(obj: Any, path: tuple[int, ...]) -> Any:
+    for i in path:
+        obj = obj[i]
+    return obj
+
+
+@SETTINGS
+@given(messages(max_trackers=3), st.data())
+def test_structural_mutations(m: FrameMessage, data: st.DataObject) -> None:
+    obj = msgpack.unpackb(encode(m), raw=False)
+    for _ in range(data.draw(st.integers(1, 3))):
+        path = data.draw(st.sampled_from(_paths(obj)))
+        op = data.draw(st.sampled_from(["replace", "delete", "append", "insert"]))
+        if not path:
+            if op == "replace":
+                obj = data.draw(nasty_values)
+            elif isinstance(obj, list):
+                obj.append(data.draw(nasty_values))
+            continue
+        parent, i = _get(obj, path[:-1]), path[-1]
+        if op == "replace":
+            parent[i] = data.draw(nasty_values)
+        elif op == "delete":
+            del parent[i]
+        elif op == "append":
+            parent.append(data.draw(nasty_values))
+        else:
+            parent.insert(i, data.draw(nasty_values))
+    assert_accepts_or_rejects(pack(obj))
+
+
+# ------------------------------------------------------------------------------------------------
+# Reason tags, one validation rule at a time
+
+NAN32 = struct.pack("<f", math.nan)
+INF32 = struct.pack("<f", math.inf)
+NAN16 = np.array([np.nan], dtype="<f2").tobytes()
+INF16 = np.array([np.inf], dtype="<f2").tobytes()
+
+# wire_obj() layout: [version, network, sender, frame, sent_at, trackers, merges];
+# trackers[0] = [cam, counter, ell, nums(132 B), [2, 8, f16 bytes]]; trackers[1] without appearance.
+
+
+def _edit(path: tuple[int, ...], value: Any) -> Callable[[list[Any]], Any]:
+    def f(o: list[Any]) -> list[Any]:
+        _get(o, path[:-1])[path[-1]] = value
+        return o
+
+    return f
+
+
+def _nums_with(bad: bytes, at: int) -> Callable[[list[Any]], Any]:
+    def f(o: list[Any]) -> list[Any]:
+        b = o[5][0][3]
+        o[5][0][3] = b[: 4 * at] + bad + b[4 * at + 4 :]
+        return o
+
+    return f
+
+
+def _app_with(bad: bytes) -> Callable[[list[Any]], Any]:
+    def f(o: list[Any]) -> list[Any]:
+        o[5][0][4][2] = bad + o[5][0][4][2][2:]
+        return o
+
+    return f
+
+
+def _dup_tracker(o: list[Any]) -> list[Any]:
+    o[5][1][0], o[5][1][1] = o[5][0][0], o[5][0][1]
+    return o
+
+
+def _append(path: tuple[int, ...], value: Any) -> Callable[[list[Any]], Any]:
+    def f(o: list[Any]) -> list[Any]:
+        _get(o, path).append(value)
+        return o
+
+    return f
+
+
+def _delete(path: tuple[int, ...]) -> Callable[[list[Any]], Any]:
+    def f(o: list[Any]) -> list[Any]:
+        del _get(o, path[:-1])[path[-1]]
+        return o
+
+    return f
+
+
+STRUCTURE_CASES: dict[str, tuple[Callable[[list[Any]], Any], str]] = {
+    "top-level map": (lambda o: {"v": 1}, "malformed"),
+    "top-level int": (lambda o: 1, "malformed"),
+    "empty array": (lambda o: [], "malformed"),
+    "version 2": (_edit((0,), SCHEMA_VERSION + 1), "version"),
+    "version 0": (_edit((0,), 0), "version"),
+    "version negative": (lambda o: [-1], "version"),
+    "future version, other layout": (lambda o: [SCHEMA_VERSION + 1, {"x": 1}], "version"),
+    "version as string": (_edit((0,), "1"), "malformed"),
+    "version as bool": (_edit((0,), True), "malformed"),
+    "extra message field": (_append((), 0), "malformed"),
+    "missing message field": (_delete((6,)), "malformed"),
+    "network int": (_edit((1,), 7), "malformed"),
+    "network empty": (_edit((1,), ""), "malformed"),
+    "network slash": (_edit((1,), "a/b"), "malformed"),
+    "network wildcard": (_edit((1,), "a*"), "malformed"),
+    "network space": (_edit((1,), "a b"), "malformed"),
+    "network too long": (_edit((1,), "a" * 65), "oversize"),
+    "network bytes": (_edit((1,), b"net"), "malformed"),
+    "sender negative": (_edit((2,), -1), "malformed"),
+    "sender bool": (_edit((2,), True), "malformed"),
+    "sender float": (_edit((2,), 1.0), "malformed"),
+    "sender too big": (_edit((2,), 2**64 - 1), "malformed"),
+    "frame negative": (_edit((3,), -5), "malformed"),
+    "frame nil": (_edit((3,), None), "malformed"),
+    "sent_at NaN": (_edit((4,), math.nan), "non_finite"),
+    "sent_at inf": (_edit((4,), math.inf), "non_finite"),
+    "sent_at negative": (_edit((4,), -1.0), "malformed"),
+    "sent_at int": (_edit((4,), 0), "malformed"),
+    "trackers map": (_edit((5,), {}), "malformed"),
+    "tracker not array": (_edit((5, 0), 3), "malformed"),
+    "tracker too short": (_delete((5, 1, 3)), "malformed"),
+    "tracker extra field": (_append((5, 0), 0), "malformed"),
+    "tracker camera negative": (_edit((5, 0, 0), -1), "malformed"),
+    "tracker counter float": (_edit((5, 0, 1), 2.0), "malformed"),
+    "ell negative": (_edit((5, 0, 2), -1), "malformed"),
+    "ell bool": (_edit((5, 0, 2), False), "malformed"),
+    "duplicate tracker ids": (_dup_tracker, "malformed"),
+    "x_bar NaN": (_nums_with(NAN32, 0), "non_finite"),
+    "u inf": (_nums_with(INF32, 7), "non_finite"),
+    "U NaN": (_nums_with(NAN32, 32), "non_finite"),
+    "nums short": (_edit((5, 0, 3), b"\x00" * 23), "malformed"),
+    "nums 7 floats": (_edit((5, 0, 3), b"\x00" * 28), "malformed"),
+    "nums as str": (_edit((5, 0, 3), "x" * 24), "malformed"),
+    "nums as list": (_edit((5, 0, 3), [0.0] * 6), "malformed"),
+    "appearance nil": (_edit((5, 0, 4), None), "malformed"),
+    "appearance NaN": (_app_with(NAN16), "non_finite"),
+    "appearance inf": (_app_with(INF16), "non_finite"),
+    "appearance length mismatch": (_edit((5, 0, 4, 1), 7), "malformed"),
+    "appearance n=0": (_edit((5, 0, 4, 0), 0), "malformed"),
+    "appearance D=0": (_edit((5, 0, 4, 1), 0), "malformed"),
+    "appearance n too big": (_edit((5, 0, 4, 0), MAX_DESCRIPTORS + 1), "oversize"),
+    "appearance D too big": (_edit((5, 0, 4, 1), 5000), "oversize"),
+    "appearance bytes as str": (_edit((5, 0, 4, 2), "ab"), "malformed"),
+    "merges map": (_edit((6,), {}), "malformed"),
+    "merge short": (_delete((6, 0, 3)), "malformed"),
+    "merge negative": (_edit((6, 0, 2), -1), "malformed"),
+    "self merge": (_edit((6, 0), [1, 1, 1, 1]), "malformed"),
+    "ext type": (_edit((5, 0, 3), msgpack.ExtType(5, b"abcd")), "malformed"),
+    "map with int key": (_edit((6, 0), {1: 2}), "malformed"),
+}
+
+
+@pytest.mark.parametrize("name", sorted(STRUCTURE_CASES))
+def test_reason_tags(name: str) -> None:
+    edit, reason = STRUCTURE_CASES[name]
+    data = pack(edit(wire_obj()))
+    with pytest.raises(ProtocolError) as e:
+        decode(data)
+    assert e.value.reason == reason, e.value
+
+
+def test_edit_helpers_leave_a_valid_base() -> None:
+    assert decode(pack(wire_obj())) == quantize(sample_message())
+
+
+@pytest.mark.parametrize(
+    "data, reason",
+    [
+        (b"", "malformed"),
+        (b"\xc1", "malformed"),  # never-used msgpack byte
+        (b"\xa2\xff\xfe", "malformed"),  # invalid UTF-8
+        (b"\x91" * 5000, "malformed"),  # nesting bomb
+        (b"\xdd\xff\xff\xff\xff", "oversize"),  # claims 4 billion elements
+    ],
+)
+def test_raw_bytes_reasons(data: bytes, reason: str) -> None:
+    with pytest.raises(ProtocolError) as e:
+        decode(data)
+    assert e.value.reason == reason
+
+
+def test_trailing_and_truncated_bytes() -> None:
+    data = encode(sample_message())
+    for bad in (data + b"\x00", data[:-1], data[: len(data) // 2]):
+        with pytest.raises(ProtocolError) as e:
+            decode(bad)
+        assert e.value.reason == "malformed"
+
+
+def test_oversize_limits() -> None:
+    m = sample_message(5)
+    data = encode(m)
+    for limits in (Limits(max_bytes=len(data) - 1), Limits(max_trackers=4), Limits(max_merges=1)):
+        with pytest.raises(ProtocolError) as e:
+            decode(data if limits.max_merges > 1 else pack(_append((6,), [9, 9, 8, 8])(wire_obj(m))),
+                   limits=limits)
+        assert e.value.reason == "oversize"
+    assert decode(data, limits=Limits(max_bytes=len(data), max_trackers=5)) == quantize(m)
+    many = FrameMessage("n", 0, 0, tuple(TrackerInfo((0, i), np.zeros(6), np.zeros(6), np.zeros((6, 6)), 0)
+                                         for i in range(20)))
+    with pytest.raises(ProtocolError) as e:  # tracker list longer than msgpack's array bound
+        decode(encode(many), limits=Limits(max_trackers=10, max_merges=10))
+    assert e.value.reason == "oversize"
+
+
+def test_sender_and_network_checks() -> None:
+    data = encode(sample_message())  # network "net", sender 1
+    assert decode(data, expect_network="net", expect_sender=1, allowed_senders={1, 2}).sender == 1
+    cases = [
+        (dict(expect_network="other"), "unknown_network"),
+        (dict(allowed_senders={2, 3}), "unknown_sender"),
+        (dict(allowed_senders=()), "unknown_sender"),
+        (dict(expect_sender=2), "forged_source"),
+        (dict(expect_sender=2, allowed_senders={1, 2}), "forged_source"),
+        (dict(expect_sender=7, allowed_senders={1, 2}), "unknown_sender"),  # link source not a neighbour
+    ]
+    for kw, reason in cases:
+        with pytest.raises(ProtocolError) as e:
+            decode(data, **kw)
+        assert e.value.reason == reason, kw
+
+
+# ------------------------------------------------------------------------------------------------
+# The encoder refuses to send garbage
+
+
+def _tracker(**kw: Any) -> TrackerInfo:
+    base = dict(id=(0, 1), x_bar=np.zeros(6), u=np.zeros(6), U=np.zeros((6, 6)), ell=0, appearance=None)
+    base.update(kw)
+    return TrackerInfo(**base)
+
+
+def _msg(**kw: Any) -> FrameMessage:
+    base: dict[str, Any] = dict(network="n", sender=0, frame=0, trackers=(_tracker(),))
+    base.update(kw)
+    return FrameMessage(**base)
+
+
+ENCODE_CASES: dict[str, tuple[Any, str]] = {
+    "not a message": ({"frame": 1}, "malformed"),
+    "x_bar NaN": (_msg(trackers=(_tracker(x_bar=np.array([np.nan, 0, 0, 0, 0, 0])),)), "non_finite"),
+    "U inf": (_msg(trackers=(_tracker(U=np.full((6, 6), np.inf)),)), "non_finite"),
+    "u overflows float32": (_msg(trackers=(_tracker(u=np.full(6, 1e39)),)), "non_finite"),
+    "appearance overflows float16": (_msg(trackers=(_tracker(appearance=np.full((1, 4), 1e5)),)), "non_finite"),
+    "appearance NaN": (_msg(trackers=(_tracker(appearance=np.full((1, 4), np.nan)),)), "non_finite"),
+    "sent_at NaN": (_msg(sent_at=math.nan), "non_finite"),
+    "sent_at negative": (_msg(sent_at=-1.0), "malformed"),
+    "sent_at str": (_msg(sent_at="now"), "malformed"),
+    "x_bar wrong shape": (_msg(trackers=(_tracker(x_bar=np.zeros(4)),)), "malformed"),
+    "U wrong shape": (_msg(trackers=(_tracker(U=np.zeros(36)),)), "malformed"),
+    "x_bar strings": (_msg(trackers=(_tracker(x_bar=np.array(list("abcdef"))),)), "malformed"),
+    "x_bar complex": (_msg(trackers=(_tracker(x_bar=np.zeros(6, complex)),)), "malformed"),
+    "x_bar ragged": (_msg(trackers=(_tracker(x_bar=[1, [2, 3]]),)), "malformed"),
+    "appearance 1-D": (_msg(trackers=(_tracker(appearance=np.zeros(4)),)), "malformed"),
+    "appearance empty": (_msg(trackers=(_tracker(appearance=np.zeros((0, 4))),)), "malformed"),
+    "appearance 3 rows": (_msg(trackers=(_tracker(appearance=np.zeros((3, 4))),)), "oversize"),
+    "duplicate ids": (_msg(trackers=(_tracker(), _tracker())), "malformed"),
+    "id not a pair": (_msg(trackers=(_tracker(id=(1, 2, 3)),)), "malformed"),
+    "id list": (_msg(trackers=(_tracker(id=[1, 2]),)), "malformed"),
+    "ell negative": (_msg(trackers=(_tracker(ell=-1),)), "malformed"),
+    "ell float": (_msg(trackers=(_tracker(ell=1.0),)), "malformed"),
+    "frame bool": (_msg(frame=True), "malformed"),
+    "sender too big": (_msg(sender=2**63), "malformed"),
+    "tracker not TrackerInfo": (_msg(trackers=("x",)), "malformed"),
+    "merge not Merge": (_msg(merges=(((0, 1), (0, 2)),)), "malformed"),
+    "self merge": (_msg(merges=(Merge((0, 1), (0, 1)),)), "malformed"),
+    "bad network": (_msg(network="a/b"), "malformed"),
+    "network too long": (_msg(network="a" * 65), "oversize"),
+    "version": (_msg(version=2), "version"),
+}
+
+
+@pytest.mark.parametrize("name", sorted(ENCODE_CASES))
+def test_encode_rejects(name: str) -> None:
+    msg, reason = ENCODE_CASES[name]
+    for fn in (encode, quantize):
+        with pytest.raises(ProtocolError) as e:
+            fn(msg)
+        assert e.value.reason == reason, (fn.__name__, e.value)
+
+
+def test_encode_respects_limits() -> None:
+    m = sample_message(3)
+    n = len(encode(m))
+    with pytest.raises(ProtocolError) as e:
+        encode(m, limits=Limits(max_bytes=n - 1))
+    assert e.value.reason == "oversize"
+    with pytest.raises(ProtocolError) as e:
+        encode(m, limits=Limits(max_trackers=2))
+    assert e.value.reason == "oversize"
+
+
+def test_limits_validate_themselves() -> None:
+    for bad in (0, -1, True, 1.5):
+        with pytest.raises(ValueError):
+            Limits(max_trackers=bad)
+
+
+# ------------------------------------------------------------------------------------------------
+# Key expressions
+
+
+@SETTINGS
+@given(networks, node_ids, node_ids)
+def test_key_round_trips(network: str, src: int, dst: int) -> None:
+    key = link_key(network, src, dst)
+    assert key == f"dmtt/{network}/link/{src}/{dst}"
+    assert parse_link_key(key) == (network, src, dst)
+    assert parse_alive_key(alive_key(network, src)) == (network, src)
+    assert inbox_key(network, dst) == f"dmtt/{network}/link/*/{dst}"
+    assert all_links_key(network) == f"dmtt/{network}/link/**"
+    assert alive_pattern(network) == f"dmtt/{network}/alive/*"
+
+
+def test_key_builders_accept_numpy_ints() -> None:
+    assert link_key("n", np.int64(2), np.uint8(3)) == "dmtt/n/link/2/3"
+
+
+class _KeyExprLike:
+    def __str__(self) -> str:
+        return "dmtt/n/alive/4"
+
+
+def test_parsers_accept_keyexpr_like_objects() -> None:
+    assert parse_alive_key(_KeyExprLike()) == ("n", 4)
+
+
+BAD_NETWORKS = ["", "a/b", "a*", "$a", "a?", "a#b", "a b", "a\tb", "a\nb", "\x00", "a" * 65, "é" * 33,
+                "\u200b", 5, None, b"net"]
+
+
+@pytest.mark.parametrize("network", BAD_NETWORKS, ids=repr)
+def test_builders_reject_bad_network(network: Any) -> None:
+    for build in (lambda: link_key(network, 0, 1), lambda: inbox_key(network, 1),
+                  lambda: all_links_key(network), lambda: alive_key(network, 0), lambda: alive_pattern(network)):
+        with pytest.raises(ProtocolError) as e:
+            build()
+        assert e.value.reason == "key"
+
+
+@pytest.mark.parametrize("node", [-1, True, 1.0, "1", None, 2**63, np.bool_(True)], ids=repr)
+def test_builders_reject_bad_node(node: Any) -> None:
+    for build in (lambda: link_key("n", node, 1), lambda: link_key("n", 1, node),
+                  lambda: inbox_key("n", node), lambda: alive_key("n", node)):
+        with pytest.raises(ProtocolError) as e:
+            build()
+        assert e.value.reason == "key"
+
+
+BAD_LINK_KEYS = [
+    "", "dmtt", "dmtt/n/link/1", "dmtt/n/link/1/2/3", "x/n/link/1/2", "dmtt/n/alive/1/2",
+    "dmtt//link/1/2", "dmtt/n*/link/1/2", "dmtt/n/link/*/2", "dmtt/n/link/**", "dmtt/n/link/01/2",
+    "dmtt/n/link/+1/2", "dmtt/n/link/-1/2", "dmtt/n/link/1 /2", "dmtt/n/link/١/2", "dmtt/n/link/1/",
+    "dmtt/n/link/1/9223372036854775808", "dmtt/n/link/1/99999999999999999999", "/dmtt/n/link/1/2",
+]
+
+
+@pytest.mark.parametrize("key", BAD_LINK_KEYS)
+def test_parse_link_key_rejects(key: str) -> None:
+    with pytest.raises(ProtocolError) as e:
+        parse_link_key(key)
+    assert e.value.reason == "key"
+
+
+@pytest.mark.parametrize("key", ["dmtt/n/alive", "dmtt/n/alive/*", "dmtt/n/link/1", "dmtt/n/alive/1/2",
+                                 "dmtt/n/alive/00", "dmtt/a b/alive/1", 12])
+def test_parse_alive_key_rejects(key: Any) -> None:
+    with pytest.raises(ProtocolError) as e:
+        parse_alive_key(key)
+    assert e.value.reason == "key"
+
+
+def test_max_node_id_is_accepted() -> None:
+    assert parse_link_key(link_key("n", MAX_NODE_ID, 0)) == ("n", MAX_NODE_ID, 0)
+
+
+@SETTINGS
+@given(st.text(max_size=40))
+def test_parsers_never_raise_anything_else(key: str) -> None:
+    for parse in (parse_link_key, parse_alive_key):
+        try:
+            parse(key)
+        except ProtocolError as e:
+            assert e.reason == "key"
+    assume(True)
