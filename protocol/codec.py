@@ -7,17 +7,21 @@ gallery descriptors) only for a tracker that is new to the sender, plus merge an
 Layout (msgpack, positional arrays, no keys)::
 
     message = [version, network, sender, frame, sent_at, trackers, merges]
-    tracker = [camera, counter, ell, nums]                 # no appearance
-            | [camera, counter, ell, nums, appearance]
+    tracker = [camera, counter, born, ell, nums]                 # no appearance
+            | [camera, counter, born, ell, nums, appearance]
     nums    = bin: little-endian float32 x_bar (6)                      # u = 0, U = 0
             | bin: little-endian float32 x_bar (6), u (6), triu(U) (21)  # row-major upper triangle
     appearance = [n, D, bin: little-endian float16, n * D values, row-major]
     merge   = [loser_camera, loser_counter, winner_camera, winner_counter]
 
-``version``, ``sender``, ``frame``, ``camera``, ``counter``, ``ell``, ``n`` and ``D`` are
+``version``, ``sender``, ``frame``, ``camera``, ``counter``, ``born``, ``ell``, ``n`` and ``D`` are
 non-negative integers (at most ``2**63 - 1``); ``sent_at`` is a float64; ``network`` a UTF-8
 string that is a valid key chunk (see ``protocol.keys``). A tracker whose ``u`` and ``U`` are all
 zero (no local measurement this frame) is sent as ``x_bar`` alone: 24 instead of 132 bytes.
+
+Measured sizes (tests/test_protocol.py): 138 bytes per tracker with a measurement (tracker
+counter >= 128), 30 bytes without; 2056 bytes per new tracker's 2 x 512 appearance; about 27
+bytes of message header. The paper reports 0.78 kB per tracker and 16.38 kB per appearance.
 
 Quantisation: ``encode`` rounds ``x_bar``, ``u`` and ``U`` to float32 and descriptors to float16;
 only the upper triangle of ``U`` is sent (``U`` is assumed symmetric) and ``decode`` rebuilds it
@@ -161,12 +165,16 @@ def _as_float_array(a: Any, shape: tuple[int, ...] | None, what: str) -> np.ndar
     return arr
 
 
-def _tracker_to_wire(t: Any, limits: Limits) -> tuple[TrackerId, int, np.ndarray, np.ndarray | None]:
-    """Validate one TrackerInfo; return its id, ell, float32 numbers and float16 descriptors."""
+_WireTracker = tuple[TrackerId, int, int, np.ndarray, np.ndarray | None]
+
+
+def _tracker_to_wire(t: Any, limits: Limits) -> _WireTracker:
+    """Validate one TrackerInfo; return id, born, ell, float32 numbers, float16 descriptors."""
     if not isinstance(t, TrackerInfo):
         raise _err("malformed", f"tracker must be a TrackerInfo, got {type(t).__name__}")
     tid = _as_id(t.id, "tracker id")
     ell = _as_int(t.ell, f"ell of {tid}")
+    born = _as_int(t.born, f"born of {tid}")
     x_bar = _as_float_array(t.x_bar, (_N,), f"x_bar of {tid}")
     u = _as_float_array(t.u, (_N,), f"u of {tid}")
     U = _as_float_array(t.U, (_N, _N), f"U of {tid}")
@@ -187,26 +195,33 @@ def _tracker_to_wire(t: Any, limits: Limits) -> tuple[TrackerId, int, np.ndarray
             app = a.astype(_F16)
         if not np.isfinite(app).all():
             raise _err("non_finite", f"appearance of {tid} overflows float16")
-    return tid, ell, nums, app
+    return tid, born, ell, nums, app
 
 
-def _validated(msg: Any, limits: Limits) -> tuple[FrameMessage, list[tuple[TrackerId, int, np.ndarray, np.ndarray | None]]]:
+def _validated(msg: Any, limits: Limits) -> tuple[FrameMessage, list[_WireTracker]]:
     """Check a FrameMessage against the wire rules; return it with normalised header fields."""
     if not isinstance(msg, FrameMessage):
         raise _err("malformed", f"expected a FrameMessage, got {type(msg).__name__}")
-    if isinstance(msg.version, bool) or msg.version != SCHEMA_VERSION:
+    version = msg.version
+    if isinstance(version, (bool, np.bool_)) or not isinstance(version, (int, np.integer)) \
+            or version != SCHEMA_VERSION:
         raise _err("version", f"cannot encode schema version {msg.version!r}")
     network = msg.network
-    if isinstance(network, str) and network.isprintable() and len(network.encode("utf-8")) > limits.max_network_len:
+    if (isinstance(network, str) and network.isprintable()
+            and len(network.encode("utf-8")) > limits.max_network_len):
         raise _err("oversize", "network name too long")
     if not is_valid_network(network):
         raise _err("malformed", f"invalid network name {network!r:.80}")
     sender = _as_int(msg.sender, "sender")
     frame = _as_int(msg.frame, "frame")
     sent_at = msg.sent_at
-    if isinstance(sent_at, (bool, np.bool_)) or not isinstance(sent_at, (int, float, np.integer, np.floating)):
+    if isinstance(sent_at, (bool, np.bool_)) or not isinstance(sent_at, (int, float, np.integer,
+                                                                          np.floating)):
         raise _err("malformed", f"sent_at must be a float, got {type(sent_at).__name__}")
-    sent_at = float(sent_at)
+    try:
+        sent_at = float(sent_at)
+    except OverflowError:  # an int beyond float range
+        raise _err("non_finite", "sent_at overflows float64") from None
     if not np.isfinite(sent_at):
         raise _err("non_finite", "sent_at is NaN or inf")
     if sent_at < 0:
@@ -247,8 +262,8 @@ def encode(msg: FrameMessage, *, limits: Limits = DEFAULT_LIMITS) -> bytes:
     """
     header, wire = _validated(msg, limits)
     trackers = []
-    for (cam, cnt), ell, nums, app in wire:
-        t: list[Any] = [cam, cnt, ell, nums.tobytes()]
+    for (cam, cnt), born, ell, nums, app in wire:
+        t: list[Any] = [cam, cnt, born, ell, nums.tobytes()]
         if app is not None:
             t.append([app.shape[0], app.shape[1], app.tobytes()])
         trackers.append(t)
@@ -270,9 +285,9 @@ def quantize(msg: FrameMessage, *, limits: Limits = DEFAULT_LIMITS) -> FrameMess
     """
     header, wire = _validated(msg, limits)
     trackers = []
-    for tid, ell, nums, app in wire:
+    for tid, born, ell, nums, app in wire:
         x_bar, u, U, appearance = _arrays_from_wire(nums, app)
-        trackers.append(TrackerInfo(tid, x_bar, u, U, ell, appearance))
+        trackers.append(TrackerInfo(tid, x_bar, u, U, ell, appearance, born))
     return FrameMessage(network=header.network, sender=header.sender, frame=header.frame,
                         trackers=tuple(trackers), merges=header.merges, sent_at=header.sent_at,
                         version=SCHEMA_VERSION)
@@ -294,18 +309,19 @@ def _wire_list(v: Any, lengths: tuple[int, ...], what: str) -> list[Any]:
 
 
 def _decode_tracker(t: Any, i: int, limits: Limits) -> TrackerInfo:
-    t = _wire_list(t, (4, 5), f"tracker {i}")
+    t = _wire_list(t, (5, 6), f"tracker {i}")
     tid = (_wire_int(t[0], f"tracker {i} camera"), _wire_int(t[1], f"tracker {i} counter"))
-    ell = _wire_int(t[2], f"ell of {tid}")
-    raw = t[3]
+    born = _wire_int(t[2], f"born of {tid}")
+    ell = _wire_int(t[3], f"ell of {tid}")
+    raw = t[4]
     if type(raw) is not bytes or len(raw) not in (4 * _NUMS_SHORT, 4 * _NUMS_FULL):
         raise _err("malformed", f"numbers of {tid} must be {4 * _NUMS_SHORT} or {4 * _NUMS_FULL} bytes")
     nums = np.frombuffer(raw, dtype=_F32)
     if not np.isfinite(nums).all():
         raise _err("non_finite", f"x_bar, u or U of {tid} has NaN or inf")
     app = None
-    if len(t) == 5:
-        a = _wire_list(t[4], (3,), f"appearance of {tid}")
+    if len(t) == 6:
+        a = _wire_list(t[5], (3,), f"appearance of {tid}")
         n, d = _wire_int(a[0], f"descriptor count of {tid}"), _wire_int(a[1], f"descriptor dim of {tid}")
         if n < 1 or d < 1:
             raise _err("malformed", f"appearance of {tid} has shape ({n}, {d})")
@@ -317,7 +333,7 @@ def _decode_tracker(t: Any, i: int, limits: Limits) -> TrackerInfo:
         if not np.isfinite(app).all():
             raise _err("non_finite", f"appearance of {tid} has NaN or inf")
     x_bar, u, U, appearance = _arrays_from_wire(nums, app)
-    return TrackerInfo(tid, x_bar, u, U, ell, appearance)
+    return TrackerInfo(tid, x_bar, u, U, ell, appearance, born)
 
 
 def _decode_obj(

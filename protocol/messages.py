@@ -28,6 +28,8 @@ class TrackerInfo:
            sender has no measurement of this target this frame. ``U`` is symmetric (6, 6).
     ell:   frames since the last association by any camera, as the sender knows it (eq. 9).
     appearance: ``(n, D)`` descriptors, only when the tracker is new to the sender.
+    born:  the frame its originating camera created it. Every camera ranks trackers by
+           ``(born, id)``, so when two trackers turn out to be one target, all keep the older.
     """
 
     id: TrackerId
@@ -36,11 +38,12 @@ class TrackerInfo:
     U: np.ndarray
     ell: int
     appearance: np.ndarray | None = None
+    born: int = 0
 
     def __eq__(self, other: object) -> bool:
         if not isinstance(other, TrackerInfo):
             return NotImplemented
-        if self.id != other.id or self.ell != other.ell:
+        if self.id != other.id or self.ell != other.ell or self.born != other.born:
             return False
         if not (np.array_equal(self.x_bar, other.x_bar) and np.array_equal(self.u, other.u)
                 and np.array_equal(self.U, other.U)):

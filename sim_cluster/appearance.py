@@ -32,6 +32,7 @@ _MASK64 = (1 << 64) - 1
 _TAG_IDENTITY = 0x1D
 _TAG_VIEW = 0x71E
 _TAG_SHARED = 0x5A
+_BLOCK = 512  # rows of noise drawn at a time
 
 
 class AppearanceError(ValueError):
@@ -154,9 +155,14 @@ class AppearanceModel:
             return out
         uniq, inverse = np.unique(ids, return_inverse=True)
         bases = np.stack([self.base(int(pid), camera) for pid in uniq])
-        noise = rng.standard_normal((n, self.params.dim))
-        noise *= (self.params.noise / np.sqrt(np.einsum("ij,ij->i", noise, noise)))[:, None]
-        np.add(bases[inverse.reshape(-1)], noise, out=out)
+        np.take(bases, inverse.reshape(-1), axis=0, out=out)
+        # Noise in row blocks through one reused buffer (same stream as one big draw).
+        buf = np.empty((min(n, _BLOCK), self.params.dim))
+        for s in range(0, n, _BLOCK):
+            blk = buf[: min(_BLOCK, n - s)]
+            rng.standard_normal(out=blk)
+            blk *= (self.params.noise / np.sqrt(np.einsum("ij,ij->i", blk, blk)))[:, None]
+            out[s:s + len(blk)] += blk
         out /= np.sqrt(np.einsum("ij,ij->i", out, out))[:, None]
         return out
 

@@ -187,9 +187,10 @@ def detect_frames(
     out: list[tuple[list[Detection], list[int]]] = [([], []) for _ in range(frames)]
     kept = np.flatnonzero(keep)
     kept = kept[np.argsort(frame[kept], kind="stable")]
-    for i, k, pid, s in zip(kept.tolist(), frame[kept].tolist(), ids[kept].tolist(),
-                            scores[kept].tolist()):
-        out[k][0].append(Detection(box=noisy[i], descriptor=desc[i], score=s))
+    kept_boxes, kept_desc = noisy[kept], desc[kept]  # compact: missed rows are not kept alive
+    for j, (k, pid, s) in enumerate(zip(frame[kept].tolist(), ids[kept].tolist(),
+                                        scores[kept].tolist())):
+        out[k][0].append(Detection(box=kept_boxes[j], descriptor=kept_desc[j], score=s))
         out[k][1].append(pid)
 
     # False positives last: theirs are the only parameter-dependent amounts of draws.

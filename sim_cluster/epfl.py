@@ -23,7 +23,10 @@ Ground truth built from the annotations (``GroundTruth``):
   itself an estimate, good to a few tens of centimetres.
 * ``wh[k]``: a per-person typical cylinder: the median over that person's annotations (boxes not
   touching the image border) of ``Camera.box_to_cylinder``'s width and height, in ground units;
-  about 0.5 m x 1.75 m (``units_per_metre`` scaled) when a person has no usable box.
+  0.5 m x 1.75 m (``units_per_metre`` scaled) when a person has no usable box. These are box
+  measures, consistent with what a tracker fed by ``box_to_cylinder`` estimates, not body sizes:
+  on Terrace about 30-37 x 90-99 units (~1.1 m x 3.2 m at 30 units/m), because annotated boxes
+  carry slack and, without ``P``, the height is the width times the box's aspect ratio.
 * ``boxes[c][k]``: camera ``c``'s annotated boxes at frame ``k``.
 
 Detections ("gt-replay"): each camera's annotated boxes go through ``detector_model.detect``, the

@@ -165,23 +165,81 @@ def _num_frames(nodes: Mapping[int, Mapping[int, Any]], scenario: ScenarioData,
 
 
 # -- per-view accumulators --------------------------------------------------------------------------
-def visible_box(camera: Camera, x: np.ndarray, clip: bool = True) -> np.ndarray | None:
-    """The box of cylinder ``x[:4]`` in ``camera`` if it is in front and overlaps the image, else None.
+def project_boxes(camera: Camera, cyl: np.ndarray) -> np.ndarray:
+    """``Camera.cylinder_to_box`` for many cylinders ``(n, >=4)`` -> ``(n, 4)`` boxes.
 
-    With ``clip`` the box is clipped to the image, like the annotated ground-truth boxes.
+    Vectorised for homography-only cameras (the same formula as ``cylinder_to_box``: the foot
+    point through ``G^-1``, the width from the ground Jacobian's first column, the height from the
+    cylinder's aspect); per cylinder through ``cylinder_to_box`` when the camera has ``P``.
     """
-    if not np.all(np.isfinite(x[:4])) or not camera.in_front(x[None, :2])[0]:
-        return None
-    box = camera.cylinder_to_box(x[:4])
-    if not np.all(np.isfinite(box)) or box[2] <= 0 or box[3] <= 0:
-        return None
+    c = np.atleast_2d(np.asarray(cyl, dtype=float))
+    if c.size == 0:
+        return np.zeros((0, 4))
+    if camera.P is not None:
+        return np.array([camera.cylinder_to_box(r[:4]) for r in c])
+    with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
+        foot = camera.to_image(c[:, :2])
+        s = camera.pixel_scale
+        G = camera.G
+        q = np.hstack([foot * s, np.ones((len(c), 1))]) @ G.T
+        w = q[:, 2:3]
+        col0 = (G[:2, 0][None, :] * w - q[:, :2] * G[2, 0]) / (w * w) * s
+        px_per_unit = 1.0 / np.maximum(np.linalg.norm(col0, axis=1), 1e-12)
+        bw = c[:, 2] * px_per_unit
+        bh = bw * c[:, 3] / np.maximum(c[:, 2], 1e-9)
+    return np.stack([foot[:, 0] - bw / 2.0, foot[:, 1] - bh, bw, bh], axis=1)
+
+
+def in_front(camera: Camera, xy: np.ndarray) -> np.ndarray:
+    """``Camera.in_front``, robust to the sign of a homography-only camera's ``G``.
+
+    A homography is defined up to scale, sign included; ``Camera.in_front`` (without ``P``) takes
+    a positive third coordinate of ``G^-1 [x, y, 1]`` as "in front", which is backwards for
+    calibrations published with the other sign (EPFL Terrace c0, Campus c0 and c1). The sign is
+    taken here from the ground point seen at the image's bottom centre, which is in front.
+    """
+    front = camera.in_front(xy)
+    if camera.P is None:
+        W, H = camera.image_size
+        ref = camera.to_ground(np.array([[W / 2.0, H - 1.0]]))
+        if np.all(np.isfinite(ref)) and not camera.in_front(ref)[0]:
+            front = ~front
+    return front
+
+
+def visible_boxes(camera: Camera, cyl: np.ndarray, clip: bool = True) -> tuple[np.ndarray, np.ndarray]:
+    """Boxes of cylinders ``(n, >=4)`` in ``camera`` and whether each is usable: finite, in front
+    of the camera, with positive size and overlapping the image. With ``clip`` the boxes are
+    clipped to the image, like the annotated ground-truth boxes. Returns ``(boxes, ok)``."""
+    c = np.asarray(cyl, dtype=float)
+    c = c.reshape(-1, c.shape[-1]) if c.size else np.zeros((0, 4))
+    ok = np.all(np.isfinite(c[:, :4]), axis=1)
+    boxes = np.full((len(c), 4), np.nan)
+    if not ok.any():
+        return boxes, ok
+    idx = np.flatnonzero(ok)
+    front = in_front(camera, c[idx, :2])
+    ok[idx[~front]] = False
+    idx = idx[front]
+    boxes[idx] = project_boxes(camera, c[idx])
     W, H = camera.image_size
-    x0, y0, x1, y1 = box[0], box[1], box[0] + box[2], box[1] + box[3]
-    if x1 <= 0 or y1 <= 0 or x0 >= W or y0 >= H:
-        return None
+    with np.errstate(invalid="ignore"):
+        b = boxes
+        x0, y0, x1, y1 = b[:, 0], b[:, 1], b[:, 0] + b[:, 2], b[:, 1] + b[:, 3]
+        ok &= np.all(np.isfinite(b), axis=1) & (b[:, 2] > 0) & (b[:, 3] > 0)
+        ok &= (x1 > 0) & (y1 > 0) & (x0 < W) & (y0 < H)
     if clip:
-        x0, y0, x1, y1 = max(x0, 0.0), max(y0, 0.0), min(x1, float(W)), min(y1, float(H))
-    return np.array([x0, y0, x1 - x0, y1 - y0])
+        x0, y0 = np.maximum(x0, 0.0), np.maximum(y0, 0.0)
+        x1, y1 = np.minimum(x1, float(W)), np.minimum(y1, float(H))
+        boxes = np.stack([x0, y0, x1 - x0, y1 - y0], axis=1)
+    boxes[~ok] = np.nan
+    return boxes, ok
+
+
+def visible_box(camera: Camera, x: np.ndarray, clip: bool = True) -> np.ndarray | None:
+    """The box of cylinder ``x[:4]`` in ``camera`` if usable (see :func:`visible_boxes`), else None."""
+    b, ok = visible_boxes(camera, np.asarray(x, dtype=float)[None, :4], clip)
+    return b[0] if ok[0] else None
 
 
 def image_accumulator(frames: Mapping[int, list[tuple[Any, np.ndarray]]], scenario: ScenarioData,
@@ -192,17 +250,19 @@ def image_accumulator(frames: Mapping[int, list[tuple[Any, np.ndarray]]], scenar
     gt_cam = scenario.truth.boxes[camera_index]
     acc = mm.MOTAccumulator(auto_id=False)
     hid = _IdMap()
+    rows = [(k, tid, x[:4]) for k in range(num_frames) for tid, x in frames.get(k, ())]
+    boxes, ok = visible_boxes(camera, np.array([r[2] for r in rows]).reshape(-1, 4), clip)
+    per_frame: list[list[int]] = [[] for _ in range(num_frames)]
+    for r, (k, _, _) in enumerate(rows):
+        if ok[r]:
+            per_frame[k].append(r)
     for k in range(num_frames):
         gt_ids, gt_boxes = gt_cam[k] if k < len(gt_cam) else (np.zeros(0, int), np.zeros((0, 4)))
-        hids, hboxes = [], []
-        for tid, x in frames.get(k, ()):
-            b = visible_box(camera, x, clip)
-            if b is not None:
-                hids.append(hid(tid))
-                hboxes.append(b)
-        d = iou_distances(np.asarray(gt_boxes).reshape(-1, 4), np.array(hboxes).reshape(-1, 4),
+        sel = per_frame[k]
+        d = iou_distances(np.asarray(gt_boxes).reshape(-1, 4), boxes[sel].reshape(-1, 4),
                           iou_threshold)
-        acc.update([int(i) for i in np.asarray(gt_ids).ravel()], hids, d, frameid=k)
+        acc.update([int(i) for i in np.asarray(gt_ids).ravel()], [hid(rows[r][1]) for r in sel],
+                   d, frameid=k)
     return acc
 
 

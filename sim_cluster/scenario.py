@@ -95,7 +95,10 @@ class Table:
         return f"{self.where}.{key}" if self.where else key
 
     def error(self, key: str | None, message: str) -> ScenarioError:
-        return ScenarioError(self.file, self.name(key) if key else (self.where or None), message)
+        """An error about ``key`` of this table, or about the whole table when ``key`` is None."""
+        if key:
+            return ScenarioError(self.file, self.name(key), message)
+        return ScenarioError(self.file, None, f"{self.where}: {message}" if self.where else message)
 
     def has(self, key: str) -> bool:
         return key in self.data
@@ -298,8 +301,9 @@ def _camera(t: Table, cid: int, fps: float) -> Camera:
                 raise t.error(None, "needs look_at, yaw_deg + pitch_deg, or a homography")
             roll = t.number("roll_deg", 0.0, lo=-180.0, hi=180.0)
             if t.has("fov_deg") == t.has("focal_px"):
-                raise t.error("fov_deg", "give exactly one of fov_deg and focal_px")
-            fov = t.number("fov_deg", lo=0.0, hi=180.0, lo_open=True, hi_open=True) if t.has("fov_deg") else None
+                raise t.error(None, "needs exactly one of fov_deg and focal_px")
+            fov = (t.number("fov_deg", lo=0.0, hi=180.0, lo_open=True, hi_open=True)
+                   if t.has("fov_deg") else None)
             focal = t.number("focal_px", lo=0.0, lo_open=True) if t.has("focal_px") else None
             pp = t.vector("principal_point", 2) if t.has("principal_point") else None
             cam = camera_from_pose(cid, image_size, pos, yaw, pitch, roll, focal_px=focal,
@@ -340,7 +344,11 @@ def parse_synthetic(raw: dict, path: Path, seed: int, frames: int | None = None)
     name = top.string("name", path.stem)
     top.string("description", "")
     top.integer("seed", 0, lo=0)  # validated; the resolved seed is passed in
-    n_frames = top.integer("frames", lo=1) if frames is None else frames
+    n_frames = top.integer("frames", None, lo=1)
+    if frames is not None:
+        n_frames = frames
+    elif n_frames is None:
+        raise top.error("frames", "is required (or pass frames=...)")
     fps = top.number("fps", 25.0, lo=0.0, lo_open=True)
 
     a = top.table("area")

@@ -3,7 +3,8 @@
 Ground units are metres. People are vertical cylinders ``(x, y, w, h)``. They enter from the
 area's border (from ``spawn_margin_m`` outside it), walk between random waypoints inside the area
 with a bounded turn rate, a light mutual repulsion (they swerve instead of walking through each
-other, so paths cross the way crowds do) and occasional pauses, and after their stay walk out
+other, so paths cross the way crowds do; a step that would make two cylinders overlap further
+is not taken) and occasional pauses, and after their stay walk out
 through the border and disappear; a replacement enters after a random gap, so about
 ``concurrent`` people are inside at any time.
 
@@ -52,6 +53,7 @@ _TAG_PEOPLE = 1
 _TAG_DETECT = 2
 _RING = 16  # silhouette samples per circle, as Camera.cylinder_to_box
 _GRID = (8, 16)  # occlusion sample grid (columns, rows) per box
+_SIDESTEPS = tuple(math.radians(a) for a in (0.0, -45.0, 45.0, -90.0, 90.0))
 
 
 class WorldError(ValueError):
@@ -140,7 +142,7 @@ class Trajectories:
 
 class _Person:
     __slots__ = ("pid", "pos", "heading", "speed", "wh", "target", "leaving", "leave_at",
-                 "pause_until", "start", "path", "arrive_r")
+                 "pause_until", "start", "path", "arrive_r", "stuck")
 
     def __init__(self, pid: int, pos: np.ndarray, heading: float, speed: float, wh: np.ndarray,
                  start: int, leave_at: int, arrive_r: float):
@@ -156,6 +158,7 @@ class _Person:
         self.start = start
         self.path: list[np.ndarray] = []
         self.arrive_r = arrive_r
+        self.stuck = 0
 
 
 def _border_point(area: tuple[float, float, float, float], margin: float,
@@ -204,7 +207,7 @@ def simulate_people(area: tuple[float, float, float, float], fps: float, frames:
         stay = rng.uniform(*params.stay_s)
         if inside:  # already inside at the start: an unknown part of the stay is over
             stay *= rng.uniform(0.1, 1.0)
-        arrive_r = max(0.3, 2.0 * speed / math.radians(params.turn_rate_dps))
+        arrive_r = max(0.6, 2.0 * speed / math.radians(params.turn_rate_dps))
         p = _Person(len(people) + 1, pos, 0.0, speed, wh, k, k + int(round(stay * fps)), arrive_r)
         p.target = _waypoint(area, params.waypoint_margin_m, rng, avoid=pos)
         d = p.target - pos
@@ -219,7 +222,11 @@ def simulate_people(area: tuple[float, float, float, float], fps: float, frames:
         seq += 1
 
     for _ in range(params.initial_count):
-        active.append(new_person(0, _waypoint(area, params.waypoint_margin_m, rng), inside=True))
+        for _try in range(20):  # initial places without overlaps, when there is room
+            pos = _waypoint(area, params.waypoint_margin_m, rng)
+            if all(math.hypot(*(pos - q.pos)) > 0.7 for q in active):
+                break
+        active.append(new_person(0, pos, inside=True))
     for _ in range(max(0, params.concurrent - params.initial_count)):
         schedule(0)
 
@@ -242,9 +249,11 @@ def simulate_people(area: tuple[float, float, float, float], fps: float, frames:
             wgt = np.clip((r_rep - dist) / r_rep, 0.0, None)
             unit = diff / np.maximum(dist, 1e-9)[..., None]
             side = np.stack([unit[..., 1], -unit[..., 0]], axis=-1)
-            rep = np.sum(wgt[..., None] * (unit + 0.5 * side), axis=1) * 1.5
+            rep = np.sum(wgt[..., None] * (unit + 0.5 * side), axis=1) * 2.0
         survivors: list[_Person] = []
-        for p, r in zip(active, rep):
+        cur = np.array([p.pos for p in active])  # live positions, for the no-overlap rule
+        radius = np.array([p.wh[0] / 2.0 for p in active])
+        for idx, (p, r) in enumerate(zip(active, rep)):
             if not p.leaving and k >= p.leave_at:
                 p.leaving = True
                 p.pause_until = -1
@@ -265,7 +274,26 @@ def simulate_people(area: tuple[float, float, float, float], fps: float, frames:
             p.heading += max(-max_turn, min(max_turn, dh))
             if k >= p.pause_until:
                 step = min(p.speed * dt, dist_t) if p.leaving else p.speed * dt
-                p.pos = p.pos + step * np.array([math.cos(p.heading), math.sin(p.heading)])
+                # Bodies do not overlap: a step may not bring two cylinders closer once they
+                # touch. A blocked walker sidesteps (right first), and after a second of being
+                # stuck picks another goal.
+                d_old = np.hypot(cur[:, 0] - p.pos[0], cur[:, 1] - p.pos[1])
+                moved = False
+                for turn in _SIDESTEPS:
+                    h = p.heading + turn
+                    new = p.pos + step * np.array([math.cos(h), math.sin(h)])
+                    d_new = np.hypot(cur[:, 0] - new[0], cur[:, 1] - new[1])
+                    touch = (d_new < radius + radius[idx]) & (d_new < d_old)
+                    touch[idx] = False
+                    if not touch.any():
+                        p.pos, moved = new, True
+                        cur[idx] = new
+                        break
+                p.stuck = 0 if moved else p.stuck + 1
+                if p.stuck > fps:
+                    p.stuck = 0
+                    p.target = (_border_point(area, params.spawn_margin_m, rng) if p.leaving
+                                else _waypoint(area, params.waypoint_margin_m, rng, avoid=p.pos))
             survivors.append(p)
         for _ in range(len(active) - len(survivors)):
             schedule(k + 1)

@@ -15,7 +15,9 @@ from sim_cluster.evaluation import (
     evaluate_ground,
     evaluate_image,
     iou_matrix,
+    project_boxes,
     visible_box,
+    visible_boxes,
 )
 
 UPM = 30.0  # ground units per metre in these cases, to exercise the conversion
@@ -68,6 +70,34 @@ def test_visible_box_filters_and_clips():
     np.testing.assert_allclose(visible_box(cam, box_state((-20, 100, 50, 100))), [0, 100, 30, 100])
     assert visible_box(cam, box_state((-200, 100, 50, 100))) is None  # entirely left of the image
     assert visible_box(cam, box_state((100, 1000, 50, 100))) is None  # below the image
+
+
+# EPFL Terrace c0's published homography: its third coordinate is negative for visible points.
+TERRACE_C0 = np.array([[-1.6688907435, -6.950230571, 940.69592392565],
+                       [1.1984806153, -10.749577832, 868.29873467315],
+                       [0.000406921, -0.0209324057, 0.42949125235]])
+
+
+def test_project_boxes_matches_cylinder_to_box():
+    rng = np.random.default_rng(0)
+    for scale in (1.0, 0.5):
+        cam = Camera(id=0, image_size=(360, 288), G=TERRACE_C0, pixel_scale=scale)
+        feet = rng.uniform([20, 120], [340, 280], (20, 2))
+        cyl = np.hstack([cam.to_ground(feet), rng.uniform([10, 40], [40, 110], (20, 2))])
+        np.testing.assert_allclose(project_boxes(cam, cyl),
+                                   [cam.cylinder_to_box(c) for c in cyl], rtol=1e-9, atol=1e-9)
+
+
+def test_visible_boxes_do_not_depend_on_the_homography_sign():
+    """A homography's sign is arbitrary; Camera.in_front alone rejects every point of a camera
+    published with the negative sign (EPFL Terrace c0, Campus c0/c1)."""
+    a = Camera(id=0, image_size=(360, 288), G=TERRACE_C0)
+    b = Camera(id=0, image_size=(360, 288), G=-TERRACE_C0)
+    cyl = np.hstack([a.to_ground(np.array([[100.0, 200.0], [300.0, 150.0]])), [[30, 90], [30, 90]]])
+    ba, oka = visible_boxes(a, cyl)
+    bb, okb = visible_boxes(b, cyl)
+    assert oka.all() and okb.all()
+    np.testing.assert_allclose(ba, bb)
 
 
 # --- image view ------------------------------------------------------------------------------------

@@ -22,6 +22,7 @@ class Gallery:
         self.capacity = capacity
         self.every = every
         self._items: deque[np.ndarray] = deque(maxlen=capacity)
+        self._matrix: np.ndarray | None = None  # cache of the stacked descriptors
         self._last_frame: int | None = None
         for d in descriptors:
             self._items.append(_unit(d))
@@ -40,17 +41,25 @@ class Gallery:
 
     def add(self, descriptor: np.ndarray, frame: int | None = None) -> None:
         self._items.append(_unit(descriptor))
+        self._matrix = None
         if frame is not None:
             self._last_frame = frame
+
+    def mark(self, frame: int) -> None:
+        """Start the ``every``-frame clock at ``frame`` (descriptors added at a tracker's birth)."""
+        self._last_frame = frame
 
     def extend(self, other: "Gallery") -> None:
         for d in other._items:
             self._items.append(d)
+        self._matrix = None
 
     def matrix(self) -> np.ndarray:
         if not self._items:
             return np.zeros((0, 0))
-        return np.stack(self._items)
+        if self._matrix is None:
+            self._matrix = np.stack(self._items)
+        return self._matrix
 
     def newest(self, n: int) -> np.ndarray:
         """The ``n`` most recent descriptors, shape ``(<=n, D)``."""
@@ -69,7 +78,7 @@ class Gallery:
         if not self._items or queries.size == 0:
             return np.full(len(queries), np.nan)
         Q = queries / np.maximum(np.linalg.norm(queries, axis=1, keepdims=True), 1e-12)
-        return 1.0 - np.max(Q @ self.matrix().T, axis=1)
+        return 1.0 - (Q @ self.matrix().T).max(axis=1)
 
     def distance_to(self, other: "Gallery") -> float:
         """Minimum cosine distance between any two descriptors of two galleries (re-id score)."""

@@ -80,8 +80,12 @@ def find_merges(views: Sequence[MergeView], streaks: dict[tuple[TrackerId, Track
     scored: list[tuple[float, TrackerId, TrackerId, bool]] = []
     alive: set[tuple[TrackerId, TrackerId]] = set()
     ordered = sorted(views, key=lambda v: v.id)
-    for i, a in enumerate(ordered):
-        for b in ordered[i + 1:]:
+    if len(ordered) > 1:
+        xy = np.stack([v.xy for v in ordered])
+        near = np.linalg.norm(xy[:, None] - xy[None], axis=2) < cfg.m(cfg.tau_gda)
+        rows, cols = np.nonzero(np.triu(near, 1))  # only nearby pairs are scored in full
+        for i, j in zip(rows.tolist(), cols.tolist()):
+            a, b = ordered[i], ordered[j]
             s = pair_score(a, b, cfg)
             if s is None:
                 continue

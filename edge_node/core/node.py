@@ -166,8 +166,7 @@ class CameraNode:
         cfg = self.cfg
         gallery = Gallery(cfg.gallery_size, cfg.gallery_every,
                           [o.descriptor for o in chain.observations if o.descriptor is not None])
-        if gallery:
-            gallery._last_frame = k
+        gallery.mark(k)
         tid: TrackerId | None = None
         if cfg.use_manager and self.old and len(gallery):
             tid = manager.reidentify(gallery, self.old, cfg)
