@@ -57,6 +57,14 @@ class Camera:
             raise GeometryError(f"camera {self.id}: homography must be a finite 3x3 matrix")
         if abs(np.linalg.det(G)) < 1e-15:
             raise GeometryError(f"camera {self.id}: homography is singular")
+        if self.P is None:
+            # A homography is defined up to scale, sign included; published calibrations use
+            # either sign. Fix it so that the image's bottom centre (always in front of the
+            # camera) has a positive homogeneous coordinate: then ``in_front`` is meaningful.
+            W, Hh = self.image_size
+            probe = G @ np.array([W / 2.0 * self.pixel_scale, Hh * self.pixel_scale, 1.0])
+            if probe[2] < 0:
+                G = -G
         object.__setattr__(self, "G", G)
         object.__setattr__(self, "G_inv", np.linalg.inv(G))
         if self.P is not None:

@@ -12,7 +12,7 @@ Layout (msgpack, positional arrays, no keys)::
     nums    = bin: little-endian float32 x_bar (6)                      # u = 0, U = 0
             | bin: little-endian float32 x_bar (6), u (6), triu(U) (21)  # row-major upper triangle
     appearance = [n, D, bin: little-endian float16, n * D values, row-major]
-    merge   = [loser_camera, loser_counter, winner_camera, winner_counter]
+    merge   = [loser_camera, loser_counter, winner_camera, winner_counter, winner_born]
 
 ``version``, ``sender``, ``frame``, ``camera``, ``counter``, ``born``, ``ell``, ``n`` and ``D`` are
 non-negative integers (at most ``2**63 - 1``); ``sent_at`` is a float64; ``network`` a UTF-8
@@ -240,9 +240,10 @@ def _validated(msg: Any, limits: Limits) -> tuple[FrameMessage, list[_WireTracke
         if not isinstance(m, Merge):
             raise _err("malformed", f"merge must be a Merge, got {type(m).__name__}")
         loser, winner = _as_id(m.loser, "merge loser"), _as_id(m.winner, "merge winner")
+        winner_born = _as_int(m.winner_born, "merge winner_born")
         if loser == winner:
             raise _err("malformed", f"merge of {loser} into itself")
-        merges.append(Merge(loser, winner))
+        merges.append(Merge(loser, winner, winner_born))
     header = FrameMessage(network=network, sender=sender, frame=frame, merges=tuple(merges),
                           sent_at=sent_at, version=SCHEMA_VERSION)
     return header, wire
@@ -267,7 +268,8 @@ def encode(msg: FrameMessage, *, limits: Limits = DEFAULT_LIMITS) -> bytes:
         if app is not None:
             t.append([app.shape[0], app.shape[1], app.tobytes()])
         trackers.append(t)
-    merges = [[m.loser[0], m.loser[1], m.winner[0], m.winner[1]] for m in header.merges]
+    merges = [[m.loser[0], m.loser[1], m.winner[0], m.winner[1], m.winner_born]
+              for m in header.merges]
     data = msgpack.packb(
         [SCHEMA_VERSION, header.network, header.sender, header.frame, header.sent_at, trackers, merges],
         use_bin_type=True,
@@ -377,12 +379,12 @@ def _decode_obj(
         raise _err("malformed", "duplicate tracker ids")
     out_merges = []
     for i, m in enumerate(merges):
-        m = _wire_list(m, (4,), f"merge {i}")
+        m = _wire_list(m, (5,), f"merge {i}")
         loser = (_wire_int(m[0], f"merge {i}"), _wire_int(m[1], f"merge {i}"))
         winner = (_wire_int(m[2], f"merge {i}"), _wire_int(m[3], f"merge {i}"))
         if loser == winner:
             raise _err("malformed", f"merge of {loser} into itself")
-        out_merges.append(Merge(loser, winner))
+        out_merges.append(Merge(loser, winner, _wire_int(m[4], f"merge {i} winner_born")))
     return FrameMessage(network=network, sender=sender, frame=frame, trackers=infos,
                         merges=tuple(out_merges), sent_at=sent_at, version=version)
 

@@ -55,10 +55,15 @@ class TrackerInfo:
 
 @dataclass(frozen=True)
 class Merge:
-    """Announcement that ``loser`` and ``winner`` are the same target; everyone keeps ``winner``."""
+    """Announcement that ``loser`` and ``winner`` are the same target; everyone keeps ``winner``.
+
+    ``winner_born`` is the winner's birth frame, so a camera that only held the loser renames
+    it with the winner's rank ``(born, id)`` intact.
+    """
 
     loser: TrackerId
     winner: TrackerId
+    winner_born: int = 0
 
 
 @dataclass(frozen=True)

@@ -502,7 +502,7 @@ def read_scenario_toml(path: Path) -> dict:
 
 
 def load_scenario(name_or_path: str | Path, seed: int | None = None,
-                  frames: int | None = None) -> ScenarioData:
+                  frames: int | None = None, data_root: str | Path | None = None) -> ScenarioData:
     """Load a scenario by preset name or file path. ``seed`` / ``frames`` override the file's.
 
     Same file + same seed gives identical detections.
@@ -522,4 +522,6 @@ def load_scenario(name_or_path: str | Path, seed: int | None = None,
     kind = src.raw("kind", "synthetic")
     if kind not in SCENARIO_KINDS:
         raise src.error("kind", f"must be one of {sorted(SCENARIO_KINDS)}, got {kind!r}")
+    if data_root is not None:  # the CLI's --data-root beats the file's and $DMTT_DATA
+        raw.setdefault("source", {})["data_root"] = str(Path(data_root).expanduser().resolve())
     return SCENARIO_KINDS[kind](raw, path, int(seed), None if frames is None else int(frames))

@@ -56,12 +56,18 @@ def consensus_gamma(M: np.ndarray) -> float:
 
 def correct(x_bar: np.ndarray, P: np.ndarray, y: np.ndarray, S: np.ndarray,
             neighbour_x_bars: Iterable[np.ndarray] = (),
-            own_x_bar_sent: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+            own_x_bar_sent: np.ndarray | None = None,
+            units_per_metre: float = 1.0) -> tuple[np.ndarray, np.ndarray]:
     """Eq. 4: ``x_hat = x_bar + M (y - S x_bar) + gamma M sum_j (x_bar_j - x_bar)``.
 
     ``own_x_bar_sent`` is this camera's prediction as its neighbours received it (rounded to the
     wire's precision); the consensus differences use it so that cameras that agree exactly see a
     zero consensus term. Returns ``(x_hat, M)``.
+
+    Units: the consensus term ``gamma M sum(...)`` is not unit-invariant (``M`` carries squared
+    ground units). It is evaluated with ``M`` in metres, ``M_m = M / units_per_metre^2``, so the
+    filter behaves identically whatever the calibration's ground unit (EPFL's is ~1/30 m; taken
+    literally there, every neighbour pulls with a weight near 1 and three neighbours oscillate).
     """
     M = gain(P, S)
     x_hat = x_bar + M @ (y - S @ x_bar)
@@ -70,7 +76,8 @@ def correct(x_bar: np.ndarray, P: np.ndarray, y: np.ndarray, S: np.ndarray,
     for xj in neighbour_x_bars:
         diff = diff + (np.asarray(xj, float) - ref)
     if np.any(diff):
-        x_hat = x_hat + consensus_gamma(M) * (M @ diff)
+        M_m = M / units_per_metre**2
+        x_hat = x_hat + consensus_gamma(M_m) * (M_m @ diff)
     return x_hat, M
 
 

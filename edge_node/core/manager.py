@@ -4,8 +4,10 @@
   minimum over the inclusive neighbourhood plus one; a tracker is dropped once ``ell > kappa``.
 * the distributed global data association: trackers of the same target coming from different
   cameras are found by Euclidean ground distance (``V = I``) and gallery appearance, and merged
-  under a deterministic winner (the smallest ``(camera, counter)`` id) so that every camera
-  converges on the same id.
+  under a deterministic winner so that every camera converges on the same id. The paper names
+  the smallest id for simultaneous initialisations; since duplicates also arise later (DESIGN.md),
+  the winner here is the *oldest* tracker, ``(born, id)`` smallest, which is the smallest id
+  among simultaneous births and keeps an established id when a late duplicate is merged into it.
 * re-identification: a new local tracker whose gallery matches an *old* (dropped) tracker's
   within ``epsilon`` takes the old id back.
 """
@@ -46,6 +48,11 @@ class MergeView:
     gallery: Gallery
     new: bool  # born or adopted this frame (the paper's simultaneous-initialisation case)
     seen_by: frozenset[int]  # cameras of this node that associated a measurement this frame
+    born: int = 0  # birth frame at the originating camera: the older tracker survives a merge
+
+    @property
+    def rank(self) -> tuple[int, TrackerId]:
+        return (self.born, self.id)
 
 
 def pair_score(a: MergeView, b: MergeView, cfg: TrackerConfig) -> float | None:
@@ -77,7 +84,7 @@ def find_merges(views: Sequence[MergeView], streaks: dict[tuple[TrackerId, Track
     e.g. one fed by a neighbour and one by the local camera). Each tracker merges at most once
     per frame, best score first; ties broken by ids, so the outcome is deterministic.
     """
-    scored: list[tuple[float, TrackerId, TrackerId, bool]] = []
+    scored: list[tuple[float, MergeView, MergeView, bool]] = []
     alive: set[tuple[TrackerId, TrackerId]] = set()
     ordered = sorted(views, key=lambda v: v.id)
     if len(ordered) > 1:
@@ -93,19 +100,19 @@ def find_merges(views: Sequence[MergeView], streaks: dict[tuple[TrackerId, Track
             alive.add(key)
             streaks[key] = streaks.get(key, 0) + 1
             ready = a.new or b.new or streaks[key] >= cfg.merge_frames
-            scored.append((s, a.id, b.id, ready))
+            scored.append((s, a, b, ready))
     for key in list(streaks):
         if key not in alive:
             del streaks[key]
     merges: list[tuple[TrackerId, TrackerId]] = []
     taken: set[TrackerId] = set()
-    for s, ida, idb, ready in sorted(scored):
-        if not ready or ida in taken or idb in taken:
+    for s, a, b, ready in sorted(scored, key=lambda e: (e[0], e[1].id, e[2].id)):
+        if not ready or a.id in taken or b.id in taken:
             continue
-        winner, loser = min(ida, idb), max(ida, idb)
-        merges.append((loser, winner))
-        taken.update((ida, idb))
-        streaks.pop((ida, idb), None)
+        winner, loser = (a, b) if a.rank < b.rank else (b, a)
+        merges.append((loser.id, winner.id))
+        taken.update((a.id, b.id))
+        streaks.pop((a.id, b.id), None)
     return merges
 
 

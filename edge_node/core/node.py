@@ -48,7 +48,8 @@ class Tracker:
     P: np.ndarray  # its covariance
     gallery: Gallery
     ell: int = 0  # eq. 9 after the last update
-    born: int = 0  # frame it appeared on this node
+    born: int = 0  # frame its originating camera created it (same on every node)
+    since: int = 0  # frame it appeared on this node
     announced: bool = False  # appearance already sent by this node
     # per-frame working values
     u: np.ndarray = field(default_factory=lambda: np.zeros(6))
@@ -94,6 +95,7 @@ class CameraNode:
         self.old: OrderedDict[TrackerId, Gallery] = OrderedDict()  # dropped, for re-id (DTM)
         self.dropped: OrderedDict[TrackerId, None] = OrderedDict()  # dropped ids (no DTM)
         self.aliases: dict[TrackerId, TrackerId] = {}
+        self._born: dict[TrackerId, int] = {}  # birth frame of every id this node has heard of
         self._announce: dict[tuple[TrackerId, TrackerId], int] = {}
         self._streaks: dict[tuple[TrackerId, TrackerId], int] = {}
         self._initiators = {c.id: Initiator(self.cfg) for c in self.cameras}
@@ -168,19 +170,23 @@ class CameraNode:
                           [o.descriptor for o in chain.observations if o.descriptor is not None])
         gallery.mark(k)
         tid: TrackerId | None = None
+        born = k
         if cfg.use_manager and self.old and len(gallery):
             tid = manager.reidentify(gallery, self.old, cfg)
             if tid is not None:
                 old_gallery = self.old.pop(tid)
                 old_gallery.extend(gallery)
                 gallery = old_gallery
+                born = self._born.get(tid, k)
                 self.stats.reidentified += 1
         if tid is None:
             tid = (self.id, self._counter)
             self._counter += 1
             self.stats.births += 1
         first, last = chain.observations[0], chain.observations[-1]
-        tr = Tracker(tid, quantize(birth_state(first.z)), self.P_birth.copy(), gallery, born=k)
+        tr = Tracker(tid, quantize(birth_state(first.z)), self.P_birth.copy(), gallery,
+                     born=born, since=k)
+        self._born[tid] = born
         tr.u, tr.U = dkf.information(last.z, last.R)
         tr.seen_by = {cam_id}
         self.trackers[tid] = tr
@@ -193,8 +199,9 @@ class CameraNode:
             if not tr.announced and len(tr.gallery):
                 app = tr.gallery.newest(MAX_DESCRIPTORS)
                 tr.announced = True
-            infos.append(TrackerInfo(tid, tr.x_bar_sent, tr.u.copy(), tr.U.copy(), tr.ell_sent, app))
-        merges = tuple(Merge(l, w) for (l, w) in sorted(self._announce))
+            infos.append(TrackerInfo(tid, tr.x_bar_sent, tr.u.copy(), tr.U.copy(), tr.ell_sent, app,
+                                     tr.born))
+        merges = tuple(Merge(l, w, self._born.get(w, 0)) for (l, w) in sorted(self._announce))
         self._announce = {key: n - 1 for key, n in self._announce.items() if n > 1}
         return FrameMessage(self.network, self.id, k, tuple(infos), merges)
 
@@ -215,7 +222,7 @@ class CameraNode:
 
         for m in msgs:
             for mg in m.merges:
-                self._merge(mg.loser, mg.winner)
+                self._merge(mg.loser, mg.winner, mg.winner_born)
 
         received: dict[TrackerId, list[TrackerInfo]] = {}
         for m in msgs:
@@ -236,15 +243,16 @@ class CameraNode:
             got = received.get(tid, [])
             y, S = dkf.fuse([(tr.u, tr.U)] + [(t.u, t.U) for t in got])
             tr.x_hat, tr.M = dkf.correct(tr.x_bar, tr.P, y, S, [t.x_bar for t in got],
-                                         own_x_bar_sent=tr.x_bar_sent)
+                                         own_x_bar_sent=tr.x_bar_sent,
+                                         units_per_metre=self.cfg.units_per_metre)
             if self.cfg.use_manager:
                 tr.ell = manager.ell_consensus(tr.ell_sent, [t.ell for t in got])
             else:
                 tr.ell = tr.ell_sent
 
         if self.cfg.use_manager:
-            views = [manager.MergeView(t.id, t.x_hat[:2], t.gallery, t.born == k,
-                                       frozenset(t.seen_by))
+            views = [manager.MergeView(t.id, t.x_hat[:2], t.gallery, t.since == k,
+                                       frozenset(t.seen_by), t.born)
                      for t in self.trackers.values()]
             for loser, winner in manager.find_merges(views, self._streaks, self.cfg):
                 self._merge(loser, winner)
@@ -279,18 +287,26 @@ class CameraNode:
             if t.appearance is not None and self.cfg.use_appearance:
                 for d in t.appearance:
                     gallery.add(d)
-        tr = Tracker(tid, np.array(src.x_bar, float), self.P_birth.copy(), gallery, born=k)
+        born = self._born.setdefault(tid, src.born)
+        tr = Tracker(tid, np.array(src.x_bar, float), self.P_birth.copy(), gallery, born=born,
+                     since=k)
         tr.ell_sent = ell
         tr.x_bar_sent = tr.x_bar
         self.trackers[tid] = tr
 
-    def _merge(self, loser: TrackerId, winner: TrackerId) -> None:
+    def rank(self, tid: TrackerId) -> tuple[int, TrackerId]:
+        """Merge order ``(born, id)``: the older tracker survives, ties to the smaller id."""
+        return (self._born.get(tid, 2**62), tid)
+
+    def _merge(self, loser: TrackerId, winner: TrackerId, winner_born: int | None = None) -> None:
         """Apply ``loser -> winner`` here and announce it (so it propagates hop by hop)."""
+        if winner_born is not None:
+            self._born.setdefault(winner, winner_born)
         loser = manager.resolve(loser, self.aliases)
         winner = manager.resolve(winner, self.aliases)
         if loser == winner:
             return
-        if winner > loser:  # the smallest id always survives, whoever announced it
+        if self.rank(winner) > self.rank(loser):  # the older always survives, whoever announced
             loser, winner = winner, loser
         self.aliases[loser] = winner
         key = (loser, winner)
@@ -303,6 +319,7 @@ class CameraNode:
             self.stats.merged += 1
         elif lt is not None:
             lt.id = winner
+            lt.born = self._born.get(winner, lt.born)
             lt.announced = False  # neighbours may not know the winner's appearance
             if winner in self.old:
                 lt.gallery.extend(self.old.pop(winner))
@@ -332,7 +349,7 @@ class CameraNode:
         w.gallery.extend(l.gallery)
         w.ell = min(w.ell, l.ell)
         w.ell_sent = min(w.ell_sent, l.ell_sent)
-        w.born = min(w.born, l.born)
+        w.since = min(w.since, l.since)
 
     def _drop(self, tid: TrackerId) -> None:
         tr = self.trackers.pop(tid)
