@@ -3,6 +3,7 @@
     sim_cluster run --scenario terrace-sim --topology ring --config dkf+lda+dtm --seed 0 --out DIR
     sim_cluster bench
     sim_cluster scenarios
+    sim_cluster ablation --scenarios terrace-sim,lab-sim --seeds 0-4 --out DIR
 """
 from __future__ import annotations
 
@@ -103,6 +104,15 @@ def cmd_bench(args) -> int:
     return bench_main(args)
 
 
+def cmd_ablation(args) -> int:
+    from sim_cluster.ablation import AblationError, main as ablation_main
+
+    try:
+        return ablation_main(args)
+    except AblationError as e:
+        raise CliError(str(e)) from None
+
+
 def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="sim_cluster", description=__doc__,
                                 formatter_class=argparse.RawDescriptionHelpFormatter)
@@ -137,6 +147,24 @@ def build_parser() -> argparse.ArgumentParser:
     b.add_argument("--frames", type=int, default=60)
     b.add_argument("--repeats", type=int, default=3)
     b.set_defaults(func=cmd_bench)
+
+    a = sub.add_parser("ablation", help="configs x topologies x seeds over scenarios (paper Fig. 3)")
+    a.add_argument("--scenarios", default="terrace-sim,lab-sim,campus-sim,terrace-gt,campus-gt",
+                   help="comma-separated presets or scenario files (missing data: skipped)")
+    a.add_argument("--seeds", default="0-4", help="e.g. 0-4 or 0,2,5 (default 0-4)")
+    a.add_argument("--configs", default=",".join(ABLATIONS),
+                   help=f"comma-separated, from {', '.join(ABLATIONS)} (default: all)")
+    a.add_argument("--topologies", default="complete,ring,chain,disconnected,centralized",
+                   help="comma-separated: complete, ring, chain, disconnected, star, centralized")
+    a.add_argument("--orderings", type=int, default=3,
+                   help="distinct camera orderings per ring / chain, averaged per seed (default 3)")
+    a.add_argument("--frames", type=int, default=None, help="frames per run (default: the scenario's)")
+    a.add_argument("--jobs", type=int, default=None, help="worker processes (default: all cores)")
+    a.add_argument("--data-root", default=None,
+                   help="folder holding epfl_pom/ (default: $DMTT_DATA or ../shared/data)")
+    a.add_argument("--out", default="runs/ablation")
+    a.add_argument("--quiet", action="store_true", help="no progress")
+    a.set_defaults(func=cmd_ablation)
     return p
 
 

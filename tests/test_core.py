@@ -163,3 +163,38 @@ def test_find_merges_needs_streak_for_established_trackers():
     # different appearance: never merged
     e = MergeView((1, 0), np.array([0.1, 0.0]), _gallery(2), True, frozenset())
     assert find_merges([a, e], {}, cfg) == []
+
+
+def test_tracker_is_unit_invariant():
+    """The same world in centimetres (units_per_metre=100) gives the same ids and the same
+    states scaled by 100: every length parameter is in metres and converted, and the consensus
+    term is evaluated in metres."""
+    from edge_node.geometry import Camera
+    from edge_node.core.node import CameraNode
+    from fakes import topdown_camera
+    from protocol import codec
+
+    def run(scale):
+        cfg = TrackerConfig(units_per_metre=scale)
+        adj = build("ring", 3)
+        nodes = {}
+        for i in adj:
+            G = topdown_camera(i, (0.1 * i, 0.0)).G.copy()
+            G[:2] *= scale  # image -> ground in the new unit
+            nodes[i] = CameraNode(Camera(i, (1000, 1000), G), adj[i], cfg, "t")
+        rng = np.random.default_rng(5)
+        out = []
+        for k in range(60):
+            dets = {i: [det(3 + 0.03 * k, 4.0, 1, rng), det(6.0, 3 + 0.02 * k, 2, rng)]
+                    for i in adj if (k + i) % 5}
+            msgs = {i: codec.encode(n.prepare(k, dets.get(i, []))) for i, n in nodes.items()}
+            out.append({i: n.update([codec.decode(msgs[j]) for j in n.neighbours])
+                        for i, n in nodes.items()})
+        return out
+
+    a, b = run(1.0), run(100.0)
+    for fa, fb in zip(a, b):
+        for i in fa:
+            assert [t.id for t in fa[i]] == [t.id for t in fb[i]]
+            for ta, tb in zip(fa[i], fb[i]):
+                np.testing.assert_allclose(tb.x / 100.0, ta.x, rtol=1e-4, atol=1e-5)

@@ -2,7 +2,9 @@
 
 Cost of pairing tracker ``i`` with measurement ``j``: ``s_a * s_d`` where ``s_d = d / alpha``
 (eq. 6) for a Mahalanobis distance ``d < tau`` (eq. 5) and ``s_a`` is the minimum cosine
-distance to the tracker's gallery (eq. 7). Pairs outside the gate are never assigned. The
+distance to the tracker's gallery (eq. 7). Pairs outside the gate are never assigned; nor
+(our addition) pairs whose appearance distance exceeds ``appearance_gate``, because the product
+cost lets a detection very close to a prediction win whatever it looks like. The
 assignment minimises the total cost (Hungarian, ``scipy.optimize.linear_sum_assignment``), not
 a greedy pick.
 """
@@ -75,10 +77,15 @@ def cost_matrix(trackers: Sequence[Candidate], obs: Sequence[Observation],
         return np.zeros((len(trackers), len(obs)))
     d = mahalanobis_matrix(trackers, obs)
     s_d = d / cfg.alpha_lda
+    allowed = d < cfg.tau
     cost = s_d
     if cfg.use_appearance:
-        cost = appearance_matrix(trackers, obs, cfg.unknown_appearance) * s_d
-    return np.where(d < cfg.tau, cost, FORBIDDEN)
+        s_a = appearance_matrix(trackers, obs, cfg.unknown_appearance)
+        cost = s_a * s_d
+        # With s_d close to 0 the product ignores appearance; a pair that is clearly two
+        # different people (s_a above the gate) is never assigned, however close.
+        allowed &= s_a <= cfg.appearance_gate
+    return np.where(allowed, cost, FORBIDDEN)
 
 
 def assign(cost: np.ndarray) -> list[tuple[int, int]]:

@@ -41,7 +41,7 @@ class TrackerConfig:
 
     # --- measurement model (H, R_i) ----------------------------------------------------------
     pixel_sigma: float = 2.0  # px, detector noise on box edges, propagated through the homography
-    calib_sigma: float = 0.25  # m, per-camera ground offset (calibration + foot point), see DESIGN
+    calib_sigma: float = 0.4  # m, per-camera ground offset (calibration + foot point), see DESIGN
     size_meas_floor: float = 0.05  # m, minimum sigma on measured w, h
     fixed_R: tuple[float, float] | None = None  # (sigma_xy, sigma_wh) in m: the paper's fixed R
 
@@ -54,10 +54,12 @@ class TrackerConfig:
     tau: float = 3.0  # Mahalanobis gate (standard deviations)
     alpha_lda: float = 3.0  # s_d = d / alpha_lda
     unknown_appearance: float = 0.5  # s_a when a tracker has no gallery yet
+    appearance_gate: float = 0.6  # pairs with s_a above this are never assigned (our addition)
 
     # --- gallery ------------------------------------------------------------------------------
     gallery_size: int = 20
     gallery_every: int = 20  # N: a new descriptor every N frames
+    gallery_admit: float = 0.35  # a descriptor joins only if s_a to the gallery is below this
 
     # --- tracker initialisation -----------------------------------------------------------------
     init_observations: int = 2  # paper: two observations in the local gallery
@@ -75,6 +77,9 @@ class TrackerConfig:
     epsilon: float = 0.25  # re-identification threshold on s_a against old trackers
     max_old_trackers: int = 200  # bounded memory of dropped trackers
 
+    # --- asynchronous operation (event-triggered consensus) ----------------------------------
+    staleness_frames: int = 2  # a neighbour's u, U older than this many frames is ignored
+
     def __post_init__(self) -> None:
         positive = ("units_per_metre", "fps", "accel_sigma", "pixel_sigma", "tau", "alpha_lda",
                     "birth_pos_sigma", "birth_size_sigma", "birth_vel_sigma", "candidate_gate",
@@ -84,13 +89,17 @@ class TrackerConfig:
             if not isinstance(v, (int, float)) or isinstance(v, bool) or not v > 0:
                 raise ConfigError(f"tracker.{name} must be a positive number, got {v!r}")
         nonneg = ("size_sigma", "calib_sigma", "unknown_appearance", "candidate_appearance",
-                  "merge_appearance", "epsilon")
+                  "merge_appearance", "epsilon", "appearance_gate", "gallery_admit")
         for name in nonneg:
             v = getattr(self, name)
             if not isinstance(v, (int, float)) or isinstance(v, bool) or not v >= 0:
                 raise ConfigError(f"tracker.{name} must be a non-negative number, got {v!r}")
         ints = ("gallery_size", "gallery_every", "init_observations", "candidate_max_age",
                 "merge_frames", "merge_announce_frames", "kappa", "max_old_trackers")
+        if (not isinstance(self.staleness_frames, int) or isinstance(self.staleness_frames, bool)
+                or self.staleness_frames < 0):
+            raise ConfigError(f"tracker.staleness_frames must be an integer >= 0, "
+                              f"got {self.staleness_frames!r}")
         for name in ints:
             v = getattr(self, name)
             if not isinstance(v, int) or isinstance(v, bool) or v < 1:

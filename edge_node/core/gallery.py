@@ -30,11 +30,15 @@ class Gallery:
     def __len__(self) -> int:
         return len(self._items)
 
-    def offer(self, descriptor: np.ndarray | None, frame: int) -> bool:
-        """Store ``descriptor`` if ``every`` frames have passed since the last one stored."""
+    def offer(self, descriptor: np.ndarray | None, frame: int, admit: float | None = None) -> bool:
+        """Store ``descriptor`` if ``every`` frames have passed since the last one stored and
+        (when ``admit`` is given) it is within ``admit`` of the gallery: a descriptor from a
+        wrong association must not teach the gallery another person's look."""
         if descriptor is None:
             return False
         if self._last_frame is not None and frame - self._last_frame < self.every:
+            return False
+        if admit is not None and self._items and self.distance(descriptor) > admit:
             return False
         self.add(descriptor, frame)
         return True

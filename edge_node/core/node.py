@@ -19,7 +19,7 @@ from __future__ import annotations
 
 from collections import OrderedDict
 from collections.abc import Iterable, Mapping, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
@@ -133,7 +133,7 @@ class CameraNode:
                 u, U = dkf.information(obs[j].z, obs[j].R)
                 tr.u, tr.U = tr.u + u, tr.U + U  # several cameras of one node add up (eq. 3)
                 tr.seen_by.add(cam.id)
-                tr.gallery.offer(obs[j].descriptor, k)
+                tr.gallery.offer(obs[j].descriptor, k, self.cfg.gallery_admit)
                 assigned.add(j)
             unassigned = [o for j, o in enumerate(obs) if j not in assigned]
             for chain in self._initiators[cam.id].step(k, unassigned):
@@ -208,17 +208,31 @@ class CameraNode:
     # ------------------------------------------------------------------------------------
     # update: merges, adoption, DKF consensus, DTM
     # ------------------------------------------------------------------------------------
-    def update(self, inbox: Iterable[FrameMessage]) -> list[Track]:
+    def update(self, inbox: Iterable[FrameMessage], stale_ok: bool = False) -> list[Track]:
+        """Consensus update of frame ``k`` with the neighbours' messages.
+
+        Synchronous operation (``stale_ok=False``) uses only messages of frame ``k``. With
+        ``stale_ok=True`` (the event-triggered variant) a neighbour's latest message may be older:
+        its ``x_bar`` is predicted forward to ``k`` and its ``ell`` aged by the frames it missed;
+        its ``u, U`` count only within ``staleness_frames`` (older measurement information would
+        pull the estimate to where the target was). Of several messages from one sender only the
+        newest is used, so duplicated and reordered deliveries are harmless. Messages from
+        other networks, non-neighbours and future frames are ignored (and counted).
+        """
         if not self._prepared:
             raise NodeStateError(f"node {self.id}: update() without prepare()")
         k = self._frame
-        msgs = []
+        latest: dict[int, FrameMessage] = {}
         for m in inbox:
-            if m.frame != k or m.sender not in self.neighbours or m.network != self.network:
+            ok = (m.sender in self.neighbours and m.network == self.network
+                  and (m.frame == k or (stale_ok and m.frame < k)))
+            if not ok:
                 self.stats.ignored_messages += 1
                 continue
-            msgs.append(m)
-        msgs.sort(key=lambda m: m.sender)
+            if m.sender not in latest or m.frame > latest[m.sender].frame:
+                latest[m.sender] = m
+        msgs = [latest[s] if latest[s].frame == k else self._age(latest[s], k)
+                for s in sorted(latest)]
 
         for m in msgs:
             for mg in m.merges:
@@ -267,7 +281,30 @@ class CameraNode:
             tracks.append(Track(tid, k, tr.x_hat.copy(), tr.M.copy(), bool(tr.seen_by), tr.ell))
             tr.x_bar, tr.P = dkf.predict(tr.x_hat, tr.M, self.A, self.Q)
         self._prepared = False
+        self._forget()
         return tracks
+
+    def _forget(self) -> None:
+        """Bound the memory of a long-running node: the oldest merge aliases and the birth
+        frames of ids no longer referenced go once the tables outgrow their limits."""
+        limit = 10 * self.cfg.max_old_trackers
+        while len(self.aliases) > limit:
+            del self.aliases[next(iter(self.aliases))]
+        if len(self._born) > 2 * limit:
+            keep = set(self.trackers) | set(self.old) | set(self.aliases) \
+                | set(self.aliases.values())
+            self._born = {t: b for t, b in self._born.items() if t in keep}
+
+    def _age(self, m: FrameMessage, k: int) -> FrameMessage:
+        """A neighbour's message of an earlier frame, brought to frame ``k``."""
+        age = k - m.frame
+        A = transition(age * self.cfg.dt)
+        keep = age <= self.cfg.staleness_frames
+        trackers = tuple(
+            replace(t, x_bar=A @ t.x_bar, ell=t.ell + age,
+                    u=t.u if keep else np.zeros(6), U=t.U if keep else np.zeros((6, 6)))
+            for t in m.trackers)
+        return replace(m, trackers=trackers, frame=k)
 
     def _adopt(self, k: int, tid: TrackerId, infos: list[TrackerInfo]) -> None:
         """A tracker heard of from neighbours but not held here (paper III-C, case 1)."""
