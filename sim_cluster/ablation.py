@@ -137,10 +137,11 @@ def parse_list(text: str | Sequence[str], allowed: Sequence[str] | None, what: s
 def plan(scenarios: Sequence[str], seeds: Sequence[int], configs: Sequence[str] = ABLATIONS,
          topologies: Sequence[str] = DEFAULT_TOPOLOGIES, *, cameras: Mapping[str, int],
          orderings: int = 3, frames: int | None = None,
-         data_root: str | None = None) -> list[Task]:
+         data_root: str | Mapping[str, str | None] | None = None) -> list[Task]:
     """Every run of the grid, in a fixed order: scenario, seed, config, topology, ordering.
 
     ``cameras[scenario]`` is the scenario's number of cameras (ring/chain orderings depend on it).
+    ``data_root`` is one folder for every scenario or a mapping scenario -> folder (or None).
     Runs of one (scenario, seed) are adjacent so a worker's scenario cache keeps hitting.
     """
     from sim_cluster.topology import orderings as topo_orderings
@@ -151,6 +152,7 @@ def plan(scenarios: Sequence[str], seeds: Sequence[int], configs: Sequence[str] 
     for scenario in scenarios:
         n = cameras[scenario]
         orders = {t: topo_orderings(t, n, orderings) for t in topologies if t in ORDERED}
+        root = data_root.get(scenario) if isinstance(data_root, Mapping) else data_root
         for seed in seeds:
             for config in configs:
                 for topology in topologies:
@@ -159,7 +161,7 @@ def plan(scenarios: Sequence[str], seeds: Sequence[int], configs: Sequence[str] 
                         if topology in ORDERED else [(0, None)])
                     for i, order in variants:
                         tasks.append(Task(len(tasks), scenario, int(seed), config, topology, i,
-                                          order, frames, data_root))
+                                          order, frames, root))
     return tasks
 
 
@@ -199,9 +201,12 @@ class _Progress:
         self.bar = None
         self.next_pct = 10
         if self.enabled and self.stream.isatty():
-            from tqdm import tqdm
-
-            self.bar = tqdm(total=total, desc="ablation", unit="run", file=self.stream)
+            try:
+                from tqdm import tqdm
+            except ImportError:  # not a declared dependency: fall back to plain lines
+                tqdm = None
+            if tqdm is not None:
+                self.bar = tqdm(total=total, desc="ablation", unit="run", file=self.stream)
 
     def step(self, label: str = "") -> None:
         self.done += 1
@@ -219,6 +224,13 @@ class _Progress:
                   f"~{_hms(left)} left", file=self.stream, flush=True)
             self.next_pct = pct - pct % 10 + 10
 
+    def write(self, message: str) -> None:
+        """A line that does not break the bar."""
+        if self.bar is not None:
+            self.bar.write(message, file=self.stream)
+        else:
+            print(message, file=self.stream, flush=True)
+
     def close(self) -> None:
         if self.bar is not None:
             self.bar.close()
@@ -234,16 +246,14 @@ def _label(t: Task) -> str:
     return f"{t.scenario} s{t.seed} {t.config} {t.topology}{o}"
 
 
-def execute(tasks: Sequence[Task], jobs: int = 1, progress: bool = True,
-            log=None) -> list[dict | None]:
+def execute(tasks: Sequence[Task], jobs: int = 1, progress: bool = True) -> list[dict | None]:
     """Run ``tasks`` (in parallel when ``jobs > 1``); results in task order, ``None`` for a run
-    that raised (reported on ``log``, default stderr)."""
-    log = log or sys.stderr
+    that raised (reported with one line on stderr)."""
     results: list[dict | None] = [None] * len(tasks)
     bar = _Progress(len(tasks), progress)
 
     def failed(t: Task, e: BaseException) -> None:
-        print(f"ablation: run failed ({_label(t)}): {type(e).__name__}: {e}", file=log, flush=True)
+        bar.write(f"ablation: run failed ({_label(t)}): {type(e).__name__}: {e}")
 
     try:
         if jobs <= 1 or len(tasks) <= 1:
@@ -545,6 +555,19 @@ def write_outputs(out: Path, rows: Sequence[Mapping], agg: Mapping, meta: Mappin
 
 
 # -- command ------------------------------------------------------------------------------------------
+def _uses_data_root(scenario: str) -> bool:
+    """Whether ``--data-root`` applies: only dataset kinds take it (``load_scenario`` puts it in
+    ``[source]``, which a synthetic scenario rejects as an unknown field)."""
+    from sim_cluster.scenario import ScenarioError, read_scenario_toml, resolve_scenario_path
+
+    try:
+        raw = read_scenario_toml(resolve_scenario_path(scenario))
+    except ScenarioError as e:
+        raise AblationError(str(e)) from None
+    source = raw.get("source")
+    return isinstance(source, dict) and source.get("kind", "synthetic") == "epfl-gt"
+
+
 def probe(scenarios: Sequence[str], seed: int, data_root: str | None,
           log=None) -> tuple[dict[str, dict], dict[str, str]]:
     """Load each scenario's first frame: its cameras, or why it is skipped (missing data).
@@ -558,8 +581,9 @@ def probe(scenarios: Sequence[str], seed: int, data_root: str | None,
     info: dict[str, dict] = {}
     skipped: dict[str, str] = {}
     for sc in scenarios:
+        root = data_root if _uses_data_root(sc) else None
         try:
-            d = load_scenario(sc, seed=seed, frames=1, data_root=data_root)
+            d = load_scenario(sc, seed=seed, frames=1, data_root=root)
         except ScenarioError as e:
             raise AblationError(str(e)) from None
         except OSError as e:  # epfl.DataNotFoundError: the data is not there
@@ -567,7 +591,7 @@ def probe(scenarios: Sequence[str], seed: int, data_root: str | None,
             print(f"ablation: skipping {sc}: {e}", file=log, flush=True)
             continue
         n = d.num_cameras
-        info[sc] = {"cameras": n,
+        info[sc] = {"cameras": n, "data_root": root,
                     "image_streaming_bytes_per_frame":
                         sum(3 * int(c.image_size[0]) * int(c.image_size[1]) for c in d.cameras),
                     "ring_is_complete": n > 1 and build("ring", n) == build("complete", n)}
@@ -596,7 +620,8 @@ def main(args) -> int:
         raise AblationError("nothing to run: every scenario was skipped")
     tasks = plan(runnable, seeds, configs, topologies,
                  cameras={s: info[s]["cameras"] for s in runnable},
-                 orderings=args.orderings, frames=args.frames, data_root=data_root)
+                 orderings=args.orderings, frames=args.frames,
+                 data_root={s: info[s]["data_root"] for s in runnable})
     quiet = getattr(args, "quiet", False)
     if not quiet:
         print(f"ablation: {len(tasks)} runs ({len(runnable)} scenario(s) x {len(seeds)} seed(s) x "

@@ -14,6 +14,8 @@ import numpy as np
 
 from edge_node.core.config import TrackerConfig
 from edge_node.core.node import CameraNode, NodeStats
+from edge_node.core.trigger import EventTrigger, TriggerConfig
+from edge_node.faults import NO_FAULTS, FaultPlan
 from edge_node.core.types import Track
 from protocol import codec
 from protocol.messages import FrameMessage
@@ -57,6 +59,8 @@ class RunResult:
     wire: WireCounters
     stats: dict[int, NodeStats]
     data: ScenarioData | None = None
+    mode: str = "sync"
+    sends: dict[int, tuple[int, int]] = field(default_factory=dict)  # async: entries (sent, skipped)
 
     def bandwidth(self) -> dict:
         """Measured bandwidth, beside nothing assumed: bytes the codec produced."""
@@ -83,6 +87,7 @@ class RunResult:
             "bandwidth": self.bandwidth(),
             "tracks": {"ids_per_node": ids},
             "manager": {str(n): vars(s) for n, s in sorted(self.stats.items())},
+            "mode": self.mode,
         }
 
 
@@ -104,9 +109,19 @@ def raw_detection_bytes(detections, camera_id: int, frame: int) -> bytes:
 
 def run_network(data: ScenarioData, adjacency: Adjacency | str, cfg: TrackerConfig, *,
                 topology_name: str | None = None, network: str = "sim",
-                frames: int | None = None,
+                frames: int | None = None, mode: str = "sync",
+                faults: FaultPlan = NO_FAULTS, trigger: TriggerConfig | None = None,
                 progress: Callable[[int, int], None] | None = None) -> RunResult:
-    """Run ``data`` through the network ``adjacency`` (or ``"centralized"``) with ``cfg``."""
+    """Run ``data`` through the network ``adjacency`` (or ``"centralized"``) with ``cfg``.
+
+    ``mode="sync"``: every node fuses its neighbours' frame-``k`` messages at frame ``k`` (a
+    message that arrives late is useless, as in the synchronous runtime). ``mode="async"``: the
+    event-triggered variant: a node sends only when ``EventTrigger`` says so, and fuses each
+    neighbour's latest message whatever its frame. ``faults`` loses, delays, duplicates and cuts
+    messages and crashes / restarts nodes, deterministically from its seed.
+    """
+    if mode not in ("sync", "async"):
+        raise ValueError(f"mode must be 'sync' or 'async', got {mode!r}")
     frames = data.frames if frames is None else min(frames, data.frames)
     cfg = cfg.with_(fps=data.fps, units_per_metre=data.units_per_metre)
     if adjacency == CENTRALIZED:
@@ -114,28 +129,70 @@ def run_network(data: ScenarioData, adjacency: Adjacency | str, cfg: TrackerConf
     n = data.num_cameras
     if sorted(adjacency) != list(range(n)):
         raise ValueError(f"topology has nodes {sorted(adjacency)}, scenario has cameras 0..{n - 1}")
-    nodes = {i: CameraNode(data.cameras[i], adjacency[i], cfg, network) for i in range(n)}
+    trigger = trigger or TriggerConfig()
+
+    def fresh(i: int, first_counter: int = 0) -> CameraNode:
+        return CameraNode(data.cameras[i], adjacency[i], cfg, network, first_counter=first_counter)
+
+    nodes: dict[int, CameraNode | None] = {i: fresh(i) for i in range(n)}
+    triggers = {i: EventTrigger(trigger, cfg.dt, cfg.units_per_metre) for i in range(n)}
+    retired: dict[int, NodeStats] = {}  # counters of a node's earlier lives (before a crash)
+    next_counter: dict[int, int] = {}  # a restarted node never reuses an id
     tracks: dict[int, list[list[Track]]] = {i: [] for i in range(n)}
     wire = WireCounters()
-    edges = links(adjacency)
+    in_flight: dict[int, list[tuple[int, int, bytes]]] = {}  # arrival frame -> (src, dst, bytes)
     for k in range(frames):
-        payloads: dict[int, tuple[FrameMessage, bytes, int]] = {}
+        for i in range(n):  # crashes and restarts
+            node = nodes[i]
+            if not faults.alive(i, k) and node is not None:
+                next_counter[i] = node.next_counter
+                retired[i] = _add_stats(retired.get(i), node.stats)
+                nodes[i] = None
+                triggers[i] = EventTrigger(trigger, cfg.dt, cfg.units_per_metre)
+            elif faults.alive(i, k) and node is None:  # a fresh process with an empty state
+                nodes[i] = fresh(i, next_counter.get(i, 0))
         for i, node in nodes.items():
+            if node is None:
+                continue
             msg = node.prepare(k, data.detections[k][i])
+            if mode == "async":
+                msg = triggers[i].filter(msg)
+                if msg is None:
+                    continue
             payload = codec.encode(msg)
-            payloads[i] = (msg, payload, _appearance_bytes(msg, payload) if adjacency[i] else 0)
-        inbox: dict[int, list[FrameMessage]] = {i: [] for i in nodes}
-        for src, dst in edges:
-            msg, payload, app = payloads[src]
-            wire.add(src, dst, payload, msg, app)
-            inbox[dst].append(codec.decode(payload, expect_network=network, expect_sender=src,
-                                           allowed_senders=adjacency[dst]))
+            app = _appearance_bytes(msg, payload) if adjacency[i] else 0
+            for dst in adjacency[i]:
+                wire.add(i, dst, payload, msg, app)
+                for delay in faults.deliveries(i, dst, k):
+                    in_flight.setdefault(k + delay, []).append((i, dst, payload))
+        arrived: dict[int, list[FrameMessage]] = {i: [] for i in range(n)}
+        for src, dst, payload in in_flight.pop(k, []):
+            if nodes[dst] is None:
+                continue  # a dead process receives nothing
+            msg = codec.decode(payload, expect_network=network, expect_sender=src,
+                               allowed_senders=adjacency[dst])
+            arrived[dst].append(msg)
         for i, node in nodes.items():
-            tracks[i].append(node.update(inbox[i]))
+            if node is None:
+                tracks[i].append([])
+                continue
+            if mode == "async":
+                tracks[i].append(node.update(arrived[i], stale_ok=True))
+            else:
+                tracks[i].append(node.update(arrived[i]))
         if progress:
             progress(k + 1, frames)
-    return RunResult(data.name, topology_name or "custom", cfg.ablation, data.seed, frames,
-                     adjacency, tracks, wire, {i: n.stats for i, n in nodes.items()}, data)
+    stats = {i: _add_stats(retired.get(i), nodes[i].stats if nodes[i] else None) for i in range(n)}
+    result = RunResult(data.name, topology_name or "custom", cfg.ablation, data.seed, frames,
+                       adjacency, tracks, wire, stats, data, mode=mode,
+                       sends={i: (t.entries_sent, t.entries_skipped) for i, t in triggers.items()})
+    return result
+
+
+def _add_stats(a: NodeStats | None, b: NodeStats | None) -> NodeStats:
+    if a is None or b is None:
+        return a or b or NodeStats()
+    return NodeStats(**{f: getattr(a, f) + getattr(b, f) for f in vars(a)})
 
 
 def _run_centralized(data: ScenarioData, cfg: TrackerConfig, frames: int, progress) -> RunResult:

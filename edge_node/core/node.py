@@ -80,7 +80,7 @@ class CameraNode:
 
     def __init__(self, cameras: Camera | Sequence[Camera], neighbours: Iterable[int] = (),
                  config: TrackerConfig | None = None, network: str = "dmtt",
-                 node_id: int | None = None):
+                 node_id: int | None = None, first_counter: int = 0):
         self.cameras: list[Camera] = [cameras] if isinstance(cameras, Camera) else list(cameras)
         if not self.cameras:
             raise ValueError("a node needs at least one camera")
@@ -96,10 +96,12 @@ class CameraNode:
         self.dropped: OrderedDict[TrackerId, None] = OrderedDict()  # dropped ids (no DTM)
         self.aliases: dict[TrackerId, TrackerId] = {}
         self._born: dict[TrackerId, int] = {}  # birth frame of every id this node has heard of
+        # event-triggered input: neighbour -> tracker -> (frame, entry, u/U already fused)
+        self._memory: dict[int, dict[TrackerId, tuple[int, TrackerInfo, bool]]] = {}
         self._announce: dict[tuple[TrackerId, TrackerId], int] = {}
         self._streaks: dict[tuple[TrackerId, TrackerId], int] = {}
         self._initiators = {c.id: Initiator(self.cfg) for c in self.cameras}
-        self._counter = 0
+        self._counter = int(first_counter)  # a restarted process continues, never reuses
         self._frame: int | None = None
         self._prepared = False
         self.stats = NodeStats()
@@ -211,32 +213,34 @@ class CameraNode:
     def update(self, inbox: Iterable[FrameMessage], stale_ok: bool = False) -> list[Track]:
         """Consensus update of frame ``k`` with the neighbours' messages.
 
-        Synchronous operation (``stale_ok=False``) uses only messages of frame ``k``. With
-        ``stale_ok=True`` (the event-triggered variant) a neighbour's latest message may be older:
-        its ``x_bar`` is predicted forward to ``k`` and its ``ell`` aged by the frames it missed;
-        its ``u, U`` count only within ``staleness_frames`` (older measurement information would
-        pull the estimate to where the target was). Of several messages from one sender only the
-        newest is used, so duplicated and reordered deliveries are harmless. Messages from
-        other networks, non-neighbours and future frames are ignored (and counted).
+        Synchronous operation (``stale_ok=False``) uses only messages of frame ``k``.
+
+        Event-triggered operation (``stale_ok=True``): neighbours send a tracker only when they
+        have something new about it (``trigger.EventTrigger``), and messages may come late, twice
+        or out of order. The node remembers each neighbour's newest entry per tracker; every
+        frame it uses those entries brought to frame ``k``: ``x_bar`` predicted forward, ``ell``
+        aged by the frames since, and ``u, U`` only once and only within ``staleness_frames``
+        (older measurement information would pull the estimate to where the target was).
+        Entries older than ``kappa`` frames are forgotten (a neighbour that died or dropped the
+        tracker). Messages from other networks, non-neighbours and future frames are ignored.
         """
         if not self._prepared:
             raise NodeStateError(f"node {self.id}: update() without prepare()")
         k = self._frame
-        latest: dict[int, FrameMessage] = {}
+        msgs: list[FrameMessage] = []
         for m in inbox:
             ok = (m.sender in self.neighbours and m.network == self.network
-                  and (m.frame == k or (stale_ok and m.frame < k)))
+                  and (m.frame == k or (stale_ok and k - self.cfg.kappa <= m.frame < k)))
             if not ok:
                 self.stats.ignored_messages += 1
                 continue
-            if m.sender not in latest or m.frame > latest[m.sender].frame:
-                latest[m.sender] = m
-        msgs = [latest[s] if latest[s].frame == k else self._age(latest[s], k)
-                for s in sorted(latest)]
-
+            msgs.append(m)
+        msgs.sort(key=lambda m: (m.sender, m.frame))
         for m in msgs:
             for mg in m.merges:
                 self._merge(mg.loser, mg.winner, mg.winner_born)
+        if stale_ok:
+            msgs = self._remembered(msgs, k)
 
         received: dict[TrackerId, list[TrackerInfo]] = {}
         for m in msgs:
@@ -295,16 +299,36 @@ class CameraNode:
                 | set(self.aliases.values())
             self._born = {t: b for t, b in self._born.items() if t in keep}
 
-    def _age(self, m: FrameMessage, k: int) -> FrameMessage:
-        """A neighbour's message of an earlier frame, brought to frame ``k``."""
-        age = k - m.frame
-        A = transition(age * self.cfg.dt)
-        keep = age <= self.cfg.staleness_frames
-        trackers = tuple(
-            replace(t, x_bar=A @ t.x_bar, ell=t.ell + age,
-                    u=t.u if keep else np.zeros(6), U=t.U if keep else np.zeros((6, 6)))
-            for t in m.trackers)
-        return replace(m, trackers=trackers, frame=k)
+    def _remembered(self, arrived: list[FrameMessage], k: int) -> list[FrameMessage]:
+        """Event-triggered input: store what arrived, return every neighbour's newest entry per
+        tracker brought to frame ``k`` (one message per neighbour)."""
+        for m in arrived:
+            mem = self._memory.setdefault(m.sender, {})
+            for t in m.trackers:
+                old = mem.get(t.id)
+                if old is None or m.frame > old[0]:
+                    mem[t.id] = (m.frame, t, False)
+        out = []
+        for sender in sorted(self._memory):
+            mem = self._memory[sender]
+            aged = []
+            for tid in sorted(mem):
+                frame, t, consumed = mem[tid]
+                age = k - frame
+                if age > self.cfg.kappa:
+                    del mem[tid]
+                    continue
+                keep_info = not consumed and age <= self.cfg.staleness_frames
+                mem[tid] = (frame, t, True)  # its u, U are fused at most once
+                if age == 0 and keep_info:
+                    aged.append(t)
+                    continue
+                A = transition(age * self.cfg.dt)
+                aged.append(replace(t, x_bar=A @ t.x_bar, ell=t.ell + age,
+                                    u=t.u if keep_info else np.zeros(6),
+                                    U=t.U if keep_info else np.zeros((6, 6))))
+            out.append(FrameMessage(self.network, sender, k, tuple(aged)))
+        return out
 
     def _adopt(self, k: int, tid: TrackerId, infos: list[TrackerInfo]) -> None:
         """A tracker heard of from neighbours but not held here (paper III-C, case 1)."""
@@ -401,6 +425,11 @@ class CameraNode:
                 self.dropped.popitem(last=False)
 
     # ------------------------------------------------------------------------------------
+    @property
+    def next_counter(self) -> int:
+        """The counter the next new tracker of this node will get (persist it across restarts)."""
+        return self._counter
+
     @property
     def frame(self) -> int | None:
         return self._frame

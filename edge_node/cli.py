@@ -1,0 +1,104 @@
+"""``edge_node``: run one camera of the network as its own process.
+
+    edge_node run   --config cam0.toml [--frames N] [--mode sync|async] [--log-level INFO]
+    edge_node check --config cam0.toml       # validate and print the resolved config (JSON)
+
+Exit codes: 0 done (or stopped by SIGINT / SIGTERM), 1 internal error, 2 bad command line /
+config / source files, 3 start-up barrier timed out, 4 Zenoh could not start
+(``edge_node/runtime/loop.py``). Errors are one line on stderr. Zenoh is imported only by ``run``.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import logging
+import sys
+
+PROG = "edge_node"
+
+
+class _Parser(argparse.ArgumentParser):
+    def error(self, message: str):  # one line, exit 2
+        sys.stderr.write(f"{self.prog}: error: {message}\n")
+        raise SystemExit(2)
+
+
+def _parser() -> argparse.ArgumentParser:
+    p = _Parser(prog=PROG, description="One camera node of the distributed tracker.")
+    sub = p.add_subparsers(dest="command", metavar="{run,check}", parser_class=_Parser)
+    sub.required = True
+    r = sub.add_parser("run", help="run this camera's tracker and exchange messages over Zenoh")
+    r.add_argument("--config", required=True, help="camera config TOML file")
+    r.add_argument("--frames", type=int, default=None, help="process at most N frames")
+    r.add_argument("--mode", choices=("sync", "async"), default=None,
+                   help="override [runtime] mode")
+    r.add_argument("--log-level", default="INFO",
+                   choices=("DEBUG", "INFO", "WARNING", "ERROR", "debug", "info", "warning", "error"))
+    c = sub.add_parser("check", help="validate the config and print it resolved")
+    c.add_argument("--config", required=True, help="camera config TOML file")
+    return p
+
+
+def _fail(message: str, code: int = 2) -> int:
+    sys.stderr.write(f"{PROG}: error: {message}\n")
+    return code
+
+
+def _check(args) -> int:
+    from edge_node.runtime.config import NodeConfigError, load_node_config
+    from edge_node.runtime.sources import SourceError, open_source
+
+    try:
+        cfg = load_node_config(args.config)
+        d = cfg.to_dict()
+        if cfg.source.kind == "det-file":  # cheap: one camera's files
+            src = open_source(cfg)
+            d["resolved"] = {"frames": src.frames, "fps": src.fps,
+                             "units_per_metre": src.units_per_metre,
+                             "camera_image_size": list(src.camera.image_size)}
+    except (NodeConfigError, SourceError) as e:
+        return _fail(str(e))
+    print(json.dumps(d, indent=1))
+    return 0
+
+
+def _run(args) -> int:
+    from edge_node.runtime import loop
+    from edge_node.runtime.config import NodeConfigError, load_node_config
+    from edge_node.runtime.sources import SourceError
+
+    logging.basicConfig(level=args.log_level.upper(), stream=sys.stderr,
+                        format="%(asctime)s %(name)s %(levelname)s: %(message)s")
+    if args.frames is not None and args.frames < 1:
+        return _fail(f"--frames must be >= 1, got {args.frames}")
+    try:
+        cfg = load_node_config(args.config)
+    except NodeConfigError as e:
+        return _fail(str(e))
+    from edge_node.runtime.transport import StartupError, TransportError  # imports zenoh lazily
+
+    try:
+        report = loop.run_node(cfg, frames=args.frames, mode=args.mode)
+    except (NodeConfigError, SourceError) as e:
+        return _fail(str(e), loop.EXIT_USAGE)
+    except StartupError as e:
+        return _fail(str(e), loop.EXIT_STARTUP)
+    except TransportError as e:
+        return _fail(str(e), loop.EXIT_TRANSPORT)
+    except KeyboardInterrupt:
+        return _fail("interrupted", 130)
+    except Exception as e:  # noqa: BLE001 - log the traceback, one line on stderr
+        logging.getLogger("edge_node").exception("internal error")
+        return _fail(f"internal error: {type(e).__name__}: {e}", loop.EXIT_FAILURE)
+    return report.exit_code
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = _parser().parse_args(argv)
+    if args.command == "check":
+        return _check(args)
+    return _run(args)
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,511 @@
+"""The camera-process configuration: one TOML file per camera, validated on load.
+
+Every error is a :class:`NodeConfigError` naming the file and the field, e.g.
+``cam0.toml: zenoh.listen[0] must be an endpoint like tcp/127.0.0.1:7447, got 'x'``.
+Unknown fields are errors (a typo must not silently fall back to a default). Relative paths
+are relative to the directory of the TOML file.
+
+Schema (defaults in brackets)::
+
+    node = 0                        # this node's id (non-negative int); also its camera id
+    network = "terrace"             # network name: one Zenoh key chunk (protocol.keys)
+    neighbours = [1, 3]             # ids of the nodes this one exchanges messages with
+
+    [zenoh]
+    listen = ["tcp/127.0.0.1:7447"] # endpoints this node listens on                      [[]]
+    connect = ["tcp/127.0.0.1:7448"]# endpoints of neighbours to connect to               [[]]
+    scouting = false                # multicast scouting                                   [false]
+    gossip = false                  # gossip scouting (turns a chain into a full mesh)      [false]
+    lease_ms = 1000                 # optional: link lease (how soon a frozen peer is gone) [Zenoh's]
+    config_file = "peer.json5"      # optional: a Zenoh json5 config to start from (TLS, ACL...)
+
+    [runtime]
+    mode = "sync"                   # "sync" | "async"                                     ["sync"]
+    sync_timeout_s = 1.0            # sync: how long frame k waits for live neighbours      [1.0]
+    startup_timeout_s = 30.0        # start-up barrier (and the first frame's wait)         [30.0]
+    fps = 0.0                       # pacing; 0 = as fast as possible                       [0]
+    frames = 100                    # optional limit on the number of frames
+    heartbeat_frames = 10           # async: send at least every N frames  [core.trigger's: 10]
+    drift_m = 0.1                   # async: send a tracker when it drifted this far (metres)
+                                    #        from what the neighbours extrapolate  [core.trigger's]
+    staleness_frames = 2            # async: use a stale message's u, U only this many frames
+                                    #        (sets TrackerConfig.staleness_frames)     [tracker's]
+
+    [source]                        # where detections (and by default the camera) come from
+    kind = "det-file"               # a det-files directory (sim_cluster/detfiles.py format)
+    path = "export/calibration.json"#   its calibration.json (or the directory)
+    camera = 0                      #   camera index in calibration.json                 [node]
+    # kind = "scenario"             # developer convenience: play back a sim_cluster scenario
+    # scenario = "terrace-sim"      #   preset name or path
+    # seed = 0  frames = 200  data_root = "..."  camera = 0
+
+    [camera]                        # optional: overrides the calibration from the source
+    homography = [[...], [...], [...]]   # image (scaled pixels) -> ground, 3x3
+    projection = [[...], [...], [...]]   # optional, ground (x, y, z) -> pixels, 3x4
+    image_size = [360, 288]
+    pixel_scale = 1.0               #                                                      [1.0]
+    fps = 25.0                      #                                                      [25.0]
+    units_per_metre = 1.0           # optional: ground units per metre                   [source's]
+
+    [tracker]                       # TrackerConfig fields (edge_node/core/config.py)
+    ablation = "dkf+lda+dtm"        # "dkf" | "dkf+lda" | "dkf+lda+dtm"                  ["dkf+lda+dtm"]
+    tau = 3.0                       # ... any TrackerConfig field
+
+    [output]
+    dir = "out"                     # optional: tracks_node<id>.csv, status_node<id>.json,
+                                    # counters_node<id>.json (edge_node/runtime/output.py)
+    status_interval_s = 1.0         #                                                      [1.0]
+
+The tracker's ``fps`` and ``units_per_metre`` come from the source (as in sim_cluster's in-process
+run) unless ``[tracker]`` sets them explicitly; ``[camera] units_per_metre`` overrides the source's.
+"""
+from __future__ import annotations
+
+import math
+import re
+import tomllib
+from dataclasses import dataclass, field, fields
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from edge_node.core.config import ABLATIONS, ConfigError, TrackerConfig
+from edge_node.core.trigger import TriggerConfig
+from protocol.keys import is_valid_network, is_valid_node
+
+MODES = ("sync", "async")
+_TRIGGER = TriggerConfig()
+SOURCE_KINDS = ("det-file", "scenario")
+
+_REQUIRED = object()
+_ENDPOINT_RE = re.compile(r"(?P<proto>[a-z][a-z0-9-]*)/(?P<addr>[^?#]+)(?:\?[^#]*)?(?:#.*)?")
+_IP_PROTOS = frozenset({"tcp", "udp", "tls", "quic", "ws"})
+_OTHER_PROTOS = frozenset({"unixsock-stream", "unixpipe", "serial", "vsock"})
+_HOST_RE = re.compile(r"\[[0-9A-Fa-f:.]+(?:%[A-Za-z0-9_.-]+)?\]|[A-Za-z0-9_.-]+")
+ENDPOINT_HINT = "an endpoint like tcp/127.0.0.1:7447"
+
+
+class NodeConfigError(ValueError):
+    """A camera config that cannot be used; the message names the file and the field."""
+
+    def __init__(self, file: str, field: str | None, message: str):
+        self.file = file
+        self.field = field
+        super().__init__(f"{file}: {field} {message}" if field else f"{file}: {message}")
+
+
+# -- a small validating reader for TOML tables -----------------------------------------------------
+class _Table:
+    def __init__(self, data: Any, file: str, where: str = ""):
+        if not isinstance(data, dict):
+            raise NodeConfigError(file, where or None, f"must be a table, got {type(data).__name__}")
+        self.data, self.file, self.where = data, file, where
+        self._used: set[str] = set()
+
+    def name(self, key: str) -> str:
+        return f"{self.where}.{key}" if self.where else key
+
+    def error(self, key: str | None, message: str) -> NodeConfigError:
+        return NodeConfigError(self.file, self.name(key) if key else (self.where or None), message)
+
+    def has(self, key: str) -> bool:
+        return key in self.data
+
+    def raw(self, key: str, default: Any = _REQUIRED) -> Any:
+        self._used.add(key)
+        if key not in self.data:
+            if default is _REQUIRED:
+                raise self.error(key, "is required")
+            return default
+        return self.data[key]
+
+    def number(self, key: str, default: Any = _REQUIRED, *, lo: float | None = None,
+               lo_open: bool = False) -> float:
+        v = self.raw(key, default)
+        if v is default and default is not _REQUIRED:
+            return v
+        return self._number(key, v, lo, lo_open)
+
+    def _number(self, label: str, v: Any, lo: float | None = None, lo_open: bool = False) -> float:
+        if isinstance(v, bool) or not isinstance(v, (int, float)):
+            raise self.error(label, f"must be a number, got {v!r}")
+        if not math.isfinite(v):
+            raise self.error(label, f"must be finite, got {v!r}")
+        if lo is not None and (v <= lo if lo_open else v < lo):
+            raise self.error(label, f"must be {'>' if lo_open else '>='} {lo:g}, got {v!r}")
+        return float(v)
+
+    def integer(self, key: str, default: Any = _REQUIRED, *, lo: int | None = None) -> int:
+        v = self.raw(key, default)
+        if v is default and default is not _REQUIRED:
+            return v
+        if isinstance(v, bool) or not isinstance(v, int):
+            raise self.error(key, f"must be an integer, got {v!r}")
+        if lo is not None and v < lo:
+            raise self.error(key, f"must be >= {lo}, got {v!r}")
+        return v
+
+    def boolean(self, key: str, default: Any = _REQUIRED) -> bool:
+        v = self.raw(key, default)
+        if not isinstance(v, bool):
+            raise self.error(key, f"must be true or false, got {v!r}")
+        return v
+
+    def string(self, key: str, default: Any = _REQUIRED, *, choices: tuple[str, ...] | None = None
+               ) -> str:
+        v = self.raw(key, default)
+        if v is default and default is not _REQUIRED:
+            return v
+        if not isinstance(v, str):
+            raise self.error(key, f"must be a string, got {v!r}")
+        if choices is not None and v not in choices:
+            raise self.error(key, f"must be one of {', '.join(repr(c) for c in choices)}, got {v!r}")
+        return v
+
+    def path(self, key: str, base: Path, default: Any = _REQUIRED) -> Path:
+        v = self.string(key, default)
+        if v is default and default is not _REQUIRED:
+            return v
+        if not v:
+            raise self.error(key, "must be a non-empty path")
+        p = Path(v).expanduser()
+        return p if p.is_absolute() else (base / p)
+
+    def list(self, key: str, default: Any = _REQUIRED) -> list:
+        v = self.raw(key, default)
+        if not isinstance(v, list):
+            raise self.error(key, f"must be a list, got {v!r}")
+        return v
+
+    def matrix(self, key: str, rows: int, cols: int) -> np.ndarray:
+        v = self.raw(key)
+        ok = isinstance(v, list) and len(v) == rows and all(
+            isinstance(r, list) and len(r) == cols for r in v)
+        if not ok:
+            raise self.error(key, f"must be a {rows}x{cols} list of lists of numbers, got {v!r}")
+        return np.array([[self._number(f"{key}[{i}][{j}]", x) for j, x in enumerate(r)]
+                         for i, r in enumerate(v)])
+
+    def table(self, key: str, required: bool = False) -> "_Table | None":
+        self._used.add(key)
+        if key not in self.data:
+            if required:
+                raise self.error(key, "is required (a [table])")
+            return None
+        return _Table(self.data[key], self.file, self.name(key))
+
+    def finish(self) -> None:
+        unknown = sorted(set(self.data) - self._used)
+        if unknown:
+            raise self.error(unknown[0], "is not a known field"
+                             + (f" of [{self.where}]" if self.where else ""))
+
+
+# -- endpoints ------------------------------------------------------------------------------------------
+def endpoint_problem(endpoint: Any, *, listen: bool) -> str | None:
+    """Why ``endpoint`` is not a usable Zenoh endpoint (``None`` when it is)."""
+    if not isinstance(endpoint, str):
+        return "not a string"
+    m = _ENDPOINT_RE.fullmatch(endpoint)
+    if not m:
+        return "not <protocol>/<address>"
+    proto, addr = m.group("proto"), m.group("addr")
+    if proto in _OTHER_PROTOS:
+        return None
+    if proto not in _IP_PROTOS:
+        return f"unknown protocol {proto!r}"
+    host, sep, port = addr.rpartition(":")
+    if not sep or not host or not _HOST_RE.fullmatch(host):
+        return "address must be host:port"
+    if not port.isdigit() or not (0 if listen else 1) <= int(port) <= 65535:
+        return f"bad port {port!r}"
+    return None
+
+
+# -- the config objects ------------------------------------------------------------------------------
+@dataclass(frozen=True)
+class ZenohSettings:
+    listen: tuple[str, ...] = ()
+    connect: tuple[str, ...] = ()
+    scouting: bool = False
+    gossip: bool = False
+    lease_ms: int | None = None
+    config_file: Path | None = None
+
+
+@dataclass(frozen=True)
+class RuntimeSettings:
+    mode: str = "sync"
+    sync_timeout_s: float = 1.0
+    startup_timeout_s: float = 30.0
+    fps: float = 0.0
+    frames: int | None = None
+    heartbeat_frames: int = _TRIGGER.heartbeat_frames
+    drift_m: float = _TRIGGER.drift
+    staleness_frames: int | None = None  # None: the tracker config's
+
+
+@dataclass(frozen=True, eq=False)
+class CameraSettings:
+    homography: np.ndarray
+    image_size: tuple[int, int]
+    projection: np.ndarray | None = None
+    pixel_scale: float = 1.0
+    fps: float = 25.0
+    units_per_metre: float | None = None
+
+    def camera(self, node: int):
+        from edge_node.geometry import Camera
+
+        return Camera(id=node, image_size=self.image_size, G=self.homography, P=self.projection,
+                      pixel_scale=self.pixel_scale, fps=self.fps)
+
+
+@dataclass(frozen=True)
+class SourceSettings:
+    kind: str
+    camera: int  # index of this node's camera in the source
+    path: Path | None = None  # det-file: calibration.json or its directory
+    scenario: str | None = None  # scenario: preset name or path
+    seed: int | None = None
+    frames: int | None = None
+    data_root: Path | None = None
+
+
+@dataclass(frozen=True)
+class OutputSettings:
+    dir: Path | None = None
+    status_interval_s: float = 1.0
+
+
+@dataclass(frozen=True, eq=False)
+class NodeConfig:
+    """A validated camera-process config (see the module docstring for the TOML schema)."""
+
+    file: Path
+    node: int
+    network: str
+    neighbours: tuple[int, ...]
+    zenoh: ZenohSettings
+    runtime: RuntimeSettings
+    source: SourceSettings
+    tracker: TrackerConfig
+    ablation: str = "dkf+lda+dtm"
+    tracker_explicit: frozenset[str] = field(default_factory=frozenset)  # keys set in [tracker]
+    camera: CameraSettings | None = None
+    output: OutputSettings = field(default_factory=OutputSettings)
+
+    @property
+    def name(self) -> str:
+        return self.file.name
+
+    def with_runtime(self, **changes) -> "NodeConfig":
+        """A copy with ``[runtime]`` fields changed (command-line overrides), re-validated."""
+        from dataclasses import replace
+
+        for k, v in changes.items():
+            if k == "mode" and v not in MODES:
+                raise NodeConfigError(self.name, "runtime.mode", f"must be one of {MODES}, got {v!r}")
+            if k == "frames" and v is not None and (not isinstance(v, int) or v < 1):
+                raise NodeConfigError(self.name, "runtime.frames", f"must be an integer >= 1, got {v!r}")
+        return replace(self, runtime=replace(self.runtime, **changes))
+
+    def to_dict(self) -> dict:
+        """The resolved config, JSON-serialisable (``edge_node check`` prints it)."""
+        def conv(v):
+            if isinstance(v, Path):
+                return str(v)
+            if isinstance(v, np.ndarray):
+                return v.tolist()
+            if isinstance(v, (tuple, list)):
+                return [conv(x) for x in v]
+            if isinstance(v, frozenset):
+                return sorted(v)
+            return v
+
+        def table(obj) -> dict:
+            return {f.name: conv(getattr(obj, f.name)) for f in fields(obj)}
+
+        return {
+            "file": str(self.file.resolve()),
+            "node": self.node,
+            "network": self.network,
+            "neighbours": list(self.neighbours),
+            "zenoh": table(self.zenoh),
+            "runtime": table(self.runtime),
+            "source": table(self.source),
+            "camera": None if self.camera is None else table(self.camera),
+            "tracker": {"ablation": self.ablation, **{k: conv(v) for k, v in self.tracker.to_dict().items()}},
+            "output": table(self.output),
+        }
+
+
+# -- parsing ------------------------------------------------------------------------------------------
+def load_node_config(path: str | Path) -> NodeConfig:
+    """Read and validate a camera config TOML file."""
+    path = Path(path)
+    try:
+        text = path.read_text(encoding="utf-8")
+    except FileNotFoundError:
+        raise NodeConfigError(path.name, None, f"config file not found: {path}") from None
+    except OSError as e:
+        raise NodeConfigError(path.name, None, f"cannot read {path}: {e.strerror}") from None
+    try:
+        data = tomllib.loads(text)
+    except tomllib.TOMLDecodeError as e:
+        raise NodeConfigError(path.name, None, f"not valid TOML ({e})") from None
+    return parse_node_config(data, path)
+
+
+def parse_node_config(data: dict, path: str | Path) -> NodeConfig:
+    """Validate an already parsed TOML document; ``path`` names it in errors and anchors
+    relative paths."""
+    path = Path(path)
+    file = path.name
+    base = path.resolve().parent
+    top = _Table(data, file)
+
+    node = top.raw("node")
+    if not is_valid_node(node):
+        raise top.error("node", f"must be a non-negative integer, got {node!r}")
+    network = top.raw("network")
+    if not is_valid_network(network):
+        raise top.error("network", "must be a non-empty name without '/', '*', '$', '?', '#' or "
+                        f"spaces (at most 64 bytes), got {network!r}")
+    neigh = top.list("neighbours", [])
+    seen: set[int] = set()
+    for i, n in enumerate(neigh):
+        if not is_valid_node(n):
+            raise top.error(f"neighbours[{i}]", f"must be a non-negative integer, got {n!r}")
+        if n == node:
+            raise top.error(f"neighbours[{i}]", f"is this node itself ({n})")
+        if n in seen:
+            raise top.error(f"neighbours[{i}]", f"repeats neighbour {n}")
+        seen.add(n)
+
+    zenoh_s = _zenoh(top.table("zenoh"), file, base)
+    runtime = _runtime(top.table("runtime"), file)
+    source = _source(top.table("source", required=True), base, node)
+    camera = _camera(top.table("camera"))
+    tracker, ablation, explicit = _tracker(top.table("tracker"), file)
+    output = _output(top.table("output"), base)
+    top.finish()
+    if runtime.staleness_frames is not None and "staleness_frames" in explicit:
+        raise NodeConfigError(file, "runtime.staleness_frames", "and tracker.staleness_frames are "
+                              "both set: set one")
+    return NodeConfig(file=path, node=node, network=network, neighbours=tuple(sorted(seen)),
+                      zenoh=zenoh_s, runtime=runtime, source=source, tracker=tracker,
+                      ablation=ablation, tracker_explicit=explicit, camera=camera, output=output)
+
+
+def _endpoints(t: _Table, key: str, listen: bool) -> tuple[str, ...]:
+    v = t.list(key, [])
+    for i, e in enumerate(v):
+        why = endpoint_problem(e, listen=listen)
+        if why is not None:
+            raise t.error(f"{key}[{i}]", f"must be {ENDPOINT_HINT}, got {e!r} ({why})")
+    return tuple(v)
+
+
+def _zenoh(t: _Table | None, file: str, base: Path) -> ZenohSettings:
+    if t is None:
+        return ZenohSettings()
+    listen = _endpoints(t, "listen", True)
+    connect = _endpoints(t, "connect", False)
+    scouting = t.boolean("scouting", False)
+    gossip = t.boolean("gossip", False)
+    lease = t.integer("lease_ms", None, lo=1)
+    cf = t.path("config_file", base, None)
+    if cf is not None and not cf.is_file():
+        raise t.error("config_file", f"names a file that does not exist: {cf}")
+    t.finish()
+    return ZenohSettings(listen, connect, scouting, gossip, lease, cf)
+
+
+def _runtime(t: _Table | None, file: str) -> RuntimeSettings:
+    if t is None:
+        return RuntimeSettings()
+    d = RuntimeSettings()
+    r = RuntimeSettings(
+        mode=t.string("mode", d.mode, choices=MODES),
+        sync_timeout_s=t.number("sync_timeout_s", d.sync_timeout_s, lo=0, lo_open=True),
+        startup_timeout_s=t.number("startup_timeout_s", d.startup_timeout_s, lo=0, lo_open=True),
+        fps=t.number("fps", d.fps, lo=0),
+        frames=t.integer("frames", None, lo=1),
+        heartbeat_frames=t.integer("heartbeat_frames", d.heartbeat_frames, lo=1),
+        drift_m=t.number("drift_m", d.drift_m, lo=0, lo_open=True),
+        staleness_frames=t.integer("staleness_frames", None, lo=0),
+    )
+    t.finish()
+    return r
+
+
+def _source(t: _Table, base: Path, node: int) -> SourceSettings:
+    kind = t.string("kind", choices=SOURCE_KINDS)
+    camera = t.integer("camera", node, lo=0)
+    if kind == "det-file":
+        p = t.path("path", base)
+        if not p.exists():
+            raise t.error("path", f"does not exist: {p}")
+        cal = p / "calibration.json" if p.is_dir() else p
+        if not cal.is_file():
+            raise t.error("path", f"has no calibration.json: {p}")
+        t.finish()
+        return SourceSettings(kind, camera, path=cal)
+    name = t.string("scenario")
+    if not name:
+        raise t.error("scenario", "must be a preset name or a path")
+    if "/" in name or name.endswith(".toml"):
+        p = Path(name).expanduser()
+        name = str(p if p.is_absolute() else base / p)
+    seed = t.integer("seed", None, lo=0)
+    frames = t.integer("frames", None, lo=1)
+    data_root = t.path("data_root", base, None)
+    t.finish()
+    return SourceSettings(kind, camera, scenario=name, seed=seed, frames=frames,
+                          data_root=data_root)
+
+
+def _camera(t: _Table | None) -> CameraSettings | None:
+    if t is None:
+        return None
+    G = t.matrix("homography", 3, 3)
+    P = t.matrix("projection", 3, 4) if t.has("projection") else None
+    size = t.raw("image_size")
+    if (not isinstance(size, list) or len(size) != 2
+            or not all(isinstance(v, int) and not isinstance(v, bool) and v > 0 for v in size)):
+        raise t.error("image_size", f"must be [width, height] in pixels (positive integers), got {size!r}")
+    ps = t.number("pixel_scale", 1.0, lo=0, lo_open=True)
+    fps = t.number("fps", 25.0, lo=0, lo_open=True)
+    upm = t.number("units_per_metre", None, lo=0, lo_open=True)
+    t.finish()
+    cam = CameraSettings(G, (size[0], size[1]), P, ps, fps, upm)
+    try:
+        cam.camera(0)
+    except ValueError as e:  # GeometryError: singular homography ...
+        raise t.error("homography", f"is not usable: {e}") from None
+    return cam
+
+
+def _tracker(t: _Table | None, file: str) -> tuple[TrackerConfig, str, frozenset[str]]:
+    if t is None:
+        return TrackerConfig.for_ablation("dkf+lda+dtm"), "dkf+lda+dtm", frozenset()
+    ablation = t.string("ablation", "dkf+lda+dtm", choices=ABLATIONS)
+    rest = {k: v for k, v in t.data.items() if k != "ablation"}
+    try:
+        cfg = TrackerConfig.for_ablation(ablation, **rest)
+    except ConfigError as e:
+        raise NodeConfigError(file, None, str(e)) from None
+    except TypeError as e:  # e.g. fixed_R not a list
+        raise NodeConfigError(file, "tracker", f"has a bad value ({e})") from None
+    return cfg, ablation, frozenset(rest)
+
+
+def _output(t: _Table | None, base: Path) -> OutputSettings:
+    if t is None:
+        return OutputSettings()
+    d = t.path("dir", base, None)
+    interval = t.number("status_interval_s", 1.0, lo=0, lo_open=True)
+    t.finish()
+    return OutputSettings(d, interval)

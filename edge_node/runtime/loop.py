@@ -1,0 +1,401 @@
+"""The frame loops of one camera process (DESIGN.md, "Runtime modes").
+
+``sync``
+    for each frame ``k``: ``dets = source(k)``; ``msg = node.prepare(k, dets)``; stamp ``sent_at``,
+    encode once, publish on every outgoing link; wait until the inbox holds frame-``k`` messages
+    from every neighbour that is currently alive, up to ``sync_timeout_s`` (the first frame waits
+    up to ``startup_timeout_s``: neighbours may still be in their own start-up barrier); a
+    neighbour whose liveliness is lost is no longer waited for, a late message is dropped for
+    that frame (and counted); ``node.update(messages of frame k)``; write the tracks. With every
+    neighbour alive and in time this is exactly sim_cluster's in-process reference run.
+
+``async`` (event-triggered)
+    never waits. Each frame: ``prepare``; ``edge_node.core.trigger.EventTrigger.filter`` keeps
+    the tracker entries the neighbours need (new measurement information, appearance, a tracker
+    whose ``x_bar`` drifted more than ``drift_m`` from what they extrapolate, ``ell`` news, a
+    per-tracker heartbeat) plus merges, or says to stay silent; a message is sent at least every
+    ``heartbeat_frames`` -- the same trigger as sim_cluster's in-process async run. Bytes saved
+    against sending the full message every frame are counted. Then ``node.update(arrived,
+    stale_ok=True)`` with every message received since the last frame with frame ``<= k`` (a
+    neighbour's later frames wait until we get there). The core remembers each neighbour's newest
+    entry per tracker, predicts it forward, uses its ``u, U`` once and only within
+    ``staleness_frames``, ages ``ell``, and ignores duplicates and reordered messages.
+
+Shutdown: SIGINT / SIGTERM set a flag; the current frame is finished (a sync wait is cut short),
+files are flushed, Zenoh is closed, and the process exits 0.
+
+Exit codes (``edge_node run``)::
+
+    0  all frames done, or stopped by SIGINT / SIGTERM (also during start-up)
+    1  unexpected internal error (traceback logged)
+    2  bad command line, config, or source files (one line on stderr)
+    3  start-up barrier timed out: a neighbour never became ready (named on stderr)
+    4  the Zenoh session could not be opened or declared (e.g. port in use, bad zenoh config)
+"""
+from __future__ import annotations
+
+import inspect
+import logging
+import os
+import signal
+import threading
+import time
+from dataclasses import dataclass, field, replace
+from pathlib import Path
+from typing import Any, Callable
+
+import numpy as np
+
+from edge_node.core.config import TrackerConfig
+from edge_node.core.node import CameraNode
+from edge_node.core.trigger import EventTrigger, TriggerConfig
+from edge_node.runtime.config import NodeConfig, NodeConfigError
+from edge_node.runtime.output import (StatusWriter, TrackWriter, counters_path, latency_summary,
+                                      status_path, tracks_path, write_json_atomic)
+from edge_node.runtime.sources import Source, open_source
+from protocol import codec
+from protocol.errors import ProtocolError
+from protocol.messages import FrameMessage
+
+log = logging.getLogger("edge_node.loop")
+
+EXIT_OK = 0
+EXIT_FAILURE = 1
+EXIT_USAGE = 2
+EXIT_STARTUP = 3
+EXIT_TRANSPORT = 4
+
+
+class Shutdown:
+    """SIGINT / SIGTERM -> ``event`` (finish the frame, then stop). Restores the old handlers."""
+
+    def __init__(self, install: bool = True):
+        self.event = threading.Event()
+        self.signal: int | None = None
+        self._old: dict[int, Any] = {}
+        self._install = install and threading.current_thread() is threading.main_thread()
+
+    def _handler(self, signum, frame) -> None:
+        if self.event.is_set() and signum == signal.SIGINT:
+            raise KeyboardInterrupt  # a second Ctrl-C: stop now
+        self.signal = signum
+        self.event.set()
+        log.warning("signal %s: finishing the current frame, then stopping",
+                    signal.Signals(signum).name)
+
+    def __enter__(self) -> "Shutdown":
+        if self._install:
+            for s in (signal.SIGINT, signal.SIGTERM):
+                self._old[s] = signal.signal(s, self._handler)
+        return self
+
+    def __exit__(self, *exc) -> None:
+        for s, h in self._old.items():
+            signal.signal(s, h)
+
+
+@dataclass
+class LoopStats:
+    mode: str
+    frames_total: int
+    first_frame: int = 0
+    frame: int | None = None  # last frame completed
+    frames_done: int = 0
+    trackers: int = 0
+    stopped: bool = False
+    startup_s: float | None = None
+    frames_sent: int = 0  # frames whose message was published
+    frames_skipped: int = 0  # async: frames whose message was not sent
+    bytes_saved: int = 0  # async: bytes not sent against full messages every frame (all links)
+    encode_errors: int = 0
+    prepare_s: float = 0.0
+    wait_s: float = 0.0
+    update_s: float = 0.0
+
+
+def supports_stale(node: CameraNode) -> bool:
+    """Whether this core's ``update`` takes ``stale_ok`` (async mode needs it)."""
+    try:
+        return "stale_ok" in inspect.signature(node.update).parameters
+    except (TypeError, ValueError):
+        return False
+
+
+def tracker_config_for(cfg: NodeConfig, source: Source, mode: str) -> TrackerConfig:
+    """The tracker config as sim_cluster's reference run builds it: fps and units per metre from
+    the source unless ``[tracker]`` sets them; ``[runtime] staleness_frames`` when given."""
+    changes: dict[str, Any] = {}
+    if "fps" not in cfg.tracker_explicit:
+        changes["fps"] = source.fps
+    if "units_per_metre" not in cfg.tracker_explicit:
+        changes["units_per_metre"] = source.units_per_metre
+    if cfg.runtime.staleness_frames is not None:
+        changes["staleness_frames"] = cfg.runtime.staleness_frames
+    return cfg.tracker.with_(**changes)
+
+
+def _sleep_until(t: float, stop: threading.Event) -> None:
+    while not stop.is_set():
+        dt = t - time.monotonic()
+        if dt <= 0:
+            return
+        stop.wait(min(dt, 0.1))
+
+
+class FrameLoop:
+    """Drives one ``CameraNode`` over a source and a transport (any object with the
+    ``ZenohTransport`` methods ``neighbours``, ``publish``, ``collect``, ``latest``,
+    ``alive_neighbours``, ``counters``; tests pass fakes)."""
+
+    def __init__(self, cfg: NodeConfig, node: CameraNode, source: Callable[[int], Any],
+                 transport, *, mode: str, frames: int, writer: TrackWriter | None = None,
+                 status: StatusWriter | None = None, stop: threading.Event | None = None,
+                 first_frame: int = 0, status_extra: Callable[[], dict] | None = None):
+        if mode not in ("sync", "async"):
+            raise ValueError(f"mode must be 'sync' or 'async', got {mode!r}")
+        if mode == "async" and not supports_stale(node):
+            raise NodeConfigError(cfg.name, "runtime.mode", "'async' needs a tracker core whose "
+                                  "CameraNode.update accepts stale_ok=True; this one does not")
+        self.cfg = cfg
+        self.rt = cfg.runtime
+        self.node = node
+        self.source = source
+        self.transport = transport
+        self.mode = mode
+        self.writer = writer or TrackWriter(None)
+        self.status = status or StatusWriter(None)
+        self.stop = stop or threading.Event()
+        self.stats = LoopStats(mode, frames, first_frame)
+        self.started_at = time.time()
+        self._status_extra = status_extra
+        self.trigger = EventTrigger(TriggerConfig(self.rt.heartbeat_frames, self.rt.drift_m),
+                                    node.cfg.dt, node.cfg.units_per_metre)
+
+    # -- one frame -----------------------------------------------------------------------------
+    def _send(self, msg: FrameMessage) -> int | None:
+        msg = replace(msg, sent_at=time.time())
+        try:
+            payload = codec.encode(msg)
+        except ProtocolError as e:  # our own message breaks the wire rules: never send it
+            self.stats.encode_errors += 1
+            log.error("node %d: frame %d: cannot encode our message (%s): not sent",
+                      self.node.id, msg.frame, e)
+            return None
+        self.transport.publish(payload)
+        self.stats.frames_sent += 1
+        return len(payload)
+
+    def step_sync(self, k: int, first: bool) -> list:
+        t0 = time.perf_counter()
+        msg = self.node.prepare(k, self.source(k))
+        t1 = time.perf_counter()
+        inbox: dict = {}
+        if self.transport.neighbours:
+            self._send(msg)
+            timeout = self.rt.startup_timeout_s if first else self.rt.sync_timeout_s
+            inbox = self.transport.collect(k, timeout, self.stop)
+        t2 = time.perf_counter()
+        tracks = self.node.update(list(inbox.values()))
+        t3 = time.perf_counter()
+        self.stats.prepare_s += t1 - t0
+        self.stats.wait_s += t2 - t1
+        self.stats.update_s += t3 - t2
+        return tracks
+
+    def step_async(self, k: int) -> list:
+        t0 = time.perf_counter()
+        msg = self.node.prepare(k, self.source(k))
+        t1 = time.perf_counter()
+        inbox: list = []
+        if self.transport.neighbours:
+            out = self.trigger.filter(msg)
+            links = len(self.transport.neighbours)
+            try:
+                full = len(codec.encode(msg))
+            except ProtocolError:
+                full = 0
+            if out is None:
+                self.stats.frames_skipped += 1
+                self.stats.bytes_saved += full * links
+            else:
+                sent = self._send(out)
+                if sent is not None:
+                    self.stats.bytes_saved += max(full - sent, 0) * links
+            inbox = self.transport.drain(k)
+        t2 = time.perf_counter()
+        tracks = self.node.update(inbox, stale_ok=True)
+        t3 = time.perf_counter()
+        self.stats.prepare_s += t1 - t0
+        self.stats.wait_s += t2 - t1
+        self.stats.update_s += t3 - t2
+        return tracks
+
+    # -- the loop ----------------------------------------------------------------------------------
+    def run(self) -> LoopStats:
+        st = self.stats
+        fps = self.rt.fps
+        t_start = time.monotonic()
+        self.write_status("running")
+        for i, k in enumerate(range(st.first_frame, st.frames_total)):
+            if self.stop.is_set():
+                break
+            if self.mode == "sync":
+                tracks = self.step_sync(k, first=(i == 0))
+            else:
+                tracks = self.step_async(k)
+            self.writer.write(tracks)
+            st.frame = k
+            st.frames_done += 1
+            st.trackers = len(tracks)
+            if self.status.due():
+                self.writer.flush()
+                self.write_status("running")
+            if fps > 0:
+                _sleep_until(t_start + (i + 1) / fps, self.stop)
+        st.stopped = self.stop.is_set() and st.frames_done < st.frames_total - st.first_frame
+        self.writer.flush()
+        return st
+
+    def status_dict(self, phase: str) -> dict:
+        st = self.stats
+        c = self.transport.counters() if self.transport is not None else {}
+        d = {
+            "pid": os.getpid(),
+            "node": self.node.id,
+            "network": self.cfg.network,
+            "mode": self.mode,
+            "phase": phase,
+            "frame": st.frame,
+            "frames_done": st.frames_done,
+            "frames_total": st.frames_total,
+            "trackers": st.trackers,
+            "neighbours": list(self.cfg.neighbours),
+            "alive_neighbours": c.get("alive_neighbours", []),
+            "bytes_sent": c.get("bytes_sent", 0),
+            "messages_sent": c.get("messages_sent", 0),
+            "messages_received": c.get("messages_received", 0),
+            "rejected": c.get("rejected", {}),
+            "late": sum(c.get("late", {}).values()),
+            "timeouts": sum(c.get("timeouts", {}).values()),
+            "frames_skipped": st.frames_skipped,
+            "started_at": self.started_at,
+            "updated_at": time.time(),
+            "finished": phase in ("finished", "stopped"),
+            "stopped": st.stopped,
+        }
+        if self._status_extra:
+            d.update(self._status_extra())
+        return d
+
+    def write_status(self, phase: str) -> None:
+        try:
+            self.status.write(self.status_dict(phase))
+        except OSError as e:
+            log.warning("cannot write status: %s", e)
+
+
+@dataclass
+class RunReport:
+    exit_code: int
+    stats: LoopStats | None
+    counters: dict
+    tracks_file: Path | None = None
+
+
+def run_node(cfg: NodeConfig, *, frames: int | None = None, mode: str | None = None,
+             transport_factory: Callable[..., Any] | None = None,
+             install_signals: bool = True) -> RunReport:
+    """Run one camera process to completion. Raises ``NodeConfigError`` / ``SourceError`` for
+    bad inputs, ``TransportError`` when Zenoh cannot start and ``StartupError`` when the barrier
+    times out (the CLI maps them to exit codes); returns a report otherwise."""
+    from edge_node.runtime import transport as tr
+
+    if mode is not None or frames is not None:
+        changes = {}
+        if mode is not None:
+            changes["mode"] = mode
+        if frames is not None:
+            changes["frames"] = frames
+        cfg = cfg.with_runtime(**changes)
+    rt = cfg.runtime
+    mode = rt.mode
+    source = open_source(cfg)
+    total = source.frames if rt.frames is None else min(source.frames, rt.frames)
+    tcfg = tracker_config_for(cfg, source, mode)
+    node = CameraNode(source.camera, cfg.neighbours, tcfg, cfg.network, node_id=cfg.node)
+    if mode == "async" and not supports_stale(node):
+        raise NodeConfigError(cfg.name, "runtime.mode", "'async' needs a tracker core whose "
+                              "CameraNode.update accepts stale_ok=True; this one does not")
+    out = cfg.output.dir
+    status = StatusWriter(status_path(out, cfg.node) if out else None, cfg.output.status_interval_s)
+    factory = transport_factory or tr.ZenohTransport
+    z = cfg.zenoh
+    log.info("node %d (%s, network %s): %d frames from %s; neighbours %s; listen %s connect %s",
+             cfg.node, mode, cfg.network, total, source.description, list(cfg.neighbours),
+             list(z.listen), list(z.connect))
+    with Shutdown(install_signals) as shutdown:
+        transport = factory(cfg.network, cfg.node, cfg.neighbours, z.listen, z.connect,
+                            z.scouting, z.config_file, gossip=z.gossip, lease_ms=z.lease_ms)
+        writer = None
+        loop = None
+        code = EXIT_FAILURE
+        try:
+            writer = TrackWriter(tracks_path(out, cfg.node) if out else None)
+            loop = FrameLoop(cfg, node, source, transport, mode=mode, frames=total,
+                             writer=writer, status=status, stop=shutdown.event)
+            loop.write_status("starting")
+            if cfg.neighbours:
+                try:
+                    waited = transport.wait_ready(rt.startup_timeout_s, shutdown.event)
+                except tr.StartupError as e:
+                    if e.interrupted:
+                        loop.stats.stopped = True
+                        code = EXIT_OK
+                        return RunReport(EXIT_OK, loop.stats, transport.counters(), writer.path)
+                    code = EXIT_STARTUP
+                    raise
+                loop.stats.startup_s = waited
+                log.info("node %d: neighbours ready after %.3f s", cfg.node, waited)
+            stats = loop.run()
+            code = EXIT_OK
+            log.info("node %d: %s after %d frames (prepare %.2f s, wait %.2f s, update %.2f s)",
+                     cfg.node, "stopped" if stats.stopped else "finished", stats.frames_done,
+                     stats.prepare_s, stats.wait_s, stats.update_s)
+            return RunReport(EXIT_OK, stats, transport.counters(), writer.path)
+        finally:
+            if writer is not None:
+                writer.close()
+            counters = {}
+            try:
+                counters = transport.counters()
+                lat = latency_summary(transport.latency_samples())
+            except Exception:  # noqa: BLE001 - best effort on the way out
+                lat = latency_summary([])
+            transport.close()
+            if loop is not None:
+                phase = ("stopped" if loop.stats.stopped else "finished") if code == EXIT_OK else "failed"
+                extra = {"exit_code": code}
+                try:
+                    d = loop.status_dict(phase)
+                    d.update(extra)
+                    if status.path is not None:
+                        write_json_atomic(status.path, d)
+                    if out is not None:
+                        st = loop.stats
+                        write_json_atomic(counters_path(out, cfg.node), {
+                            "node": cfg.node, "network": cfg.network, "mode": mode,
+                            "exit_code": code, "frames_done": st.frames_done,
+                            "frames_total": st.frames_total, "stopped": st.stopped,
+                            "startup_s": st.startup_s, "latency": lat, **counters,
+                            "frames_sent": st.frames_sent, "frames_skipped": st.frames_skipped,
+                            "bytes_saved": st.bytes_saved, "encode_errors": st.encode_errors,
+                            "tracker_entries_sent": getattr(loop.trigger, "entries_sent", None)
+                            if mode == "async" else None,
+                            "tracker_entries_skipped": getattr(loop.trigger, "entries_skipped", None)
+                            if mode == "async" else None,
+                            "timing_s": {"prepare": st.prepare_s, "wait": st.wait_s,
+                                         "update": st.update_s},
+                            "node_stats": dict(vars(node.stats)),
+                        })
+                except OSError as e:
+                    log.warning("cannot write the exit files: %s", e)

@@ -1,0 +1,410 @@
+"""Zenoh transport of one camera node: per-link publishers, one inbox subscriber, liveliness.
+
+Key expressions (protocol/keys.py): the node publishes frame messages on
+``dmtt/<net>/link/<node>/<dst>`` for every neighbour ``dst`` and subscribes to
+``dmtt/<net>/link/*/<node>``; its liveliness token is ``dmtt/<net>/alive/<node>`` and it watches
+``dmtt/<net>/alive/*`` to know which neighbours are up.
+
+Received bytes are validated by ``protocol.decode`` against the key they arrived on (network,
+link source = payload sender, sender among the configured neighbours). A bad message is counted by
+``ProtocolError.reason`` and logged (rate-limited), never raised: nothing a peer sends can stop
+the node. Valid messages go into a thread-safe inbox keyed by ``(sender, frame)``, read by
+:meth:`ZenohTransport.collect` (sync mode: exactly frame ``k``, waiting for live neighbours) or
+:meth:`ZenohTransport.drain` (async mode: whatever arrived, up to frame ``k``, never waiting).
+
+Zenoh is peer-to-peer with explicit endpoints: multicast scouting off, gossip off unless asked,
+``scouting/delay`` 0 (else ``open`` waits 500 ms when a neighbour is not listening yet). Peers do
+not forward for each other, so every logical link must also be a Zenoh connection (configure
+``connect`` on both sides of a link: reconnection after a restart is then fast).
+"""
+from __future__ import annotations
+
+import json
+import logging
+import threading
+import time
+from collections import defaultdict, deque
+from collections.abc import Iterable, Sequence
+from pathlib import Path
+from typing import Any
+
+from protocol import codec
+from protocol.errors import ProtocolError
+from protocol.keys import (alive_key, alive_pattern, inbox_key, link_key, parse_alive_key,
+                           parse_link_key)
+from protocol.messages import FrameMessage
+
+log = logging.getLogger("edge_node.transport")
+
+LATENCY_SAMPLES = 200_000  # newest one-hop latency samples kept for the summary
+
+
+class StartupError(RuntimeError):
+    """The start-up barrier timed out; ``missing`` are the neighbours that were not ready."""
+
+    def __init__(self, node: int, missing: dict[int, list[str]], timeout: float,
+                 interrupted: bool = False):
+        self.node = node
+        self.missing = sorted(missing)
+        self.reasons = missing
+        self.timeout = timeout
+        self.interrupted = interrupted
+        what = "; ".join(f"{n}: {', '.join(r)}" for n, r in sorted(missing.items()))
+        head = "interrupted while waiting for" if interrupted else "timed out after " \
+            f"{timeout:g} s waiting for"
+        super().__init__(f"node {node}: {head} neighbour(s) "
+                         f"{', '.join(map(str, self.missing))} ({what})")
+
+
+class TransportError(RuntimeError):
+    """The Zenoh session or one of its declarations could not be set up."""
+
+
+class RateLimitedLog:
+    """At most one log line per key every ``interval`` seconds; suppressed lines are counted."""
+
+    def __init__(self, logger: logging.Logger, interval: float = 5.0):
+        self.logger = logger
+        self.interval = interval
+        self._last: dict[str, float] = {}
+        self._suppressed: dict[str, int] = defaultdict(int)
+        self._lock = threading.Lock()
+
+    def warning(self, key: str, msg: str) -> None:
+        now = time.monotonic()
+        with self._lock:
+            if now - self._last.get(key, -float("inf")) < self.interval:
+                self._suppressed[key] += 1
+                return
+            self._last[key] = now
+            n = self._suppressed.pop(key, 0)
+        self.logger.warning("%s%s", msg, f" ({n} similar suppressed)" if n else "")
+
+
+def zenoh_config(listen: Sequence[str] = (), connect: Sequence[str] = (), scouting: bool = False,
+                 config_file: str | Path | None = None, *, gossip: bool = False,
+                 lease_ms: int | None = None):
+    """A peer-mode ``zenoh.Config``: from ``config_file`` when given, then our settings on top
+    (``listen``/``connect`` replace the file's when non-empty, or always without a file)."""
+    import zenoh
+
+    try:
+        conf = zenoh.Config.from_file(str(config_file)) if config_file else zenoh.Config()
+        conf.insert_json5("mode", '"peer"')
+        if listen or not config_file:
+            conf.insert_json5("listen/endpoints", json.dumps(list(listen)))
+        if connect or not config_file:
+            conf.insert_json5("connect/endpoints", json.dumps(list(connect)))
+        conf.insert_json5("scouting/multicast/enabled", json.dumps(bool(scouting)))
+        conf.insert_json5("scouting/gossip/enabled", json.dumps(bool(gossip)))
+        conf.insert_json5("scouting/delay", "0")
+        if lease_ms is not None:
+            conf.insert_json5("transport/link/tx/lease", json.dumps(int(lease_ms)))
+    except zenoh.ZError as e:
+        raise TransportError(f"bad Zenoh configuration: {str(e).split(' at /')[0]}") from None
+    return conf
+
+
+class ZenohTransport:
+    """One node's Zenoh session (see the module docstring). Use as a context manager."""
+
+    def __init__(self, network: str, node: int, neighbours: Iterable[int],
+                 listen: Sequence[str] = (), connect: Sequence[str] = (), scouting: bool = False,
+                 config_file: str | Path | None = None, *, gossip: bool = False,
+                 lease_ms: int | None = None, max_pending_frames: int = 256):
+        import zenoh
+
+        self.network = network
+        self.node = int(node)
+        self.neighbours = tuple(sorted(set(int(n) for n in neighbours) - {self.node}))
+        self._neigh = frozenset(self.neighbours)
+        self.max_pending_frames = max_pending_frames
+        self._cond = threading.Condition()
+        self._closed = False
+        self._rlog = RateLimitedLog(log)
+        # inbox and its bookkeeping (all under _cond)
+        self._inbox: dict[tuple[int, int], FrameMessage] = {}
+        self._pending: dict[int, int] = defaultdict(int)  # sender -> entries in _inbox
+        self._floor = -1  # sync: frames below this are late
+        self._alive: set[int] = set()  # alive neighbours
+        self._alive_any: set[int] = set()  # every alive node seen (direct connections only)
+        # counters
+        self.bytes_sent: dict[int, int] = defaultdict(int)
+        self.messages_sent: dict[int, int] = defaultdict(int)
+        self.publish_calls = 0
+        self.bytes_received: dict[int, int] = defaultdict(int)
+        self.messages_received: dict[int, int] = defaultdict(int)
+        self.rejected: dict[str, int] = defaultdict(int)
+        self.late: dict[int, int] = defaultdict(int)
+        self.duplicates: dict[int, int] = defaultdict(int)
+        self.overflow: dict[int, int] = defaultdict(int)
+        self.timeouts: dict[int, int] = defaultdict(int)  # sync: frames a live neighbour missed
+        self.liveliness_events: list[tuple[float, int, str]] = []
+        self._latency: deque[float] = deque(maxlen=LATENCY_SAMPLES)
+
+        conf = zenoh_config(listen, connect, scouting, config_file, gossip=gossip,
+                            lease_ms=lease_ms)
+        self._zenoh = zenoh
+        try:
+            self.session = zenoh.open(conf)
+        except zenoh.ZError as e:
+            raise TransportError(f"node {node}: cannot open the Zenoh session: "
+                                 f"{str(e).split(' at /')[0]}") from None
+        self._pubs: dict[int, Any] = {}
+        self._sub = self._alive_sub = self._token = None
+        try:
+            # receive first, announce last: once our token is visible we can take messages
+            self._sub = self.session.declare_subscriber(inbox_key(network, self.node),
+                                                        self._on_sample)
+            self._alive_sub = self.session.liveliness().declare_subscriber(
+                alive_pattern(network), self._on_alive, history=True)
+            for dst in self.neighbours:
+                self._pubs[dst] = self.session.declare_publisher(
+                    link_key(network, self.node, dst),
+                    congestion_control=zenoh.CongestionControl.BLOCK)
+            self._token = self.session.liveliness().declare_token(alive_key(network, self.node))
+        except zenoh.ZError as e:
+            self.close()
+            raise TransportError(f"node {node}: Zenoh declaration failed: "
+                                 f"{str(e).split(' at /')[0]}") from None
+
+    # -- callbacks (Zenoh threads): never raise ------------------------------------------------
+    def _reject(self, reason: str, detail: str) -> None:
+        with self._cond:
+            self.rejected[reason] += 1
+        self._rlog.warning(f"reject:{reason}", f"node {self.node}: rejected a message "
+                           f"({reason}): {detail[:200]}")
+
+    def _on_sample(self, sample) -> None:
+        try:
+            now = time.time()
+            key = str(sample.key_expr)
+            try:
+                net, src, dst = parse_link_key(key)
+            except ProtocolError as e:
+                self._reject(e.reason, str(e))
+                return
+            if net != self.network or dst != self.node:
+                self._reject("key", f"message on foreign key {key[:120]!r}")
+                return
+            payload = sample.payload.to_bytes()
+            try:
+                msg = codec.decode(payload, expect_network=self.network, expect_sender=src,
+                                   allowed_senders=self._neigh)
+            except ProtocolError as e:
+                self._reject(e.reason, f"on {key}: {e}")
+                return
+            self._accept(src, msg, len(payload), now)
+        except Exception as e:  # noqa: BLE001 - a callback must never raise into Zenoh
+            self._reject("internal", f"{type(e).__name__}: {e}")
+
+    def _accept(self, src: int, msg: FrameMessage, nbytes: int, now: float) -> None:
+        with self._cond:
+            if self._closed:
+                return
+            self.messages_received[src] += 1
+            self.bytes_received[src] += nbytes
+            if msg.sent_at > 0:
+                self._latency.append(now - msg.sent_at)
+            k = msg.frame
+            if k < self._floor:
+                self.late[src] += 1
+                return
+            key = (src, k)
+            if key in self._inbox:
+                self.duplicates[src] += 1
+                return
+            self._inbox[key] = msg
+            self._pending[src] += 1
+            if self._pending[src] > self.max_pending_frames:
+                oldest = min(f for (s, f) in self._inbox if s == src)
+                del self._inbox[(src, oldest)]
+                self._pending[src] -= 1
+                self.overflow[src] += 1
+            self._cond.notify_all()
+
+    def _on_alive(self, sample) -> None:
+        try:
+            try:
+                net, n = parse_alive_key(sample.key_expr)
+            except ProtocolError:
+                return
+            if net != self.network or n == self.node:
+                return
+            gone = sample.kind == self._zenoh.SampleKind.DELETE
+            with self._cond:
+                if gone:
+                    self._alive_any.discard(n)
+                    self._alive.discard(n)
+                else:
+                    self._alive_any.add(n)
+                    if n in self._neigh:
+                        self._alive.add(n)
+                self.liveliness_events.append((time.time(), n, "gone" if gone else "alive"))
+                del self.liveliness_events[:-1000]
+                self._cond.notify_all()
+            if n in self._neigh:
+                log.info("node %d: neighbour %d %s", self.node, n, "gone" if gone else "alive")
+        except Exception as e:  # noqa: BLE001
+            self._rlog.warning("alive", f"node {self.node}: liveliness callback failed: {e}")
+
+    # -- the node's side -------------------------------------------------------------------------
+    def publish(self, payload: bytes) -> int:
+        """Put ``payload`` on every outgoing link; returns the bytes handed to Zenoh."""
+        total = 0
+        for dst, pub in self._pubs.items():
+            pub.put(payload)
+            self.bytes_sent[dst] += len(payload)
+            self.messages_sent[dst] += 1
+            total += len(payload)
+        self.publish_calls += 1
+        return total
+
+    def alive_neighbours(self) -> set[int]:
+        with self._cond:
+            return set(self._alive)
+
+    def alive_nodes(self) -> set[int]:
+        """Every other node whose token is visible (with gossip off: directly connected ones)."""
+        with self._cond:
+            return set(self._alive_any)
+
+    def not_ready(self) -> dict[int, list[str]]:
+        """Neighbours that are not alive or have no subscriber matching our link to them."""
+        with self._cond:
+            alive = set(self._alive)
+        out: dict[int, list[str]] = {}
+        for n in self.neighbours:
+            why = []
+            if n not in alive:
+                why.append("no liveliness token")
+            if not self._pubs[n].matching_status.matching:
+                why.append(f"no subscriber on {link_key(self.network, self.node, n)}")
+            if why:
+                out[n] = why
+        return out
+
+    def wait_ready(self, timeout: float, stop: threading.Event | None = None) -> float:
+        """Block until every neighbour is alive and subscribed to our link to it; returns the
+        seconds waited. Raises :class:`StartupError` naming the missing ones on timeout (or when
+        ``stop`` is set)."""
+        t0 = time.monotonic()
+        deadline = t0 + timeout
+        while True:
+            missing = self.not_ready()
+            if not missing:
+                return time.monotonic() - t0
+            if stop is not None and stop.is_set():
+                raise StartupError(self.node, missing, timeout, interrupted=True)
+            now = time.monotonic()
+            if now >= deadline:
+                raise StartupError(self.node, missing, timeout)
+            with self._cond:
+                self._cond.wait(min(0.01, deadline - now))
+
+    def collect(self, frame: int, timeout: float, stop: threading.Event | None = None
+                ) -> dict[int, FrameMessage]:
+        """Sync mode: frame ``frame``'s messages, waiting up to ``timeout`` s for every neighbour
+        that is alive (one whose liveliness is lost is not waited for). Messages of earlier
+        frames are discarded (counted as late), now and when they arrive later."""
+        deadline = time.monotonic() + timeout
+        with self._cond:
+            self._floor = frame
+            for key in [key for key in self._inbox if key[1] < frame]:
+                del self._inbox[key]
+                self._pending[key[0]] -= 1
+                self.late[key[0]] += 1
+            while True:
+                have = {s for s in self.neighbours if (s, frame) in self._inbox}
+                missing = self._alive - have
+                if not missing or (stop is not None and stop.is_set()):
+                    break
+                remaining = deadline - time.monotonic()
+                if remaining <= 0:
+                    for s in missing:
+                        self.timeouts[s] += 1
+                    self._rlog.warning("timeout", f"node {self.node}: frame {frame}: no message "
+                                       f"from neighbour(s) {sorted(missing)} within {timeout:g} s")
+                    break
+                self._cond.wait(min(remaining, 0.1))
+            out = {}
+            for s in sorted(have):
+                out[s] = self._inbox.pop((s, frame))
+                self._pending[s] -= 1
+            self._floor = frame + 1
+            return out
+
+    def drain(self, frame: int) -> list[FrameMessage]:
+        """Async mode: every message received since the last call with frame ``<= frame``, each
+        once, sorted by ``(sender, frame)``, never waiting. Messages of later frames (a neighbour
+        ahead of us) stay until ``frame`` reaches them. The core keeps each neighbour's newest
+        entry per tracker, so late, duplicated and reordered deliveries are harmless."""
+        with self._cond:
+            keys = sorted(key for key in self._inbox if key[1] <= frame)
+            out = []
+            for key in keys:
+                out.append(self._inbox.pop(key))
+                self._pending[key[0]] -= 1
+            return out
+
+    def counters(self) -> dict:
+        """A JSON-serialisable snapshot of the wire counters (bytes, messages, rejections...)."""
+        def links_out(d):
+            return {f"{self.node}->{n}": v for n, v in sorted(d.items())}
+
+        def links_in(d):
+            return {f"{n}->{self.node}": v for n, v in sorted(d.items())}
+
+        with self._cond:
+            return {
+                "bytes_sent": sum(self.bytes_sent.values()),
+                "bytes_per_link": links_out(self.bytes_sent),
+                "messages_sent": sum(self.messages_sent.values()),
+                "messages_per_link": links_out(self.messages_sent),
+                "frames_published": self.publish_calls,
+                "bytes_received": sum(self.bytes_received.values()),
+                "bytes_received_per_link": links_in(self.bytes_received),
+                "messages_received": sum(self.messages_received.values()),
+                "received_per_link": links_in(self.messages_received),
+                "rejected": dict(sorted(self.rejected.items())),
+                "late": links_in(self.late),
+                "duplicates": links_in(self.duplicates),
+                "overflow": links_in(self.overflow),
+                "timeouts": links_in(self.timeouts),
+                "alive_neighbours": sorted(self._alive),
+            }
+
+    def latency_samples(self) -> list[float]:
+        """One-hop latencies (seconds, receipt time minus the sender's ``sent_at``)."""
+        with self._cond:
+            return list(self._latency)
+
+    # -- teardown ---------------------------------------------------------------------------------
+    def close(self) -> None:
+        """Undeclare everything and close the session (idempotent)."""
+        with self._cond:
+            if self._closed:
+                return
+            self._closed = True
+            self._cond.notify_all()
+        for obj in [self._token, *self._pubs.values(), self._alive_sub, self._sub]:
+            if obj is None:
+                continue
+            try:
+                obj.undeclare()
+            except Exception as e:  # noqa: BLE001 - best effort on the way out
+                log.debug("undeclare failed: %s", e)
+        try:
+            self.session.close()
+        except Exception as e:  # noqa: BLE001
+            log.debug("session close failed: %s", e)
+
+    @property
+    def closed(self) -> bool:
+        return self._closed
+
+    def __enter__(self) -> "ZenohTransport":
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()

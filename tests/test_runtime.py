@@ -1,0 +1,483 @@
+"""The camera-process runtime: config validation, Zenoh transport on loopback, frame loops,
+and an end-to-end run of real ``edge_node run`` processes against the in-process reference."""
+from __future__ import annotations
+
+import json
+import os
+import signal
+import socket
+import subprocess
+import sys
+import time
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from edge_node.core.config import TrackerConfig
+from edge_node.core.node import CameraNode
+from edge_node.runtime.config import NodeConfigError, load_node_config
+from edge_node.runtime.loop import FrameLoop
+from edge_node.runtime.output import TrackWriter, tracks_path
+from edge_node.runtime.sources import open_source
+from protocol import codec
+from protocol.keys import link_key
+from protocol.messages import FrameMessage, TrackerInfo
+from tests.fakes import det, topdown_camera
+
+REPO = Path(__file__).resolve().parents[1]
+FRAMES = 40
+
+
+def free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def ep(port: int) -> str:
+    return f"tcp/127.0.0.1:{port}"
+
+
+def wait_for(pred, timeout: float = 5.0, every: float = 0.01) -> bool:
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        if pred():
+            return True
+        time.sleep(every)
+    return pred()
+
+
+# -- fixtures -----------------------------------------------------------------------------------------
+@pytest.fixture(scope="module")
+def export_dir(tmp_path_factory) -> Path:
+    from sim_cluster.detfiles import export_detections
+    from sim_cluster.scenario import load_scenario
+
+    d = tmp_path_factory.mktemp("export")
+    export_detections(load_scenario("terrace-sim", frames=FRAMES), d)
+    return d
+
+
+@pytest.fixture
+def procs():
+    """Subprocesses started by a test; whatever still runs at the end is killed."""
+    started: list[subprocess.Popen] = []
+    try:
+        yield started
+    finally:
+        for p in started:
+            if p.poll() is None:
+                p.kill()
+            try:
+                p.wait(timeout=10)
+            except subprocess.TimeoutExpired:
+                pass
+            for f in (p.stdout, p.stderr):
+                if f:
+                    f.close()
+
+
+@pytest.fixture
+def transports():
+    """ZenohTransports opened by a test; all closed at the end."""
+    opened = []
+    try:
+        yield opened
+    finally:
+        for t in opened:
+            t.close()
+
+
+def write_config(path: Path, node: int, neighbours, listen, connect, export: Path, *,
+                 network: str = "rt", out: Path | None = None, extra: str = "") -> Path:
+    lines = [
+        f"node = {node}", f'network = "{network}"', f"neighbours = {list(neighbours)}",
+        "[zenoh]", f"listen = {json.dumps(list(listen))}", f"connect = {json.dumps(list(connect))}",
+        "[runtime]", "startup_timeout_s = 20", "sync_timeout_s = 5",
+        "[source]", 'kind = "det-file"', f'path = "{export}"',
+    ]
+    if out is not None:
+        lines += ["[output]", f'dir = "{out}"']
+    path.write_text("\n".join(lines) + "\n" + extra)
+    return path
+
+
+def start_node(procs, config: Path, *args: str) -> subprocess.Popen:
+    env = dict(os.environ, PYTHONPATH=str(REPO), PYTHONUNBUFFERED="1")
+    p = subprocess.Popen([sys.executable, "-m", "edge_node.cli", "run", "--config", str(config),
+                          "--log-level", "WARNING", *args],
+                         cwd=str(REPO), env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                         text=True)
+    procs.append(p)
+    return p
+
+
+# -- config ---------------------------------------------------------------------------------------------
+BASE = """node = 0
+network = "net"
+neighbours = [1]
+[zenoh]
+listen = ["tcp/127.0.0.1:7447"]
+connect = ["tcp/127.0.0.1:7448"]
+[source]
+kind = "det-file"
+path = "EXPORT"
+"""
+
+
+@pytest.mark.parametrize("edit, expected", [
+    (("tcp/127.0.0.1:7447", "x"),
+     "cam0.toml: zenoh.listen[0] must be an endpoint like tcp/127.0.0.1:7447, got 'x'"),
+    (("tcp/127.0.0.1:7448", "tcp/127.0.0.1:99999"), "cam0.toml: zenoh.connect[0] must be an endpoint"),
+    (('network = "net"', 'network = "a/b"'), "cam0.toml: network must be a non-empty name"),
+    (("neighbours = [1]", "neighbours = [0]"), "cam0.toml: neighbours[0] is this node itself"),
+    (("neighbours = [1]", "neighbours = [1, 1]"), "cam0.toml: neighbours[1] repeats neighbour 1"),
+    (("node = 0", "node = -1"), "cam0.toml: node must be a non-negative integer"),
+    (("[zenoh]", "[zenoh]\nlissen = []"), "cam0.toml: zenoh.lissen is not a known field"),
+    (("[source]", "[runtime]\nmode = \"fast\"\n[source]"),
+     "cam0.toml: runtime.mode must be one of 'sync', 'async', got 'fast'"),
+    (("[source]", "[runtime]\nsync_timeout_s = 0\n[source]"), "cam0.toml: runtime.sync_timeout_s must be > 0"),
+    (('kind = "det-file"', 'kind = "video"'), "cam0.toml: source.kind must be one of"),
+    (('path = "EXPORT"', 'path = "nowhere"'), "cam0.toml: source.path does not exist"),
+    (("[source]", "[tracker]\ntau = -1\n[source]"), "cam0.toml: tracker.tau must be a positive number"),
+    (("[source]", "[tracker]\nablation = \"x\"\n[source]"), "cam0.toml: tracker.ablation must be one of"),
+    (("[source]", "[tracker]\ntua = 1\n[source]"), "cam0.toml: tracker: unknown parameter(s) tua"),
+    (("[source]", "[camera]\nhomography = [[1, 0], [0, 1]]\nimage_size = [10, 10]\n[source]"),
+     "cam0.toml: camera.homography must be a 3x3"),
+    (("[source]", "[zenoh2]\n[source]"), "cam0.toml: zenoh2 is not a known field"),
+])
+def test_config_errors_name_file_and_field(tmp_path, export_dir, edit, expected):
+    text = BASE.replace(*edit, 1).replace("EXPORT", str(export_dir))
+    p = tmp_path / "cam0.toml"
+    p.write_text(text)
+    with pytest.raises(NodeConfigError) as e:
+        load_node_config(p)
+    assert str(e.value).startswith(expected), str(e.value)
+
+
+def test_config_missing_source_and_bad_toml(tmp_path):
+    p = tmp_path / "cam0.toml"
+    p.write_text('node = 0\nnetwork = "n"\n')
+    with pytest.raises(NodeConfigError, match=r"^cam0.toml: source is required"):
+        load_node_config(p)
+    p.write_text("node = \n")
+    with pytest.raises(NodeConfigError, match=r"^cam0.toml: not valid TOML"):
+        load_node_config(p)
+    with pytest.raises(NodeConfigError, match="config file not found"):
+        load_node_config(tmp_path / "nope.toml")
+
+
+def test_config_defaults_and_relative_paths(tmp_path, export_dir):
+    (tmp_path / "data").symlink_to(export_dir)
+    p = tmp_path / "cam3.toml"
+    p.write_text('node = 3\nnetwork = "n"\nneighbours = [2, 0]\n[source]\nkind = "det-file"\n'
+                 'path = "data"\ncamera = 1\n[tracker]\nablation = "dkf"\nkappa = 9\n'
+                 '[output]\ndir = "out"\n')
+    cfg = load_node_config(p)
+    assert cfg.neighbours == (0, 2) and cfg.runtime.mode == "sync"
+    assert cfg.runtime.sync_timeout_s == 1.0 and cfg.runtime.startup_timeout_s == 30.0
+    assert cfg.zenoh.scouting is False and cfg.zenoh.listen == ()
+    assert cfg.source.path == tmp_path / "data" / "calibration.json"
+    assert cfg.output.dir == tmp_path / "out"
+    assert cfg.tracker.kappa == 9 and not cfg.tracker.use_manager and cfg.ablation == "dkf"
+    src = open_source(cfg)
+    assert src.camera.id == 3 and src.frames == FRAMES  # camera index 1 played by node 3
+    json.dumps(cfg.to_dict())
+
+
+def test_cli_check(tmp_path, export_dir, capsys):
+    from edge_node.cli import main
+
+    p = tmp_path / "cam0.toml"
+    p.write_text(BASE.replace("EXPORT", str(export_dir)))
+    assert main(["check", "--config", str(p)]) == 0
+    out = json.loads(capsys.readouterr().out)
+    assert out["node"] == 0 and out["resolved"]["frames"] == FRAMES
+    p.write_text(BASE.replace("EXPORT", str(export_dir)).replace("tcp/127.0.0.1:7447", "x"))
+    assert main(["check", "--config", str(p)]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "zenoh.listen[0]" in err
+
+
+# -- sources and output ------------------------------------------------------------------------------------
+def test_det_file_source_equals_sim_cluster_loader(tmp_path, export_dir):
+    from sim_cluster.detfiles import load_det_files
+
+    ref = load_det_files(export_dir)
+    for c in range(ref.num_cameras):
+        p = tmp_path / f"cam{c}.toml"
+        p.write_text(BASE.replace("EXPORT", str(export_dir)).replace("node = 0", f"node = {c}")
+                     .replace("neighbours = [1]", "neighbours = []"))
+        src = open_source(load_node_config(p))
+        assert src.frames == ref.frames and src.fps == ref.fps
+        assert src.units_per_metre == ref.units_per_metre
+        assert np.array_equal(src.camera.G, ref.cameras[c].G)
+        for k in range(ref.frames):
+            a, b = src(k), ref.detections[k][c]
+            assert len(a) == len(b)
+            for x, y in zip(a, b):
+                assert np.array_equal(x.box, y.box) and x.score == y.score
+                assert (x.descriptor is None) == (y.descriptor is None)
+                if x.descriptor is not None:
+                    assert x.descriptor.dtype == y.descriptor.dtype
+                    assert np.array_equal(x.descriptor, y.descriptor)
+
+
+def test_track_writer_matches_sim_cluster(tmp_path, export_dir):
+    from sim_cluster.detfiles import load_det_files
+    from sim_cluster.network import run_network
+    from sim_cluster.tracks_io import write_tracks
+
+    r = run_network(load_det_files(export_dir), {0: (1,), 1: (0,), 2: (), 3: ()}, TrackerConfig(),
+                    frames=10)
+    write_tracks(tmp_path / "ref.csv", r.tracks[0])
+    with TrackWriter(tmp_path / "mine.csv") as w:
+        for frame in r.tracks[0]:
+            w.write(frame)
+    assert (tmp_path / "ref.csv").read_bytes() == (tmp_path / "mine.csv").read_bytes()
+
+
+# -- transport --------------------------------------------------------------------------------------------
+def _pair(transports, network="tp", **kw):
+    from edge_node.runtime.transport import ZenohTransport
+
+    p0, p1 = free_port(), free_port()
+    a = ZenohTransport(network, 0, [1], [ep(p0)], [ep(p1)], **kw)
+    transports.append(a)
+    b = ZenohTransport(network, 1, [0], [ep(p1)], [ep(p0)], **kw)
+    transports.append(b)
+    return a, b, p0, p1
+
+
+def _msg(sender: int, frame: int, network="tp") -> FrameMessage:
+    t = TrackerInfo((sender, 0), np.arange(6.0), np.zeros(6), np.zeros((6, 6)), 0)
+    return FrameMessage(network, sender, frame, (t,), sent_at=time.time())
+
+
+def test_transport_delivers_and_barrier_passes(transports):
+    a, b, _, _ = _pair(transports)
+    assert a.wait_ready(5.0) < 5.0 and b.wait_ready(5.0) < 5.0
+    assert a.alive_neighbours() == {1} and b.alive_neighbours() == {0}
+    n = a.publish(codec.encode(_msg(0, 0)))
+    got = b.collect(0, 2.0)
+    assert list(got) == [0] and got[0].frame == 0 and got[0].sender == 0
+    assert n == a.counters()["bytes_per_link"]["0->1"]
+    assert b.counters()["received_per_link"] == {"0->1": 1}
+    assert len(b.latency_samples()) == 1 and 0 <= b.latency_samples()[0] < 1.0
+    # a late message (frame already collected) is dropped and counted
+    a.publish(codec.encode(_msg(0, 0)))
+    a.publish(codec.encode(_msg(0, 1)))
+    assert list(b.collect(1, 2.0)) == [0]
+    assert wait_for(lambda: b.counters()["late"] == {"0->1": 1})
+
+
+def test_barrier_timeout_names_missing_neighbour(transports):
+    from edge_node.runtime.transport import StartupError, ZenohTransport
+
+    t = ZenohTransport("tb", 0, [1, 2], [ep(free_port())], [ep(free_port())])
+    transports.append(t)
+    t0 = time.monotonic()
+    with pytest.raises(StartupError) as e:
+        t.wait_ready(0.3)
+    assert 0.3 <= time.monotonic() - t0 < 2.0
+    assert e.value.missing == [1, 2]
+    assert "neighbour(s) 1, 2" in str(e.value) and "no liveliness token" in str(e.value)
+
+
+def test_garbage_is_counted_not_fatal(transports):
+    import zenoh
+
+    from edge_node.runtime.transport import ZenohTransport, zenoh_config
+
+    p0 = free_port()
+    a = ZenohTransport("tg", 0, [1], [ep(p0)], [])
+    transports.append(a)
+    raw = zenoh.open(zenoh_config([], [ep(p0)]))
+    try:
+        pubs = {}
+        for src in (1, 7):
+            pubs[src] = raw.declare_publisher(link_key("tg", src, 0))
+            assert wait_for(lambda: pubs[src].matching_status.matching)
+        pubs[1].put(b"\xc1garbage")
+        pubs[1].put(codec.encode(_msg(2, 0, "tg")))  # payload sender 2 on the link of 1
+        pubs[1].put(codec.encode(_msg(1, 0, "other")))  # another network's message
+        pubs[7].put(codec.encode(_msg(7, 0, "tg")))  # not a neighbour
+        pubs[1].put(codec.encode(_msg(1, 0, "tg")))  # finally a good one
+        assert wait_for(lambda: sum(a.counters()["rejected"].values()) == 4)
+        assert a.counters()["rejected"] == {"forged_source": 1, "malformed": 1,
+                                            "unknown_network": 1, "unknown_sender": 1}
+        assert wait_for(lambda: a.counters()["messages_received"] == 1)
+        got = a.collect(0, 2.0)  # (the raw session has no liveliness token: nothing to wait for)
+        assert list(got) == [1] and got[1].sender == 1
+    finally:
+        raw.close()
+
+
+def test_liveliness_loss_is_seen_and_not_waited_for(transports):
+    a, b, _, _ = _pair(transports, network="tl")
+    a.wait_ready(5.0)
+    assert a.alive_neighbours() == {1}
+    b.close()
+    assert wait_for(lambda: a.alive_neighbours() == set(), timeout=3.0)
+    t0 = time.monotonic()
+    assert a.collect(0, 5.0) == {}  # a dead neighbour is not waited for
+    assert time.monotonic() - t0 < 0.5
+    assert a.counters()["timeouts"] == {}
+
+
+def test_drain_hands_over_each_message_once_up_to_k(transports):
+    a, b, _, _ = _pair(transports, network="ta")
+    a.wait_ready(5.0)
+    for f in (3, 1, 5, 3):
+        a.publish(codec.encode(_msg(0, f, "ta")))
+    assert wait_for(lambda: b.counters()["messages_received"] == 4)
+    assert b.counters()["duplicates"] == {"0->1": 1}
+    assert [m.frame for m in b.drain(4)] == [1, 3]  # frame 5 is in b's future: kept for later
+    assert b.drain(4) == []
+    a.publish(codec.encode(_msg(0, 2, "ta")))  # reordered: the core ignores what is older
+    assert wait_for(lambda: b.counters()["messages_received"] == 5)
+    assert [m.frame for m in b.drain(6)] == [2, 5]
+
+
+# -- the async loop ---------------------------------------------------------------------------------------
+class RecordingCore(CameraNode):
+    """The real core, recording what the loop hands to ``update``."""
+
+    def update(self, inbox, stale_ok: bool = False):
+        self.calls = getattr(self, "calls", [])
+        inbox = list(inbox)
+        self.calls.append((self.frame, stale_ok, [m.frame for m in inbox]))
+        return super().update(inbox, stale_ok=stale_ok)
+
+
+class FakeTransport:
+    neighbours = (1,)
+
+    def __init__(self):
+        self.sent: list[bytes] = []
+        self.inbox: dict[int, FrameMessage] = {}
+
+    def publish(self, payload):
+        self.sent.append(payload)
+        return len(payload)
+
+    def drain(self, k):
+        out = [m for m in self.inbox.values() if m.frame <= k]
+        self.inbox = {s: m for s, m in self.inbox.items() if m.frame > k}
+        return out
+
+    def collect(self, k, timeout, stop=None):
+        out = {s: m for s, m in self.inbox.items() if m.frame == k}
+        self.inbox = {s: m for s, m in self.inbox.items() if m.frame > k}
+        return out
+
+    def alive_neighbours(self):
+        return {1}
+
+    def counters(self):
+        return {}
+
+
+def test_async_loop_sends_on_events_only(tmp_path, export_dir):
+    p = tmp_path / "cam0.toml"
+    p.write_text(BASE.replace("EXPORT", str(export_dir)) + "[runtime]\nmode = \"async\"\n")
+    cfg = load_node_config(p)
+    node = RecordingCore(topdown_camera(0), [1], TrackerConfig(), "net")
+    dets = lambda k: [det(2.0, 3.0, 1)] if k < 6 else []  # a person seen, then gone
+    tp = FakeTransport()
+    tp.inbox = {1: _msg(1, 3, "net")}
+    loop = FrameLoop(cfg, node, dets, tp, mode="async", frames=30)
+    st = loop.run()
+    assert st.frames_done == 30 and st.frames_sent + st.frames_skipped == 30
+    assert st.frames_skipped > 10 and st.bytes_saved > 0
+    assert st.frames_sent == len(tp.sent)
+    sent = [codec.decode(b) for b in tp.sent]
+    assert all(0 < m.sent_at <= time.time() for m in sent)
+    gaps = np.diff([m.frame for m in sent])
+    assert gaps.max() <= cfg.runtime.heartbeat_frames  # a heartbeat at least
+    # every frame: stale_ok; a neighbour's message handed over once, when its frame comes
+    assert all(stale for _, stale, _ in node.calls)
+    assert [frames for _, _, frames in node.calls] == [[]] * 3 + [[3]] + [[]] * 26
+
+
+def test_sync_loop_with_fake_transport_uses_frame_k_only(tmp_path, export_dir):
+    p = tmp_path / "cam0.toml"
+    p.write_text(BASE.replace("EXPORT", str(export_dir)))
+    cfg = load_node_config(p)
+    node = RecordingCore(topdown_camera(0), [1], TrackerConfig(), "net")
+    tp = FakeTransport()
+    tp.inbox = {1: _msg(1, 2, "net")}
+    st = FrameLoop(cfg, node, lambda k: [], tp, mode="sync", frames=5).run()
+    assert st.frames_sent == 5 and len(tp.sent) == 5
+    assert [frames for _, _, frames in node.calls] == [[], [], [2], [], []]
+    assert not any(stale for _, stale, _ in node.calls)
+
+
+# -- processes --------------------------------------------------------------------------------------------
+def test_two_processes_equal_the_in_process_run(tmp_path, export_dir, procs):
+    from sim_cluster.detfiles import load_det_files
+    from sim_cluster.network import run_network
+    from sim_cluster.tracks_io import read_tracks
+
+    out = tmp_path / "out"
+    p0, p1 = free_port(), free_port()
+    c0 = write_config(tmp_path / "cam0.toml", 0, [1], [ep(p0)], [ep(p1)], export_dir, out=out)
+    c1 = write_config(tmp_path / "cam1.toml", 1, [0], [ep(p1)], [ep(p0)], export_dir, out=out)
+    runs = [start_node(procs, c0), start_node(procs, c1)]
+    for p in runs:
+        _, err = p.communicate(timeout=60)
+        assert p.returncode == 0, err
+
+    ref = run_network(load_det_files(export_dir), {0: (1,), 1: (0,), 2: (), 3: ()},
+                      TrackerConfig(), network="rt")
+    for n in (0, 1):
+        got = read_tracks(tracks_path(out, n), FRAMES)
+        for k in range(FRAMES):
+            want = ref.tracks[n][k]
+            assert [t.id for t in got[k]] == [t.id for t in want], (n, k)
+            for a, b in zip(got[k], want):
+                assert np.allclose(a.x, b.x, atol=1e-6, rtol=0), (n, k, a.id)
+                assert a.observed == b.observed and a.ell == b.ell
+        c = json.loads((out / f"counters_node{n}.json").read_text())
+        assert c["exit_code"] == 0 and c["frames_done"] == FRAMES
+        assert c["messages_sent"] == FRAMES and c["messages_received"] == FRAMES
+        assert c["rejected"] == {} and c["late"] == {} and c["timeouts"] == {}
+        assert c["latency"]["count"] == FRAMES and c["latency"]["median_ms"] < 100
+        s = json.loads((out / f"status_node{n}.json").read_text())
+        assert s["finished"] and s["phase"] == "finished" and s["frame"] == FRAMES - 1
+    # bytes on the wire equal the reference's encoded bytes (sent_at is a fixed-size float64)
+    c0j = json.loads((out / "counters_node0.json").read_text())
+    assert c0j["bytes_per_link"]["0->1"] == ref.wire.bytes_per_link[(0, 1)]
+
+
+def test_startup_timeout_exit_code_names_neighbour(tmp_path, export_dir, procs):
+    c = write_config(tmp_path / "cam0.toml", 0, [1], [ep(free_port())], [ep(free_port())],
+                     export_dir, out=tmp_path / "out")
+    c.write_text(c.read_text().replace("startup_timeout_s = 20", "startup_timeout_s = 0.5"))
+    p = start_node(procs, c)
+    _, err = p.communicate(timeout=30)
+    assert p.returncode == 3
+    assert err.strip().count("\n") == 0 and "neighbour(s) 1" in err
+    s = json.loads((tmp_path / "out" / "status_node0.json").read_text())
+    assert s["phase"] == "failed" and s["exit_code"] == 3
+
+
+def test_sigterm_finishes_the_frame_and_exits_0(tmp_path, export_dir, procs):
+    out = tmp_path / "out"
+    c = write_config(tmp_path / "cam0.toml", 0, [], [ep(free_port())], [], export_dir, out=out,
+                     extra="")
+    c.write_text(c.read_text().replace("sync_timeout_s = 5", "sync_timeout_s = 5\nfps = 10")
+                 .replace("[output]", "[output]\nstatus_interval_s = 0.1"))
+    p = start_node(procs, c)
+    status = out / "status_node0.json"
+    assert wait_for(lambda: status.exists() and json.loads(status.read_text())["frames_done"] >= 3,
+                    timeout=20)
+    p.send_signal(signal.SIGTERM)
+    _, err = p.communicate(timeout=10)
+    assert p.returncode == 0, err
+    s = json.loads(status.read_text())
+    assert s["phase"] == "stopped" and s["stopped"] and 3 <= s["frames_done"] < FRAMES
+    rows = tracks_path(out, 0).read_text().splitlines()[1:]
+    assert max(int(r.split(",")[0]) for r in rows) == s["frame"]
