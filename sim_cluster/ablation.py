@@ -238,7 +238,9 @@ class _Progress:
 
 def _hms(s: float) -> str:
     s = int(round(s))
-    return f"{s // 3600}h{s % 3600 // 60:02d}m{s % 60:02d}s" if s >= 3600 else f"{s // 60}m{s % 60:02d}s"
+    if s >= 3600:
+        return f"{s // 3600}h{s % 3600 // 60:02d}m{s % 60:02d}s"
+    return f"{s // 60}m{s % 60:02d}s"
 
 
 def _label(t: Task) -> str:
@@ -302,6 +304,11 @@ def row_of(result: dict) -> dict:
         row[col] = med["image"].get(m)
     for col in BANDWIDTH_COLS:
         row[col] = s["bandwidth"][col]
+    # RunResult.bandwidth() gives 0 where a ratio has no denominator (no tracker entry sent, as
+    # disconnected or centralized; no appearance sent): undefined, not zero bytes
+    for col in ("bytes_per_tracker_frame", "appearance_bytes_per_new_tracker"):
+        if not row[col]:
+            row[col] = None
     return row
 
 
@@ -321,7 +328,8 @@ def stats(values: Iterable[float | None]) -> dict:
             "n": len(vals)}
 
 
-def per_seed(rows: Iterable[Mapping], col: str) -> dict[tuple[str, str, str], dict[int, float | None]]:
+def per_seed(rows: Iterable[Mapping],
+             col: str) -> dict[tuple[str, str, str], dict[int, float | None]]:
     """``(scenario, topology, config) -> seed -> value`` with orderings averaged within a seed."""
     acc: dict[tuple[str, str, str], dict[int, list[float]]] = {}
     for r in rows:
@@ -560,6 +568,9 @@ def _uses_data_root(scenario: str) -> bool:
     ``[source]``, which a synthetic scenario rejects as an unknown field)."""
     from sim_cluster.scenario import ScenarioError, read_scenario_toml, resolve_scenario_path
 
+    candidate = Path(scenario)
+    if candidate.is_dir() or candidate.suffix == ".json":  # an exported detections folder
+        return False
     try:
         raw = read_scenario_toml(resolve_scenario_path(scenario))
     except ScenarioError as e:

@@ -3,6 +3,7 @@
     sim_cluster run --scenario terrace-sim --topology ring --config dkf+lda+dtm --seed 0 --out DIR
     sim_cluster bench
     sim_cluster scenarios
+    sim_cluster export-detections --scenario terrace-sim --out DIR
     sim_cluster ablation --scenarios terrace-sim,lab-sim --seeds 0-4 --out DIR
 """
 from __future__ import annotations
@@ -48,8 +49,11 @@ def _tracker_config(args) -> TrackerConfig:
 
 
 def run_once(data, topology: str, cfg: TrackerConfig, *, order=None, show_progress: bool = False,
-             evaluate: bool = True, ground_threshold_m: float = 1.0):
+             evaluate: bool = True, ground_threshold_m: float = 1.0, mode: str = "sync",
+             faults=None):
     """One in-process run plus its evaluation; returns ``(RunResult, summary dict)``."""
+    from edge_node.faults import NO_FAULTS
+
     from sim_cluster import topology as topo
     from sim_cluster.network import CENTRALIZED, run_network
     from sim_cluster.progress import progress_bar
@@ -59,7 +63,7 @@ def run_once(data, topology: str, cfg: TrackerConfig, *, order=None, show_progre
     try:
         result = run_network(data, adj, cfg, topology_name=Path(topology).stem
                              if topology not in topo.NAMES + (CENTRALIZED,) else topology,
-                             progress=update)
+                             progress=update, mode=mode, faults=faults or NO_FAULTS)
     finally:
         close()
     summary = result.summary()
@@ -78,8 +82,17 @@ def cmd_run(args) -> int:
 
     data = _scenario(args)
     cfg = _tracker_config(args)
+    faults = None
+    if args.faults:
+        from edge_node.faults import FaultPlan, FaultPlanError
+
+        try:
+            faults = FaultPlan.load(args.faults)
+        except FaultPlanError as e:
+            raise CliError(str(e)) from None
     result, summary = run_once(data, args.topology, cfg, show_progress=not args.quiet,
-                               ground_threshold_m=args.ground_threshold)
+                               ground_threshold_m=args.ground_threshold, mode=args.mode,
+                               faults=faults)
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     for node, frames in result.tracks.items():
@@ -87,6 +100,17 @@ def cmd_run(args) -> int:
     (out / "summary.json").write_text(json.dumps(summary, indent=2, sort_keys=True))
     print(run_table(summary))
     print(f"wrote {out}/summary.json and {len(result.tracks)} track files")
+    return 0
+
+
+def cmd_export(args) -> int:
+    from sim_cluster.detfiles import export_detections
+
+    data = _scenario(args)
+    path = export_detections(data, Path(args.out),
+                             descriptor_dtype="float32" if args.float32 else "float16")
+    print(f"wrote {data.num_cameras} cameras x {data.frames} frames to {args.out} "
+          f"(replay: sim_cluster run --scenario {path})")
     return 0
 
 
@@ -134,9 +158,19 @@ def build_parser() -> argparse.ArgumentParser:
     r.add_argument("--tracker-config", default=None, help="TOML file overriding tracker parameters")
     r.add_argument("--ground-threshold", type=float, default=1.0,
                    help="ground matching threshold in metres (default 1)")
+    r.add_argument("--mode", default="sync", choices=("sync", "async"),
+                   help="sync: fuse frame-k messages at k; async: event-triggered, latest messages")
+    r.add_argument("--faults", default=None, help="fault plan TOML (loss, delay, partitions, crashes)")
     r.add_argument("--out", default="runs/latest")
     r.add_argument("--quiet", action="store_true", help="no progress bar")
     r.set_defaults(func=cmd_run)
+
+    e = sub.add_parser("export-detections",
+                       help="write a scenario's detections (det.txt + .npy), truth and calibration")
+    scenario_args(e)
+    e.add_argument("--out", required=True, help="folder to write (one c<i>/ per camera)")
+    e.add_argument("--float32", action="store_true", help="descriptors as float32 (default float16)")
+    e.set_defaults(func=cmd_export)
 
     s = sub.add_parser("scenarios", help="list the scenario presets")
     s.set_defaults(func=cmd_scenarios)
@@ -168,11 +202,29 @@ def build_parser() -> argparse.ArgumentParser:
     return p
 
 
+def _input_errors() -> tuple[type[BaseException], ...]:
+    """Errors that mean "your input is wrong" (a message, not a traceback)."""
+    from edge_node.core.config import ConfigError
+    from edge_node.faults import FaultPlanError
+    from edge_node.geometry import GeometryError
+    from sim_cluster.appearance import AppearanceError
+    from sim_cluster.detector_model import DetectorParamsError
+    from sim_cluster.detfiles import DetFilesError
+    from sim_cluster.epfl import EpflFormatError
+    from sim_cluster.scenario import ScenarioError
+    from sim_cluster.topology import TopologyError
+    from sim_cluster.world import WorldError
+
+    return (CliError, ConfigError, FaultPlanError, GeometryError, AppearanceError,
+            DetectorParamsError, DetFilesError, EpflFormatError, ScenarioError, TopologyError,
+            WorldError, OSError)
+
+
 def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     try:
         return args.func(args)
-    except CliError as e:
+    except _input_errors() as e:
         print(f"sim_cluster: error: {e}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:

@@ -505,8 +505,14 @@ def load_scenario(name_or_path: str | Path, seed: int | None = None,
                   frames: int | None = None, data_root: str | Path | None = None) -> ScenarioData:
     """Load a scenario by preset name or file path. ``seed`` / ``frames`` override the file's.
 
-    Same file + same seed gives identical detections.
+    Same file + same seed gives identical detections. A folder written by
+    ``sim_cluster export-detections`` (or its ``calibration.json``) is a scenario too.
     """
+    candidate = Path(str(name_or_path))
+    if candidate.is_dir() or candidate.suffix == ".json":
+        from sim_cluster.detfiles import load_det_files
+
+        return load_det_files(candidate, frames=frames, seed=seed)
     path = resolve_scenario_path(name_or_path)
     raw = read_scenario_toml(path)
     file = path.name

@@ -11,7 +11,7 @@ import pytest
 
 from sim_cluster import ablation, cli
 
-GRID = ["--scenarios", "terrace-sim", "--seeds", "0-1", "--frames", "20",
+GRID = ["--scenarios", "terrace-sim", "--seeds", "0-1", "--frames", "15",
         "--configs", "dkf+lda,dkf+lda+dtm", "--topologies", "ring,centralized", "--orderings", "2",
         "--quiet"]
 EXPECTED_RUNS = 2 * 2 * (2 + 1)  # seeds x configs x (ring orderings + centralized)
@@ -54,7 +54,7 @@ def test_csv_rows_and_columns(runs):
     cent = [r for r in rows if r["topology"] == "centralized"]
     assert len(cent) == 4 and all(r["ordering"] == "0" and r["order"] == "" for r in cent)
     for r in rows:
-        assert r["frames"] == "20" and r["nodes"] == "4"
+        assert r["frames"] == "15" and r["nodes"] == "4"
         for col in ("ground_mota", "ground_idf1", "image_mota", "image_idf1", "bytes_per_frame"):
             float(r[col])  # defined on this grid
     # the centralized baseline's bandwidth is the raw detections sent to the server

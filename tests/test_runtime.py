@@ -9,7 +9,6 @@ import socket
 import subprocess
 import sys
 import time
-from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -481,3 +480,30 @@ def test_sigterm_finishes_the_frame_and_exits_0(tmp_path, export_dir, procs):
     assert s["phase"] == "stopped" and s["stopped"] and 3 <= s["frames_done"] < FRAMES
     rows = tracks_path(out, 0).read_text().splitlines()[1:]
     assert max(int(r.split(",")[0]) for r in rows) == s["frame"]
+
+
+def test_sigterm_during_startup_exits_0(tmp_path, export_dir, procs):
+    out = tmp_path / "out"
+    c = write_config(tmp_path / "cam0.toml", 0, [1], [ep(free_port())], [ep(free_port())],
+                     export_dir, out=out)
+    p = start_node(procs, c)
+    status = out / "status_node0.json"
+    assert wait_for(lambda: status.exists(), timeout=20)
+    assert json.loads(status.read_text())["phase"] == "starting"
+    p.send_signal(signal.SIGTERM)
+    _, err = p.communicate(timeout=10)
+    assert p.returncode == 0, err
+    s = json.loads(status.read_text())
+    assert s["phase"] == "stopped" and s["frames_done"] == 0 and s["exit_code"] == 0
+
+
+def test_scenario_source_plays_back_one_camera(tmp_path):
+    from sim_cluster.scenario import load_scenario
+
+    p = tmp_path / "cam2.toml"
+    p.write_text('node = 2\nnetwork = "n"\n[source]\nkind = "scenario"\nscenario = "terrace-sim"\n'
+                 "seed = 3\nframes = 5\n")
+    src = open_source(load_node_config(p))
+    ref = load_scenario("terrace-sim", seed=3, frames=5)
+    assert src.frames == 5 and src.camera.id == 2 and np.array_equal(src.camera.G, ref.cameras[2].G)
+    assert all(len(src(k)) == len(ref.detections[k][2]) for k in range(5))

@@ -40,11 +40,10 @@ import os
 import signal
 import threading
 import time
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any, Callable
 
-import numpy as np
 
 from edge_node.core.config import TrackerConfig
 from edge_node.core.node import CameraNode
@@ -121,7 +120,7 @@ def supports_stale(node: CameraNode) -> bool:
         return False
 
 
-def tracker_config_for(cfg: NodeConfig, source: Source, mode: str) -> TrackerConfig:
+def tracker_config_for(cfg: NodeConfig, source: Source) -> TrackerConfig:
     """The tracker config as sim_cluster's reference run builds it: fps and units per metre from
     the source unless ``[tracker]`` sets them; ``[runtime] staleness_frames`` when given."""
     changes: dict[str, Any] = {}
@@ -144,7 +143,7 @@ def _sleep_until(t: float, stop: threading.Event) -> None:
 
 class FrameLoop:
     """Drives one ``CameraNode`` over a source and a transport (any object with the
-    ``ZenohTransport`` methods ``neighbours``, ``publish``, ``collect``, ``latest``,
+    ``ZenohTransport`` members ``neighbours``, ``publish``, ``collect``, ``drain``,
     ``alive_neighbours``, ``counters``; tests pass fakes)."""
 
     def __init__(self, cfg: NodeConfig, node: CameraNode, source: Callable[[int], Any],
@@ -321,7 +320,7 @@ def run_node(cfg: NodeConfig, *, frames: int | None = None, mode: str | None = N
     mode = rt.mode
     source = open_source(cfg)
     total = source.frames if rt.frames is None else min(source.frames, rt.frames)
-    tcfg = tracker_config_for(cfg, source, mode)
+    tcfg = tracker_config_for(cfg, source)
     node = CameraNode(source.camera, cfg.neighbours, tcfg, cfg.network, node_id=cfg.node)
     if mode == "async" and not supports_stale(node):
         raise NodeConfigError(cfg.name, "runtime.mode", "'async' needs a tracker core whose "
@@ -334,11 +333,20 @@ def run_node(cfg: NodeConfig, *, frames: int | None = None, mode: str | None = N
              cfg.node, mode, cfg.network, total, source.description, list(cfg.neighbours),
              list(z.listen), list(z.connect))
     with Shutdown(install_signals) as shutdown:
-        transport = factory(cfg.network, cfg.node, cfg.neighbours, z.listen, z.connect,
-                            z.scouting, z.config_file, gossip=z.gossip, lease_ms=z.lease_ms)
+        try:
+            transport = factory(cfg.network, cfg.node, cfg.neighbours, z.listen, z.connect,
+                                z.scouting, z.config_file, gossip=z.gossip, lease_ms=z.lease_ms)
+        except tr.TransportError as e:
+            if status.path is not None:
+                write_json_atomic(status.path, {
+                    "pid": os.getpid(), "node": cfg.node, "network": cfg.network, "mode": mode,
+                    "phase": "failed", "finished": False, "exit_code": EXIT_TRANSPORT,
+                    "error": str(e), "updated_at": time.time()})
+            raise
         writer = None
         loop = None
         code = EXIT_FAILURE
+        error: str | None = None
         try:
             writer = TrackWriter(tracks_path(out, cfg.node) if out else None)
             loop = FrameLoop(cfg, node, source, transport, mode=mode, frames=total,
@@ -353,10 +361,15 @@ def run_node(cfg: NodeConfig, *, frames: int | None = None, mode: str | None = N
                         code = EXIT_OK
                         return RunReport(EXIT_OK, loop.stats, transport.counters(), writer.path)
                     code = EXIT_STARTUP
+                    error = str(e)
                     raise
                 loop.stats.startup_s = waited
                 log.info("node %d: neighbours ready after %.3f s", cfg.node, waited)
-            stats = loop.run()
+            try:
+                stats = loop.run()
+            except Exception as e:
+                error = f"{type(e).__name__}: {e}"
+                raise
             code = EXIT_OK
             log.info("node %d: %s after %d frames (prepare %.2f s, wait %.2f s, update %.2f s)",
                      cfg.node, "stopped" if stats.stopped else "finished", stats.frames_done,
@@ -374,7 +387,7 @@ def run_node(cfg: NodeConfig, *, frames: int | None = None, mode: str | None = N
             transport.close()
             if loop is not None:
                 phase = ("stopped" if loop.stats.stopped else "finished") if code == EXIT_OK else "failed"
-                extra = {"exit_code": code}
+                extra = {"exit_code": code, "error": error}
                 try:
                     d = loop.status_dict(phase)
                     d.update(extra)
