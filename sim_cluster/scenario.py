@@ -528,6 +528,6 @@ def load_scenario(name_or_path: str | Path, seed: int | None = None,
     kind = src.raw("kind", "synthetic")
     if kind not in SCENARIO_KINDS:
         raise src.error("kind", f"must be one of {sorted(SCENARIO_KINDS)}, got {kind!r}")
-    if data_root is not None:  # the CLI's --data-root beats the file's and $DMTT_DATA
+    if data_root is not None and kind == "epfl-gt":  # --data-root beats the file and $DMTT_DATA
         raw.setdefault("source", {})["data_root"] = str(Path(data_root).expanduser().resolve())
     return SCENARIO_KINDS[kind](raw, path, int(seed), None if frames is None else int(frames))
