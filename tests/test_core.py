@@ -198,3 +198,52 @@ def test_tracker_is_unit_invariant():
             assert [t.id for t in fa[i]] == [t.id for t in fb[i]]
             for ta, tb in zip(fa[i], fb[i]):
                 np.testing.assert_allclose(tb.x / 100.0, ta.x, rtol=1e-4, atol=1e-5)
+
+
+def test_stale_messages_fused_once_and_aged():
+    """Event-triggered input (update(stale_ok=True)): a neighbour's entry is predicted forward
+    and aged; its u, U count once (a duplicate or a re-delivery adds nothing); entries older
+    than kappa are forgotten."""
+    from edge_node.core import dkf
+    from edge_node.core.model import transition
+
+    cfg = TrackerConfig()
+    nodes = make_nodes({0: (1,), 1: (0,)}, cfg)
+    rng = np.random.default_rng(6)
+    msgs = {}
+    for k in range(3):  # both see the person: a shared tracker (0, 0)
+        msgs = {i: n.prepare(k, [det(3.0 + 0.04 * k, 5.0, 1, rng)]) for i, n in nodes.items()}
+        for i, n in nodes.items():
+            n.update([msgs[1 - i]])
+    assert sorted(nodes[1].trackers) == [(0, 0)]
+    late = msgs[0]  # node 0's frame-2 message, delivered again below
+
+    n1 = nodes[1]
+    n1.prepare(3, [])
+    tr = n1.trackers[(0, 0)]
+    x_bar, P = tr.x_bar.copy(), tr.P.copy()
+    entry = late.trackers[0]
+    out = n1.update([late, late], stale_ok=True)  # one frame late, delivered twice
+    A = transition(cfg.dt)
+    expect, _ = dkf.correct(x_bar, P, entry.u, entry.U, [A @ entry.x_bar],
+                            own_x_bar_sent=tr.x_bar_sent)
+    np.testing.assert_allclose(out[0].x, expect, atol=1e-9)  # fused once, x_bar predicted
+    assert out[0].ell == min(tr.ell_sent, entry.ell + 1)  # aged by one frame
+
+    n1.prepare(4, [])
+    tr = n1.trackers[(0, 0)]
+    x_bar, P = tr.x_bar.copy(), tr.P.copy()
+    out = n1.update([late], stale_ok=True)  # the same message yet again: no u, U any more
+    expect, _ = dkf.correct(x_bar, P, np.zeros(6), np.zeros((6, 6)),
+                            [transition(2 * cfg.dt) @ entry.x_bar],
+                            own_x_bar_sent=tr.x_bar_sent)
+    np.testing.assert_allclose(out[0].x, expect, atol=1e-9)
+
+    for k in range(5, 5 + cfg.kappa + 1):
+        n1.prepare(k, [])
+        n1.update([], stale_ok=True)
+    assert n1._memory[0] == {}  # forgotten after kappa frames
+    n1.prepare(5 + cfg.kappa + 1, [])
+    before = n1.stats.ignored_messages
+    n1.update([late], stale_ok=True)
+    assert n1.stats.ignored_messages == before + 1  # too old to use
