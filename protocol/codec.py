@@ -36,7 +36,7 @@ saying why. ``encode`` validates the same rules, so a node never sends what a pe
 from __future__ import annotations
 
 from collections.abc import Collection
-from dataclasses import dataclass, fields
+from dataclasses import dataclass, fields, replace
 from typing import Any
 
 import msgpack
@@ -277,6 +277,16 @@ def encode(msg: FrameMessage, *, limits: Limits = DEFAULT_LIMITS) -> bytes:
     if len(data) > limits.max_bytes:
         raise _err("oversize", f"{len(data)} bytes > {limits.max_bytes}")
     return data
+
+
+def appearance_bytes(msg: FrameMessage, payload: bytes | None = None) -> int:
+    """Bytes the appearance fields add to ``msg``'s encoding (0 without appearance): the
+    measured cost of sharing new trackers' descriptors (``payload`` = ``encode(msg)`` if known)."""
+    if not any(t.appearance is not None for t in msg.trackers):
+        return 0
+    payload = encode(msg) if payload is None else payload
+    bare = replace(msg, trackers=tuple(replace(t, appearance=None) for t in msg.trackers))
+    return len(payload) - len(encode(bare))
 
 
 def quantize(msg: FrameMessage, *, limits: Limits = DEFAULT_LIMITS) -> FrameMessage:

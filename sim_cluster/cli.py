@@ -4,6 +4,7 @@
     sim_cluster bench
     sim_cluster scenarios
     sim_cluster export-detections --scenario terrace-sim --out DIR
+    sim_cluster up --topology chain [--detach]; status | kill N | restart N | down
     sim_cluster ablation --scenarios terrace-sim,lab-sim --seeds 0-4 --out DIR
 """
 from __future__ import annotations
@@ -114,6 +115,17 @@ def cmd_export(args) -> int:
     return 0
 
 
+def _cluster(name: str):
+    def cmd(args) -> int:
+        from sim_cluster import cluster
+
+        try:
+            return getattr(cluster, name)(args)
+        except cluster.ClusterError as e:
+            raise CliError(str(e)) from None
+    return cmd
+
+
 def cmd_scenarios(args) -> int:
     from sim_cluster.scenario import list_presets
 
@@ -164,6 +176,36 @@ def build_parser() -> argparse.ArgumentParser:
     r.add_argument("--out", default="runs/latest")
     r.add_argument("--quiet", action="store_true", help="no progress bar")
     r.set_defaults(func=cmd_run)
+
+    u = sub.add_parser("up", help="start one edge_node process per camera on loopback (Zenoh)")
+    scenario_args(u)
+    u.add_argument("--topology", default="chain",
+                   help="complete | ring | chain | disconnected | star | edge-list file")
+    u.add_argument("-n", "--nodes", type=int, default=None,
+                   help="number of nodes (default: one per camera of the scenario)")
+    u.add_argument("--mode", default="sync", choices=("sync", "async"))
+    u.add_argument("--config", default="dkf+lda+dtm", choices=ABLATIONS)
+    u.add_argument("--network", default="sim", help="network name (a Zenoh key chunk)")
+    u.add_argument("--out", default="runs/cluster")
+    u.add_argument("--detach", action="store_true", help="return once the processes run")
+    u.add_argument("--sync-timeout", type=float, default=1.0,
+                   help="sync mode: seconds frame k waits for a live neighbour")
+    u.add_argument("--startup-timeout", type=float, default=30.0,
+                   help="seconds a node waits for its neighbours at start-up")
+    u.add_argument("--fps", type=float, default=None,
+                   help="frame pacing (default: the scenario's fps in async mode, "
+                        "as fast as possible in sync mode)")
+    u.add_argument("--quiet", action="store_true")
+    u.set_defaults(func=_cluster("up"))
+    for name, what in (("status", "list a cluster's nodes"), ("down", "stop every node")):
+        c = sub.add_parser(name, help=what)
+        c.add_argument("--out", default="runs/cluster")
+        c.set_defaults(func=_cluster(name))
+    for name, what in (("kill", "SIGKILL one node (a crash)"), ("restart", "start a node again")):
+        c = sub.add_parser(name, help=what)
+        c.add_argument("node", type=int)
+        c.add_argument("--out", default="runs/cluster")
+        c.set_defaults(func=_cluster(name))
 
     e = sub.add_parser("export-detections",
                        help="write a scenario's detections (det.txt + .npy), truth and calibration")

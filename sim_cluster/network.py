@@ -7,7 +7,7 @@ is the reference run that the multi-process deployment must reproduce.
 from __future__ import annotations
 
 from collections.abc import Callable
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field
 
 import msgpack
 import numpy as np
@@ -91,13 +91,6 @@ class RunResult:
         }
 
 
-def _appearance_bytes(msg: FrameMessage, payload: bytes) -> int:
-    if not any(t.appearance is not None for t in msg.trackers):
-        return 0
-    bare = replace(msg, trackers=tuple(replace(t, appearance=None) for t in msg.trackers))
-    return len(payload) - len(codec.encode(bare))
-
-
 def raw_detection_bytes(detections, camera_id: int, frame: int) -> bytes:
     """What a camera would send a central server per frame: its boxes (float32) and
     descriptors (float16), msgpack-framed. Used to count the centralized baseline's bandwidth."""
@@ -160,7 +153,7 @@ def run_network(data: ScenarioData, adjacency: Adjacency | str, cfg: TrackerConf
                 if msg is None:
                     continue
             payload = codec.encode(msg)
-            app = _appearance_bytes(msg, payload) if adjacency[i] else 0
+            app = codec.appearance_bytes(msg, payload) if adjacency[i] else 0
             for dst in adjacency[i]:
                 wire.add(i, dst, payload, msg, app)
                 for delay in faults.deliveries(i, dst, k):

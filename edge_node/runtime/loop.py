@@ -104,6 +104,9 @@ class LoopStats:
     stopped: bool = False
     startup_s: float | None = None
     frames_sent: int = 0  # frames whose message was published
+    tracker_entries: int = 0  # (tracker, link) entries sent
+    appearance_entries: int = 0  # (tracker, link) entries sent with appearance
+    appearance_bytes: int = 0  # bytes those appearance fields took, all links
     frames_skipped: int = 0  # async: frames whose message was not sent
     bytes_saved: int = 0  # async: bytes not sent against full messages every frame (all links)
     encode_errors: int = 0
@@ -181,7 +184,11 @@ class FrameLoop:
                       self.node.id, msg.frame, e)
             return None
         self.transport.publish(payload)
+        links = len(self.transport.neighbours)
         self.stats.frames_sent += 1
+        self.stats.tracker_entries += links * len(msg.trackers)
+        self.stats.appearance_entries += links * sum(t.appearance is not None for t in msg.trackers)
+        self.stats.appearance_bytes += links * codec.appearance_bytes(msg, payload)
         return len(payload)
 
     def step_sync(self, k: int, first: bool) -> list:
@@ -401,6 +408,9 @@ def run_node(cfg: NodeConfig, *, frames: int | None = None, mode: str | None = N
                             "frames_total": st.frames_total, "stopped": st.stopped,
                             "startup_s": st.startup_s, "latency": lat, **counters,
                             "frames_sent": st.frames_sent, "frames_skipped": st.frames_skipped,
+                            "tracker_entries": st.tracker_entries,
+                            "appearance_entries": st.appearance_entries,
+                            "appearance_bytes": st.appearance_bytes,
                             "bytes_saved": st.bytes_saved, "encode_errors": st.encode_errors,
                             "tracker_entries_sent": getattr(loop.trigger, "entries_sent", None)
                             if mode == "async" else None,

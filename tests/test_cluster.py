@@ -1,0 +1,158 @@
+"""``sim_cluster up``: real processes over Zenoh on loopback.
+
+The central integration test: a synchronous multi-process run reproduces the in-process run of
+the same scenario and seed (same ids per node and frame, states equal to 1e-6). Then the
+cluster's life cycle: detach, status, kill, restart, down, Ctrl-C, a node dying; no orphans.
+"""
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from edge_node.core.config import TrackerConfig
+from sim_cluster.cluster import ClusterState, alive
+from sim_cluster.evaluation import evaluate
+from sim_cluster.network import run_network
+from sim_cluster.scenario import load_scenario
+from sim_cluster.topology import build
+from sim_cluster.tracks_io import read_tracks
+
+EXE = str(Path(sys.executable).parent / "sim_cluster")
+FRAMES = 80
+
+
+def _up(out, *extra, check=True, timeout=180):
+    r = subprocess.run([EXE, "up", "--scenario", "terrace-sim", "--frames", str(FRAMES),
+                        "--out", str(out), "--quiet", *extra],
+                       capture_output=True, text=True, timeout=timeout)
+    if check:
+        assert r.returncode == 0, r.stdout + r.stderr
+    return r
+
+
+def _pids(out):
+    return [p.pid for p in ClusterState.load(out).nodes.values()]
+
+
+@pytest.fixture(scope="module")
+def terrace():
+    return load_scenario("terrace-sim", seed=0, frames=FRAMES)
+
+
+@pytest.mark.parametrize("topology", ["chain", "ring"])
+def test_sync_cluster_reproduces_in_process_run(tmp_path, terrace, topology):
+    # Equivalence holds when no frame times out waiting; on a loaded CI machine give sync
+    # mode time, and check below that no timeout happened.
+    _up(tmp_path, "--topology", topology, "--sync-timeout", "30")
+    ref = run_network(terrace, build(topology, 4), TrackerConfig())
+    for node in range(4):
+        got = read_tracks(tmp_path / "nodes" / f"tracks_node{node}.csv", FRAMES)
+        for k in range(FRAMES):
+            assert [t.id for t in got[k]] == [t.id for t in ref.tracks[node][k]], (node, k)
+            for a, b in zip(got[k], ref.tracks[node][k]):
+                np.testing.assert_allclose(a.x, b.x, rtol=0, atol=1e-6)
+    summary = json.loads((tmp_path / "summary.json").read_text())
+    for proc in summary["processes"].values():
+        assert not proc["timeouts"] and not proc["late"] and not proc["rejected"]
+    assert summary["tracks"]["ids_per_node"] == ref.summary()["tracks"]["ids_per_node"]
+    # the same bytes went over the wire (sent_at aside, which is 0.0 in process: same size)
+    assert summary["bandwidth"]["bytes_per_frame"] == pytest.approx(
+        ref.bandwidth()["bytes_per_frame"], rel=1e-9)
+    assert not any(alive(p) for p in _pids(tmp_path))
+
+
+def test_async_cluster_keeps_accuracy(tmp_path, terrace):
+    """Async processes never wait: neighbours' messages arrive a frame or more late. Ground
+    MOTA stays within 0.9 x the synchronous run's."""
+    _up(tmp_path / "a", "--topology", "ring", "--mode", "async")
+    a = json.loads((tmp_path / "a" / "summary.json").read_text())
+    sync = run_network(terrace, build("ring", 4), TrackerConfig())
+    ref = evaluate(sync.tracks, terrace, views=("ground",))["ground"]["median"]["mota"]
+    assert a["metrics"]["ground"]["median"]["mota"] >= 0.9 * ref
+
+
+def test_detached_cluster_life_cycle(tmp_path):
+    out = tmp_path / "c"
+    r = subprocess.run([EXE, "up", "--scenario", "lab-sim", "--frames", "2000", "--nodes",
+                        "3", "--topology", "chain", "--out", str(out), "--detach", "--mode",
+                        "async"], capture_output=True, text=True, timeout=60)
+    pids = []
+    try:
+        assert r.returncode == 0, r.stderr
+        pids = _pids(out)
+        assert len(pids) == 3 and all(alive(p) for p in pids)
+        deadline = time.time() + 60
+        while time.time() < deadline:  # nodes start tracking
+            st = subprocess.run([EXE, "status", "--out", str(out)], capture_output=True,
+                                text=True).stdout
+            frames = [json.loads((out / "nodes" / f"status_node{i}.json").read_text())
+                      .get("frame") if (out / "nodes" / f"status_node{i}.json").exists() else None
+                      for i in range(3)]
+            if all(f is not None and f > 5 for f in frames):
+                break
+            time.sleep(0.3)
+        assert all(f is not None and f > 5 for f in frames), st
+        assert st.count(" yes ") == 3
+        subprocess.run([EXE, "kill", "1", "--out", str(out)], check=True, capture_output=True)
+        time.sleep(0.3)
+        assert not alive(pids[1]) and alive(pids[0]) and alive(pids[2])
+        st = subprocess.run([EXE, "status", "--out", str(out)], capture_output=True, text=True).stdout
+        assert st.count(" yes ") == 2
+        subprocess.run([EXE, "restart", "1", "--out", str(out)], check=True, capture_output=True)
+        new = _pids(out)[1]
+        assert new != pids[1] and alive(new)
+        pids.append(new)
+        down = subprocess.run([EXE, "down", "--out", str(out)], capture_output=True, text=True)
+        assert down.returncode == 0, down.stderr
+        assert not any(alive(p) for p in pids)
+    finally:
+        for p in pids:
+            if alive(p):
+                os.kill(p, signal.SIGKILL)
+
+
+def test_ctrl_c_and_dying_node_leave_no_orphans(tmp_path):
+    # Ctrl-C: the launcher ends every node it started.
+    out = tmp_path / "i"
+    pr = subprocess.Popen([EXE, "up", "--scenario", "lab-sim", "--frames", "2000", "--nodes",
+                           "2", "--topology", "chain", "--out", str(out), "--quiet"],
+                          stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    pids = []
+    try:
+        deadline = time.time() + 60
+        while time.time() < deadline and not (out / "cluster.json").exists():
+            time.sleep(0.1)
+        pids = _pids(out)
+        time.sleep(1.0)
+        pr.send_signal(signal.SIGINT)
+        pr.wait(timeout=30)
+        assert pr.returncode == 130
+        assert not any(alive(p) for p in pids)
+
+        # A node that dies: the launcher reports it and stops the others.
+        out2 = tmp_path / "d"
+        pr2 = subprocess.Popen([EXE, "up", "--scenario", "lab-sim", "--frames", "2000",
+                                "--nodes", "2", "--topology", "chain", "--out", str(out2),
+                                "--quiet"], stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                               text=True)
+        deadline = time.time() + 60
+        while time.time() < deadline and not (out2 / "cluster.json").exists():
+            time.sleep(0.1)
+        pids = _pids(out2)
+        time.sleep(1.0)
+        os.kill(pids[0], signal.SIGKILL)
+        _, err = pr2.communicate(timeout=30)
+        assert pr2.returncode == 2 and "node 0 exited with code -9" in err
+        assert not any(alive(p) for p in pids)
+    finally:
+        for p in pids:
+            if alive(p):
+                os.kill(p, signal.SIGKILL)
+        if pr.poll() is None:
+            pr.kill()
