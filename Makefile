@@ -18,8 +18,10 @@ $(STAMP): pyproject.toml
 	$(BIN)/pip install --quiet -e '.[dev,vision,viz,reid]'
 	touch $(STAMP)
 
+# The main job: one edge_node process per camera of the embedded default scenario (terrace-sim,
+# 4 cameras in a chain) talking over Zenoh on loopback; prints the per-node metrics table.
 run: setup
-	$(BIN)/sim_cluster run --scenario terrace-sim --topology chain --config dkf+lda+dtm --seed 0 --out runs/latest
+	$(BIN)/sim_cluster up --scenario terrace-sim --topology chain --config dkf+lda+dtm --seed 0 --out runs/latest
 
 test: setup
 	$(BIN)/python -m pytest -q
