@@ -1,6 +1,7 @@
 """``edge_node``: run one camera of the network as its own process.
 
     edge_node run   --config cam0.toml [--frames N] [--mode sync|async] [--log-level INFO]
+                    [--rerun off|spawn|connect ADDR|save FILE.rrd|serve] [--recording-id ID]
     edge_node check --config cam0.toml       # validate and print the resolved config (JSON)
 
 Exit codes: 0 done (or stopped by SIGINT / SIGTERM), 1 internal error, 2 bad command line /
@@ -32,6 +33,14 @@ def _parser() -> argparse.ArgumentParser:
     r.add_argument("--frames", type=int, default=None, help="process at most N frames")
     r.add_argument("--mode", choices=("sync", "async"), default=None,
                    help="override [runtime] mode")
+    r.add_argument("--join", action="store_true",
+                   help="join a running network (after a restart): start at the neighbours' "
+                        "frame; they resync this node with their trackers")
+    r.add_argument("--rerun", nargs="+", default=None, metavar="MODE",
+                   help="live view in Rerun, overrides [viz] rerun: off | spawn | connect [ADDR] "
+                        "| save FILE.rrd | serve [PORT]")
+    r.add_argument("--recording-id", default=None,
+                   help="Rerun recording shared by the network's nodes (default dmtt-<network>)")
     r.add_argument("--log-level", default="INFO",
                    choices=("DEBUG", "INFO", "WARNING", "ERROR", "debug", "info", "warning", "error"))
     c = sub.add_parser("check", help="validate the config and print it resolved")
@@ -75,10 +84,22 @@ def _run(args) -> int:
         cfg = load_node_config(args.config)
     except NodeConfigError as e:
         return _fail(str(e))
+    if args.rerun is not None or args.recording_id is not None:
+        from dataclasses import replace
+
+        from edge_node.viz import VizSpecError, parse_spec  # does not import Rerun
+
+        try:
+            spec = parse_spec(args.rerun) if args.rerun is not None else None
+        except VizSpecError as e:
+            return _fail(f"--rerun {e}")
+        viz = replace(cfg.viz, **({"rerun": str(spec)} if spec else {}),
+                      **({"recording_id": args.recording_id} if args.recording_id else {}))
+        cfg = replace(cfg, viz=viz)
     from edge_node.runtime.transport import StartupError, TransportError  # imports zenoh lazily
 
     try:
-        report = loop.run_node(cfg, frames=args.frames, mode=args.mode)
+        report = loop.run_node(cfg, frames=args.frames, mode=args.mode, join=args.join)
     except (NodeConfigError, SourceError) as e:
         return _fail(str(e), loop.EXIT_USAGE)
     except StartupError as e:

@@ -81,6 +81,7 @@ def cmd_run(args) -> int:
     from sim_cluster.report import run_table
     from sim_cluster.tracks_io import write_tracks
 
+    rerun = _rerun_spec(args)
     data = _scenario(args)
     cfg = _tracker_config(args)
     faults = None
@@ -101,7 +102,30 @@ def cmd_run(args) -> int:
     (out / "summary.json").write_text(json.dumps(summary, indent=2, sort_keys=True))
     print(run_table(summary))
     print(f"wrote {out}/summary.json and {len(result.tracks)} track files")
+    if rerun.enabled:
+        from sim_cluster.viz import VizError, record_run
+
+        try:
+            record_run(rerun, result, data)
+        except VizError as e:
+            raise CliError(str(e)) from None
     return 0
+
+
+def _rerun_spec(args):
+    """``--rerun`` checked before any work (Rerun itself is imported only when it is used)."""
+    from sim_cluster.viz import VizError, spec_from_args
+
+    try:
+        return spec_from_args(getattr(args, "rerun", None))
+    except VizError as e:
+        raise CliError(str(e)) from None
+
+
+def _rerun_arg(sp) -> None:
+    sp.add_argument("--rerun", nargs="+", default=None, metavar="MODE",
+                    help="Rerun view: off (default) | spawn | connect [ADDR] | save FILE.rrd | "
+                         "serve [PORT]; all nodes in one recording")
 
 
 def cmd_export(args) -> int:
@@ -140,6 +164,16 @@ def cmd_bench(args) -> int:
     return bench_main(args)
 
 
+def cmd_bench_cluster(args) -> int:
+    from sim_cluster.bench_cluster import main as bench_cluster_main
+    from sim_cluster.cluster import ClusterError
+
+    try:
+        return bench_cluster_main(args)
+    except ClusterError as e:
+        raise CliError(str(e)) from None
+
+
 def cmd_ablation(args) -> int:
     from sim_cluster.ablation import AblationError, main as ablation_main
 
@@ -175,6 +209,7 @@ def build_parser() -> argparse.ArgumentParser:
     r.add_argument("--faults", default=None, help="fault plan TOML (loss, delay, partitions, crashes)")
     r.add_argument("--out", default="runs/latest")
     r.add_argument("--quiet", action="store_true", help="no progress bar")
+    _rerun_arg(r)
     r.set_defaults(func=cmd_run)
 
     u = sub.add_parser("up", help="start one edge_node process per camera on loopback (Zenoh)")
@@ -192,10 +227,14 @@ def build_parser() -> argparse.ArgumentParser:
                    help="sync mode: seconds frame k waits for a live neighbour")
     u.add_argument("--startup-timeout", type=float, default=30.0,
                    help="seconds a node waits for its neighbours at start-up")
+    u.add_argument("--faults", default=None,
+                   help="fault plan TOML: link loss/delay/partitions applied by the nodes, "
+                        "kills and restarts by the launcher")
     u.add_argument("--fps", type=float, default=None,
                    help="frame pacing (default: the scenario's fps in async mode, "
                         "as fast as possible in sync mode)")
     u.add_argument("--quiet", action="store_true")
+    _rerun_arg(u)
     u.set_defaults(func=_cluster("up"))
     for name, what in (("status", "list a cluster's nodes"), ("down", "stop every node")):
         c = sub.add_parser(name, help=what)
@@ -223,6 +262,20 @@ def build_parser() -> argparse.ArgumentParser:
     b.add_argument("--frames", type=int, default=60)
     b.add_argument("--repeats", type=int, default=3)
     b.set_defaults(func=cmd_bench)
+
+    bc = sub.add_parser("bench-cluster", help="real clusters of N processes: frames/s, one-hop "
+                        "latency, bytes per link (passive subscriber), start-up time")
+    bc.add_argument("--nodes", default="4,8", help="comma-separated node counts (default 4,8)")
+    bc.add_argument("--frames", type=int, default=300)
+    bc.add_argument("--repeats", type=int, default=3)
+    bc.add_argument("--topology", default="ring", help="complete | ring | chain | star")
+    bc.add_argument("--scenario", default="ring8-sim", help="preset or scenario TOML with at "
+                    "least max(--nodes) cameras (a node count N uses cameras 0..N-1)")
+    bc.add_argument("--seed", type=int, default=0)
+    bc.add_argument("--sync-timeout", type=float, default=10.0)
+    bc.add_argument("--startup-timeout", type=float, default=60.0)
+    bc.add_argument("--out", default="runs/bench-cluster")
+    bc.set_defaults(func=cmd_bench_cluster)
 
     a = sub.add_parser("ablation", help="configs x topologies x seeds over scenarios (paper Fig. 3)")
     a.add_argument("--scenarios", default="terrace-sim,lab-sim,campus-sim,terrace-gt,campus-gt",

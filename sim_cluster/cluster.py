@@ -103,13 +103,14 @@ def alive(pid: int | None) -> bool:
         return True
 
 
-def spawn(proc: NodeProc) -> subprocess.Popen:
+def spawn(proc: NodeProc, join: bool = False) -> subprocess.Popen:
     """Start one ``edge_node run`` in its own session (Ctrl-C on the launcher's terminal reaches
-    the launcher, which ends its nodes in order)."""
+    the launcher, which ends its nodes in order). ``join``: a restart into a running network."""
     log = open(proc.log, "ab")
     try:
         return subprocess.Popen([sys.executable, "-m", "edge_node.cli", "run", "--config",
-                                 proc.config], stdout=log, stderr=subprocess.STDOUT,
+                                 proc.config, *(["--join"] if join else [])],
+                                stdout=log, stderr=subprocess.STDOUT,
                                 stdin=subprocess.DEVNULL, start_new_session=True)
     finally:
         log.close()
@@ -140,7 +141,8 @@ def _toml_str(v: str) -> str:
 
 
 def node_config(i: int, state: ClusterState, ports: dict[int, int], *, config: str,
-                sync_timeout_s: float, startup_timeout_s: float, fps: float = 0.0) -> str:
+                sync_timeout_s: float, startup_timeout_s: float, fps: float = 0.0,
+                faults: Path | None = None) -> str:
     """The TOML of node ``i`` (schema: ``edge_node/runtime/config.py``)."""
     neighbours = state.adjacency[str(i)]
     listen = [f"tcp/127.0.0.1:{ports[i]}"]
@@ -178,6 +180,8 @@ def node_config(i: int, state: ClusterState, ports: dict[int, int], *, config: s
             lines.append(f"frames = {state.frames}")
         if state.data_root:
             lines.append(f"data_root = {_toml_str(state.data_root)}")
+    if faults is not None:
+        lines += ["", "[faults]", f"file = {_toml_str(str(faults))}"]
     lines += ["", "[tracker]", f"ablation = {_toml_str(config)}", "", "[output]",
               f"dir = {_toml_str(str(Path(state.out) / 'nodes'))}", "status_interval_s = 0.5", ""]
     return "\n".join(lines)
@@ -207,15 +211,19 @@ def status_table(state: ClusterState) -> str:
             f"scenario {state.scenario} seed {state.seed}",
             f"{'node':>4} {'pid':>7} {'alive':>5} {'frame':>6} {'trackers':>8} {'bytes sent':>11} "
             f"{'rejected':>8} {'late':>5} {'timeouts':>8} {'phase':>9}"]
+    reasons = []  # hostile or broken input, by ProtocolError reason (protocol/errors.py)
     for key, p in sorted(state.nodes.items(), key=lambda kv: int(kv[0])):
         st = node_status(state, p.node)
         rejected = sum((st.get("rejected") or {}).values())
+        if rejected:
+            reasons.append(f"node {p.node} rejected: " + ", ".join(
+                f"{r} {n}" for r, n in sorted(st["rejected"].items())))
         frame = st.get("frame")
         rows.append(f"{p.node:>4} {p.pid or '-':>7} {'yes' if alive(p.pid) else 'no':>5} "
                     f"{'-' if frame is None else frame:>6} {st.get('trackers', '-'):>8} "
                     f"{st.get('bytes_sent', '-'):>11} {rejected:>8} {st.get('late', '-'):>5} "
                     f"{st.get('timeouts', '-'):>8} {st.get('phase', '-'):>9}")
-    return "\n".join(rows)
+    return "\n".join(rows + reasons)
 
 
 def gather(state: ClusterState, data, frames: int, config: str = "") -> dict:
@@ -289,28 +297,46 @@ def up(args) -> int:
                            f"'sim_cluster down --out {args.out}' first")
     for f in (out / "nodes").glob("*"):
         f.unlink()
+    viz = _cluster_viz(args, out, n, data)  # --rerun (sim_cluster/viz.py)
     state = ClusterState(str(out), args.network, args.scenario, args.seed, args.frames,
                          args.mode, Path(args.topology).stem,
                          {str(i): list(v) for i, v in adjacency.items()},
                          data_root=str(Path(args.data_root).resolve()) if args.data_root else None)
+    plan = None
+    faults_file = None
+    if getattr(args, "faults", None):
+        from edge_node.faults import FaultPlan, FaultPlanError
+
+        faults_file = Path(args.faults).resolve()
+        try:
+            plan = FaultPlan.load(faults_file)
+        except FaultPlanError as e:
+            raise CliError(str(e)) from None
     ports = dict(enumerate(free_ports(n)))
     # Pacing: a synchronous cluster runs in lock-step as fast as it can; an asynchronous one
     # never waits, so it plays frames at the cameras' rate (as real cameras deliver them).
-    fps = args.fps if args.fps is not None else (data.fps if args.mode == "async" else 0.0)
+    # Crashes and restarts happen in wall-clock time too (a process takes a second or two to
+    # start), so a cluster whose fault plan kills nodes also plays at camera rate.
+    realtime = args.mode == "async" or (plan is not None and bool(plan.nodes))
+    fps = args.fps if args.fps is not None else (data.fps if realtime else 0.0)
     for i in range(n):
         cfg = out / "configs" / f"node{i}.toml"
         cfg.write_text(node_config(i, state, ports, config=args.config,
                                    sync_timeout_s=args.sync_timeout,
-                                   startup_timeout_s=args.startup_timeout, fps=fps))
+                                   startup_timeout_s=args.startup_timeout, fps=fps,
+                                   faults=faults_file) + viz.node_toml(i))
         state.nodes[str(i)] = NodeProc(i, str(cfg), str(out / "logs" / f"node{i}.log"), ports[i])
     procs: dict[int, subprocess.Popen] = {}
     state.started_at = time.time()
     try:
+        viz.open()  # spawn / serve: the viewer or server the nodes connect to
         for p in state.nodes.values():
             procs[p.node] = spawn(p)
             p.pid = procs[p.node].pid
         state.save()
+        viz.log_truth(data.frames)
         if args.detach:
+            viz.close()
             print(f"started {n} nodes ({args.topology}, {args.mode}) in {out}")
             print(f"  sim_cluster status --out {args.out}   |   sim_cluster down --out {args.out}")
             procs = {}  # they are the cluster's now, not this launcher's
@@ -318,20 +344,38 @@ def up(args) -> int:
         frames = data.frames
         update, close = progress_bar(f"cluster {args.topology}", frames, not args.quiet)
         try:
-            while procs:
+            crashed: dict[int, int | None] = {}  # node -> frame to restart it at (plan)
+            while procs or crashed:
                 for node, pr in list(procs.items()):
                     code = pr.poll()
                     if code is None:
                         continue
                     del procs[node]
+                    planned = plan is not None and any(f.node == node for f in plan.nodes)
+                    if code == -signal.SIGKILL and planned:  # the fault plan's crash
+                        crashed[node] = next((f.restart for f in plan.nodes
+                                              if f.node == node and f.restart is not None
+                                              and f.restart > _frame(state, node)), None)
+                        continue
                     if code != 0:
                         tail = Path(state.nodes[str(node)].log).read_text(errors="replace")
                         tail = "\n".join(tail.splitlines()[-8:])
                         raise CliError(f"node {node} exited with code {code}; its log "
                                        f"({state.nodes[str(node)].log}) ends:\n{tail}")
-                done = [node_status(state, i).get("frames_done", 0) for i in range(n)]
+                running = [i for i in procs]
+                done = [node_status(state, i).get("frames_done", 0) for i in running] or [frames]
+                now = max((_frame(state, i) for i in running), default=frames)
+                for node, at in list(crashed.items()):
+                    if at is None or not running:
+                        del crashed[node]  # stays dead (or nobody left to rejoin)
+                    elif now >= at - 1:
+                        p = state.nodes[str(node)]
+                        procs[node] = spawn(p, join=True)
+                        p.pid, p.restarts = procs[node].pid, p.restarts + 1
+                        state.save()
+                        del crashed[node]
                 update(min(done), frames)
-                time.sleep(0.1)
+                time.sleep(0.05)
         finally:
             close()
         summary = gather(state, data, frames, args.config)
@@ -342,15 +386,29 @@ def up(args) -> int:
         if lat:
             print(f"one-hop latency: median of node medians {sorted(lat)[len(lat) // 2]:.2f} ms")
         print(f"wrote {out}/summary.json, tracks and logs under {out}")
+        viz.finish(frames)
         return 0
     except KeyboardInterrupt:
         print("sim_cluster: interrupted: stopping the cluster", file=sys.stderr)
         return 130
     finally:
+        viz.close()
         if procs:  # anything still running that this launcher owns: end it
             terminate([pr.pid for pr in procs.values()])
             for pr in procs.values():
                 pr.wait()
+
+
+def _cluster_viz(args, out: Path, n: int, data):
+    from sim_cluster.viz import ClusterViz, spec_from_args
+
+    return ClusterViz(spec_from_args(getattr(args, "rerun", None)), out, n, data,
+                      detach=bool(getattr(args, "detach", False)))
+
+
+def _frame(state: ClusterState, node: int) -> int:
+    f = node_status(state, node).get("frame")
+    return -1 if f is None else int(f)
 
 
 def status(args) -> int:
@@ -373,7 +431,7 @@ def restart(args) -> int:
     p = _node(state, args.node)
     if alive(p.pid):
         terminate([p.pid])
-    pr = spawn(p)
+    pr = spawn(p, join=True)
     p.pid, p.restarts = pr.pid, p.restarts + 1
     state.save()
     print(f"restarted node {args.node} (pid {p.pid})")

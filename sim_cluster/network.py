@@ -131,6 +131,7 @@ def run_network(data: ScenarioData, adjacency: Adjacency | str, cfg: TrackerConf
     triggers = {i: EventTrigger(trigger, cfg.dt, cfg.units_per_metre) for i in range(n)}
     retired: dict[int, NodeStats] = {}  # counters of a node's earlier lives (before a crash)
     next_counter: dict[int, int] = {}  # a restarted node never reuses an id
+    resync: dict[int, set[int]] = {i: set() for i in range(n)}  # sender -> rejoined neighbours
     tracks: dict[int, list[list[Track]]] = {i: [] for i in range(n)}
     wire = WireCounters()
     in_flight: dict[int, list[tuple[int, int, bytes]]] = {}  # arrival frame -> (src, dst, bytes)
@@ -144,6 +145,8 @@ def run_network(data: ScenarioData, adjacency: Adjacency | str, cfg: TrackerConf
                 triggers[i] = EventTrigger(trigger, cfg.dt, cfg.units_per_metre)
             elif faults.alive(i, k) and node is None:  # a fresh process with an empty state
                 nodes[i] = fresh(i, next_counter.get(i, 0))
+                for j in adjacency[i]:  # its neighbours see it come back and resync it
+                    resync[j].add(i)
         for i, node in nodes.items():
             if node is None:
                 continue
@@ -155,9 +158,15 @@ def run_network(data: ScenarioData, adjacency: Adjacency | str, cfg: TrackerConf
             payload = codec.encode(msg)
             app = codec.appearance_bytes(msg, payload) if adjacency[i] else 0
             for dst in adjacency[i]:
-                wire.add(i, dst, payload, msg, app)
+                m, p, a = msg, payload, app
+                if dst in resync[i] and nodes[dst] is not None:
+                    m = node.resync_message(msg)
+                    p = codec.encode(m)
+                    a = codec.appearance_bytes(m, p)
+                wire.add(i, dst, p, m, a)
                 for delay in faults.deliveries(i, dst, k):
-                    in_flight.setdefault(k + delay, []).append((i, dst, payload))
+                    in_flight.setdefault(k + delay, []).append((i, dst, p))
+            resync[i].clear()
         arrived: dict[int, list[FrameMessage]] = {i: [] for i in range(n)}
         for src, dst, payload in in_flight.pop(k, []):
             if nodes[dst] is None:

@@ -156,3 +156,33 @@ def test_ctrl_c_and_dying_node_leave_no_orphans(tmp_path):
                 os.kill(p, signal.SIGKILL)
         if pr.poll() is None:
             pr.kill()
+
+
+def test_fault_plan_kill_and_restart_across_processes(tmp_path):
+    """``up --faults``: node 2 crashes itself (SIGKILL) at frame 60, the launcher restarts it
+    with --join, its neighbours resync it, and it tracks with the network's ids; its id counter
+    survived the crash."""
+    plan = tmp_path / "faults.toml"
+    plan.write_text("[[node]]\nnode = 2\nkill = 60\nrestart = 90\n")
+    out = tmp_path / "f"
+    frames = 260
+    r = subprocess.run([EXE, "up", "--scenario", "terrace-sim", "--frames", str(frames),
+                        "--topology", "ring", "--out", str(out), "--faults", str(plan), "--quiet"],
+                       capture_output=True, text=True, timeout=240)
+    assert r.returncode == 0, r.stdout + r.stderr
+    t = {i: read_tracks(out / "nodes" / f"tracks_node{i}.csv", frames) for i in range(4)}
+    assert all(not t[2][k] for k in range(60, 90))  # dead
+    back = next((k for k in range(90, frames) if t[2][k]), None)
+    assert back is not None, "node 2 never came back"
+    agree = []
+    for k in range(back, min(back + 25, frames)):
+        mine = {x.id for x in t[2][k]}
+        theirs = {x.id for j in (1, 3) for x in t[j][k]}
+        agree.append(len(mine & theirs) / max(len(theirs), 1))
+    assert max(agree) >= 0.95
+    first_life = {x.id for k in range(60) for x in t[2][k] if x.id[0] == 2}
+    second_life = {x.id for k in range(back, frames) for x in t[2][k] if x.id[0] == 2}
+    if first_life and second_life - first_life:
+        assert min(c for _, c in second_life - first_life) > max(c for _, c in first_life)
+    log = (out / "logs" / "node1.log").read_text() + (out / "logs" / "node3.log").read_text()
+    assert "resync for rejoined neighbour(s) [2]" in log

@@ -181,3 +181,19 @@ def test_cli_run_and_export_round_trip(tmp_path):
                          capture_output=True, text=True)
     assert bad.returncode == 2 and "unknown topology 'nope'" in bad.stderr
     assert "Traceback" not in bad.stderr
+
+
+def _agreement(tracks, node, neighbours, k):
+    mine = {t.id for t in tracks[node][k]}
+    theirs = {t.id for j in neighbours for t in tracks[j][k]}
+    return len(mine & theirs) / max(len(theirs), 1)
+
+
+def test_restarted_node_is_resynced_with_the_networks_ids(terrace):
+    """Issue 6 acceptance, in process: a node killed at 100 and restarted empty at 150 reports
+    the same ids as its neighbours for >= 95% of their tracks within 25 frames of coming back
+    (its neighbours resync it: every tracker with its gallery)."""
+    plan = FaultPlan.from_dict({"node": [{"node": 2, "kill": 100, "restart": 150}]})
+    r = run_network(terrace, build("ring", 4), TrackerConfig(), faults=plan)
+    assert max(_agreement(r.tracks, 2, (1, 3), k) for k in range(150, 175)) >= 0.95
+    assert np.mean([_agreement(r.tracks, 2, (1, 3), k) for k in range(175, FRAMES)]) >= 0.95

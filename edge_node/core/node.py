@@ -207,6 +207,18 @@ class CameraNode:
         self._announce = {key: n - 1 for key, n in self._announce.items() if n > 1}
         return FrameMessage(self.network, self.id, k, tuple(infos), merges)
 
+    def resync_message(self, msg: FrameMessage) -> FrameMessage:
+        """``msg`` with every tracker's appearance attached: what this node sends a neighbour that
+        came back with an empty state (restart) or joined late, so that it adopts the network's
+        trackers with their galleries and keeps their ids."""
+        infos = []
+        for t in msg.trackers:
+            tr = self.trackers.get(t.id)
+            if t.appearance is None and tr is not None and len(tr.gallery):
+                t = replace(t, appearance=tr.gallery.newest(MAX_DESCRIPTORS))
+            infos.append(t)
+        return replace(msg, trackers=tuple(infos))
+
     # ------------------------------------------------------------------------------------
     # update: merges, adoption, DKF consensus, DTM
     # ------------------------------------------------------------------------------------

@@ -51,10 +51,21 @@ Schema (defaults in brackets)::
     ablation = "dkf+lda+dtm"        # "dkf" | "dkf+lda" | "dkf+lda+dtm"                  ["dkf+lda+dtm"]
     tau = 3.0                       # ... any TrackerConfig field
 
+    [faults]                        # optional: fault injection (edge_node/faults.py)
+    file = "faults.toml"            #   a FaultPlan: this node applies the link faults on its
+                                    #   outgoing links and crashes itself at its kill frame
+
     [output]
     dir = "out"                     # optional: tracks_node<id>.csv, status_node<id>.json,
                                     # counters_node<id>.json (edge_node/runtime/output.py)
     status_interval_s = 1.0         #                                                      [1.0]
+
+    [viz]                           # optional: live view in Rerun (edge_node/viz/rerun_log.py)
+    rerun = "off"                   # "off" | "spawn" | "connect [ADDR]" | "save FILE.rrd" |
+                                    # "serve [PORT]" (a relative FILE: to this file)     ["off"]
+    recording_id = "terrace"        # one per network: every node logs into it  ["dmtt-<network>"]
+    blueprint = true                # send the viewer layout (false: a launcher sends it) [true]
+    area = [0.0, 10.0, 0.0, 10.0]   # optional: ground xmin, xmax, ymin, ymax (clips the view)
 
 The tracker's ``fps`` and ``units_per_metre`` come from the source (as in sim_cluster's in-process
 run) unless ``[tracker]`` sets them explicitly; ``[camera] units_per_metre`` overrides the source's.
@@ -279,6 +290,14 @@ class OutputSettings:
     status_interval_s: float = 1.0
 
 
+@dataclass(frozen=True)
+class VizSettings:
+    rerun: str = "off"  # a spec for edge_node.viz.make_sink
+    recording_id: str | None = None  # None: "dmtt-<network>"
+    blueprint: bool = True
+    area: tuple[float, float, float, float] | None = None
+
+
 @dataclass(frozen=True, eq=False)
 class NodeConfig:
     """A validated camera-process config (see the module docstring for the TOML schema)."""
@@ -295,6 +314,8 @@ class NodeConfig:
     tracker_explicit: frozenset[str] = field(default_factory=frozenset)  # keys set in [tracker]
     camera: CameraSettings | None = None
     output: OutputSettings = field(default_factory=OutputSettings)
+    faults: Path | None = None  # a fault plan TOML (tests, fault reports)
+    viz: VizSettings = field(default_factory=VizSettings)
 
     @property
     def name(self) -> str:
@@ -338,6 +359,7 @@ class NodeConfig:
             "camera": None if self.camera is None else table(self.camera),
             "tracker": {"ablation": self.ablation, **{k: conv(v) for k, v in self.tracker.to_dict().items()}},
             "output": table(self.output),
+            "viz": table(self.viz),
         }
 
 
@@ -390,13 +412,16 @@ def parse_node_config(data: dict, path: str | Path) -> NodeConfig:
     camera = _camera(top.table("camera"))
     tracker, ablation, explicit = _tracker(top.table("tracker"), file)
     output = _output(top.table("output"), base)
+    faults = _faults(top.table("faults"), base)
+    viz = _viz(top.table("viz"), base)
     top.finish()
     if runtime.staleness_frames is not None and "staleness_frames" in explicit:
         raise NodeConfigError(file, "runtime.staleness_frames", "and tracker.staleness_frames are "
                               "both set: set one")
     return NodeConfig(file=path, node=node, network=network, neighbours=tuple(sorted(seen)),
                       zenoh=zenoh_s, runtime=runtime, source=source, tracker=tracker,
-                      ablation=ablation, tracker_explicit=explicit, camera=camera, output=output)
+                      ablation=ablation, tracker_explicit=explicit, camera=camera, output=output,
+                      faults=faults, viz=viz)
 
 
 def _endpoints(t: _Table, key: str, listen: bool) -> tuple[str, ...]:
@@ -500,6 +525,48 @@ def _tracker(t: _Table | None, file: str) -> tuple[TrackerConfig, str, frozenset
     except TypeError as e:  # e.g. fixed_R not a list
         raise NodeConfigError(file, "tracker", f"has a bad value ({e})") from None
     return cfg, ablation, frozenset(rest)
+
+
+def _faults(t: _Table | None, base: Path) -> Path | None:
+    if t is None:
+        return None
+    f = t.path("file", base, None)
+    t.finish()
+    if f is not None:
+        from edge_node.faults import FaultPlan, FaultPlanError
+
+        try:
+            FaultPlan.load(f)
+        except FaultPlanError as e:
+            raise t.error("file", f"is not a usable fault plan: {e}") from None
+    return f
+
+
+def _viz(t: _Table | None, base: Path) -> VizSettings:
+    if t is None:
+        return VizSettings()
+    from edge_node.viz import VizSpecError, parse_spec  # does not import Rerun
+
+    try:
+        spec = parse_spec(t.string("rerun", "off"))
+    except VizSpecError as e:
+        raise t.error("rerun", str(e)) from None
+    if spec.kind == "save" and not Path(spec.arg).expanduser().is_absolute():
+        spec = type(spec)("save", str(base / Path(spec.arg).expanduser()))
+    rid = t.string("recording_id", None)
+    if rid is not None and not rid.strip():
+        raise t.error("recording_id", "must be a non-empty string")
+    blueprint = t.boolean("blueprint", True)
+    area = None
+    if t.has("area"):
+        a = t.list("area")
+        if len(a) != 4:
+            raise t.error("area", f"must be [xmin, xmax, ymin, ymax], got {a!r}")
+        area = tuple(t._number(f"area[{i}]", v) for i, v in enumerate(a))
+        if not (area[0] < area[1] and area[2] < area[3]):
+            raise t.error("area", f"must have xmin < xmax and ymin < ymax, got {a!r}")
+    t.finish()
+    return VizSettings(str(spec), rid, blueprint, area)
 
 
 def _output(t: _Table | None, base: Path) -> OutputSettings:

@@ -35,6 +35,7 @@ Exit codes (``edge_node run``)::
 from __future__ import annotations
 
 import inspect
+import json
 import logging
 import os
 import signal
@@ -48,10 +49,12 @@ from typing import Any, Callable
 from edge_node.core.config import TrackerConfig
 from edge_node.core.node import CameraNode
 from edge_node.core.trigger import EventTrigger, TriggerConfig
+from edge_node.faults import NO_FAULTS, FaultPlan
 from edge_node.runtime.config import NodeConfig, NodeConfigError
 from edge_node.runtime.output import (StatusWriter, TrackWriter, counters_path, latency_summary,
-                                      status_path, tracks_path, write_json_atomic)
+                                      state_path, status_path, tracks_path, write_json_atomic)
 from edge_node.runtime.sources import Source, open_source
+from edge_node.viz import NullSink, ground_points, open_node_sink
 from protocol import codec
 from protocol.errors import ProtocolError
 from protocol.messages import FrameMessage
@@ -152,7 +155,9 @@ class FrameLoop:
     def __init__(self, cfg: NodeConfig, node: CameraNode, source: Callable[[int], Any],
                  transport, *, mode: str, frames: int, writer: TrackWriter | None = None,
                  status: StatusWriter | None = None, stop: threading.Event | None = None,
-                 first_frame: int = 0, status_extra: Callable[[], dict] | None = None):
+                 first_frame: int = 0, status_extra: Callable[[], dict] | None = None,
+                 faults: FaultPlan = NO_FAULTS, state_file: Path | None = None,
+                 sink: Any = None):
         if mode not in ("sync", "async"):
             raise ValueError(f"mode must be 'sync' or 'async', got {mode!r}")
         if mode == "async" and not supports_stale(node):
@@ -170,6 +175,14 @@ class FrameLoop:
         self.stats = LoopStats(mode, frames, first_frame)
         self.started_at = time.time()
         self._status_extra = status_extra
+        self.sink = sink or NullSink()  # edge_node.viz: Rerun logging, a no-op when off
+        self._dets: list = []  # this frame's detections (for the sink)
+        self.faults = faults
+        self.state_file = state_file  # persists the tracker counter: a restart reuses no id
+        self._saved_counter = node.next_counter
+        self._delayed: dict[int, list[tuple[int, bytes]]] = {}  # fault delays: frame -> sends
+        self._prev_alive: set[int] | None = None
+        self._resync: set[int] = set()  # neighbours that (re)appeared: send them everything
         self.trigger = EventTrigger(TriggerConfig(self.rt.heartbeat_frames, self.rt.drift_m),
                                     node.cfg.dt, node.cfg.units_per_metre)
 
@@ -183,17 +196,57 @@ class FrameLoop:
             log.error("node %d: frame %d: cannot encode our message (%s): not sent",
                       self.node.id, msg.frame, e)
             return None
-        self.transport.publish(payload)
         links = len(self.transport.neighbours)
+        resync = self._resync & set(self.transport.neighbours)
+        if not resync and self.faults.empty:
+            self.transport.publish(payload)
+        else:
+            full = codec.encode(self.node.resync_message(msg)) if resync else payload
+            if resync:
+                log.info("node %d: frame %d: resync for rejoined neighbour(s) %s",
+                         self.node.id, msg.frame, sorted(resync))
+            for dst in self.transport.neighbours:
+                p = full if dst in resync else payload
+                for delay in self.faults.deliveries(self.node.id, dst, msg.frame):
+                    if delay == 0:
+                        self.transport.publish_to(dst, p)
+                    else:
+                        self._delayed.setdefault(msg.frame + delay, []).append((dst, p))
+            self._resync -= resync
         self.stats.frames_sent += 1
         self.stats.tracker_entries += links * len(msg.trackers)
         self.stats.appearance_entries += links * sum(t.appearance is not None for t in msg.trackers)
         self.stats.appearance_bytes += links * codec.appearance_bytes(msg, payload)
         return len(payload)
 
+    def _before_frame(self, k: int) -> None:
+        """Delayed (fault-injected) messages now due; neighbours that came back get a resync."""
+        for dst, p in self._delayed.pop(k, []):
+            self.transport.publish_to(dst, p)
+        alive_now = getattr(self.transport, "alive_neighbours", None)
+        if alive_now is None:
+            return
+        alive = set(alive_now())
+        if self._prev_alive is not None:
+            self._resync |= alive - self._prev_alive
+        self._prev_alive = alive
+
+    def _after_frame(self, k: int) -> None:
+        """Persist the id counter when it moved; crash here if the fault plan says so."""
+        if self.state_file is not None and self.node.next_counter != self._saved_counter:
+            write_json_atomic(self.state_file, {"node": self.node.id, "frame": k,
+                                                "next_counter": self.node.next_counter})
+            self._saved_counter = self.node.next_counter
+        if not self.faults.alive(self.node.id, k + 1):
+            self.writer.flush()
+            log.warning("node %d: fault plan: crashing before frame %d", self.node.id, k + 1)
+            logging.shutdown()
+            os.kill(os.getpid(), signal.SIGKILL)
+
     def step_sync(self, k: int, first: bool) -> list:
         t0 = time.perf_counter()
-        msg = self.node.prepare(k, self.source(k))
+        self._dets = self.source(k)
+        msg = self.node.prepare(k, self._dets)
         t1 = time.perf_counter()
         inbox: dict = {}
         if self.transport.neighbours:
@@ -210,7 +263,8 @@ class FrameLoop:
 
     def step_async(self, k: int) -> list:
         t0 = time.perf_counter()
-        msg = self.node.prepare(k, self.source(k))
+        self._dets = self.source(k)
+        msg = self.node.prepare(k, self._dets)
         t1 = time.perf_counter()
         inbox: list = []
         if self.transport.neighbours:
@@ -245,11 +299,15 @@ class FrameLoop:
         for i, k in enumerate(range(st.first_frame, st.frames_total)):
             if self.stop.is_set():
                 break
+            self._before_frame(k)
             if self.mode == "sync":
                 tracks = self.step_sync(k, first=(i == 0))
             else:
                 tracks = self.step_async(k)
             self.writer.write(tracks)
+            if self.sink.enabled:
+                self._log_viz(k, tracks)
+            self._after_frame(k)
             st.frame = k
             st.frames_done += 1
             st.trackers = len(tracks)
@@ -261,6 +319,18 @@ class FrameLoop:
         st.stopped = self.stop.is_set() and st.frames_done < st.frames_total - st.first_frame
         self.writer.flush()
         return st
+
+    def _log_viz(self, k: int, tracks: list) -> None:
+        """The frame to the Rerun sink: tracks, detections on the ground, counters."""
+        c = self.transport.counters() if self.transport is not None else {}
+        stats = {"active_trackers": len(tracks), "bytes_sent": c.get("bytes_sent", 0),
+                 "dropped": sum(sum((c.get(key) or {}).values())
+                                for key in ("late", "overflow", "duplicates")),
+                 "rejected": sum((c.get("rejected") or {}).values()),
+                 "timeouts": sum((c.get("timeouts") or {}).values())}
+        self.sink.log_frame(k, tracks, measurements_xy=ground_points(self.node.cameras[0],
+                                                                     self._dets),
+                            stats=stats, wall_time=time.time())
 
     def status_dict(self, phase: str) -> dict:
         st = self.stats
@@ -310,10 +380,15 @@ class RunReport:
 
 def run_node(cfg: NodeConfig, *, frames: int | None = None, mode: str | None = None,
              transport_factory: Callable[..., Any] | None = None,
-             install_signals: bool = True) -> RunReport:
+             install_signals: bool = True, join: bool = False) -> RunReport:
     """Run one camera process to completion. Raises ``NodeConfigError`` / ``SourceError`` for
     bad inputs, ``TransportError`` when Zenoh cannot start and ``StartupError`` when the barrier
-    times out (the CLI maps them to exit codes); returns a report otherwise."""
+    times out (the CLI maps them to exit codes); returns a report otherwise.
+
+    ``join``: this process replaces one that died (or joins a running network): it starts at
+    the frame its neighbours are at, not at 0; they see its liveliness come back and resync it
+    with all their trackers and galleries. The id counter persists in the output folder
+    (``state_node<id>.json``), so a restarted node never reuses an id."""
     from edge_node.runtime import transport as tr
 
     if mode is not None or frames is not None:
@@ -328,11 +403,21 @@ def run_node(cfg: NodeConfig, *, frames: int | None = None, mode: str | None = N
     source = open_source(cfg)
     total = source.frames if rt.frames is None else min(source.frames, rt.frames)
     tcfg = tracker_config_for(cfg, source)
-    node = CameraNode(source.camera, cfg.neighbours, tcfg, cfg.network, node_id=cfg.node)
+    out = cfg.output.dir
+    state_file = state_path(out, cfg.node) if out else None
+    first_counter = 0
+    if state_file is not None and state_file.exists():
+        try:
+            first_counter = int(json.loads(state_file.read_text())["next_counter"])
+        except (OSError, ValueError, KeyError, TypeError) as e:
+            raise NodeConfigError(cfg.name, "output.dir", f"has an unreadable {state_file.name} "
+                                  f"({e}); remove it to start the id counter at 0") from None
+    node = CameraNode(source.camera, cfg.neighbours, tcfg, cfg.network, node_id=cfg.node,
+                      first_counter=first_counter)
+    faults = FaultPlan.load(cfg.faults) if cfg.faults is not None else NO_FAULTS
     if mode == "async" and not supports_stale(node):
         raise NodeConfigError(cfg.name, "runtime.mode", "'async' needs a tracker core whose "
                               "CameraNode.update accepts stale_ok=True; this one does not")
-    out = cfg.output.dir
     status = StatusWriter(status_path(out, cfg.node) if out else None, cfg.output.status_interval_s)
     factory = transport_factory or tr.ZenohTransport
     z = cfg.zenoh
@@ -352,12 +437,15 @@ def run_node(cfg: NodeConfig, *, frames: int | None = None, mode: str | None = N
             raise
         writer = None
         loop = None
+        sink = NullSink()
         code = EXIT_FAILURE
         error: str | None = None
         try:
-            writer = TrackWriter(tracks_path(out, cfg.node) if out else None)
+            sink = open_node_sink(cfg, source.camera, source.units_per_metre, keep_existing=join)
+            writer = TrackWriter(tracks_path(out, cfg.node) if out else None, append=join)
             loop = FrameLoop(cfg, node, source, transport, mode=mode, frames=total,
-                             writer=writer, status=status, stop=shutdown.event)
+                             writer=writer, status=status, stop=shutdown.event,
+                             faults=faults, state_file=state_file, sink=sink)
             loop.write_status("starting")
             if cfg.neighbours:
                 try:
@@ -372,6 +460,11 @@ def run_node(cfg: NodeConfig, *, frames: int | None = None, mode: str | None = N
                     raise
                 loop.stats.startup_s = waited
                 log.info("node %d: neighbours ready after %.3f s", cfg.node, waited)
+                if join:
+                    k0 = transport.wait_first_frame(rt.startup_timeout_s, shutdown.event)
+                    if k0 is not None:
+                        loop.stats.first_frame = min(k0, total)
+                        log.info("node %d: joining the network at frame %d", cfg.node, k0)
             try:
                 stats = loop.run()
             except Exception as e:
@@ -385,6 +478,7 @@ def run_node(cfg: NodeConfig, *, frames: int | None = None, mode: str | None = N
         finally:
             if writer is not None:
                 writer.close()
+            sink.close()
             counters = {}
             try:
                 counters = transport.counters()
@@ -422,3 +516,6 @@ def run_node(cfg: NodeConfig, *, frames: int | None = None, mode: str | None = N
                         })
                 except OSError as e:
                     log.warning("cannot write the exit files: %s", e)
+            if sink.url and code == EXIT_OK:  # --rerun serve: keep serving until Ctrl-C
+                log.warning("node %d: Rerun web viewer at %s until Ctrl-C", cfg.node, sink.url)
+                shutdown.event.wait()

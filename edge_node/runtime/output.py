@@ -38,6 +38,11 @@ def status_path(out_dir: Path, node: int) -> Path:
     return Path(out_dir) / f"status_node{node}.json"
 
 
+def state_path(out_dir: Path, node: int) -> Path:
+    """What must survive a restart: the node's tracker id counter."""
+    return Path(out_dir) / f"state_node{node}.json"
+
+
 def counters_path(out_dir: Path, node: int) -> Path:
     return Path(out_dir) / f"counters_node{node}.json"
 
@@ -51,15 +56,18 @@ def track_row(t: Track) -> list[Any]:
 class TrackWriter:
     """Appends one frame's tracks at a time; ``flush`` is cheap enough to call once a second."""
 
-    def __init__(self, path: Path | None):
+    def __init__(self, path: Path | None, append: bool = False):
+        """``append``: a restarted node continues its earlier life's file."""
         self.path = path
         self._f = None
         self._w = None
         if path is not None:
             path.parent.mkdir(parents=True, exist_ok=True)
-            self._f = open(path, "w", newline="")
+            cont = append and path.exists() and path.stat().st_size > 0
+            self._f = open(path, "a" if cont else "w", newline="")
             self._w = csv.writer(self._f)
-            self._w.writerow(HEADER)
+            if not cont:
+                self._w.writerow(HEADER)
 
     def write(self, tracks: Iterable[Track]) -> None:
         if self._w is not None:

@@ -119,6 +119,7 @@ class ZenohTransport:
         self.neighbours = tuple(sorted(set(int(n) for n in neighbours) - {self.node}))
         self._neigh = frozenset(self.neighbours)
         self.max_pending_frames = max_pending_frames
+        self.limits = codec.DEFAULT_LIMITS  # what a received message may be (protocol.codec)
         self._cond = threading.Condition()
         self._closed = False
         self._rlog = RateLimitedLog(log)
@@ -187,10 +188,14 @@ class ZenohTransport:
             if net != self.network or dst != self.node:
                 self._reject("key", f"message on foreign key {key[:120]!r}")
                 return
+            size = len(sample.payload)
+            if size > self.limits.max_bytes:  # before copying or parsing a single byte
+                self._reject("oversize", f"on {key}: {size} bytes > {self.limits.max_bytes}")
+                return
             payload = sample.payload.to_bytes()
             try:
-                msg = codec.decode(payload, expect_network=self.network, expect_sender=src,
-                                   allowed_senders=self._neigh)
+                msg = codec.decode(payload, limits=self.limits, expect_network=self.network,
+                                   expect_sender=src, allowed_senders=self._neigh)
             except ProtocolError as e:
                 self._reject(e.reason, f"on {key}: {e}")
                 return
@@ -259,6 +264,25 @@ class ZenohTransport:
             total += len(payload)
         self.publish_calls += 1
         return total
+
+    def publish_to(self, dst: int, payload: bytes) -> int:
+        """Put ``payload`` on the link to neighbour ``dst`` only (per-link resync, faults)."""
+        self._pubs[dst].put(payload)
+        self.bytes_sent[dst] += len(payload)
+        self.messages_sent[dst] += 1
+        return len(payload)
+
+    def wait_first_frame(self, timeout: float, stop: threading.Event | None = None) -> int | None:
+        """The newest frame any neighbour has sent us, waiting up to ``timeout`` s for one: how
+        a restarted node learns where the running network is."""
+        deadline = time.monotonic() + timeout
+        with self._cond:
+            while not self._inbox:
+                remaining = deadline - time.monotonic()
+                if remaining <= 0 or (stop is not None and stop.is_set()):
+                    return None
+                self._cond.wait(min(remaining, 0.1))
+            return max(f for (_, f) in self._inbox)
 
     def alive_neighbours(self) -> set[int]:
         with self._cond:

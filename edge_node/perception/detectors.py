@@ -1,0 +1,422 @@
+"""People detectors behind one small interface: ``detect(image) -> [(box, score), ...]``.
+
+Boxes are ``(x, y, w, h)`` pixels (top-left, size), float64; scores in ``[0, 1]`` for MOG2 and
+the detector's own scale otherwise. The tracker measures a person at the box's bottom centre, so
+each backend aims for boxes whose bottom edge is the feet.
+
+* :class:`HogDetector` -- OpenCV's HOG + linear SVM people detector (Dalal & Triggs, the default
+  people detector OpenCV ships). No weights to fetch. Its 64 x 128 window needs people at least
+  about 100 px tall, so the image is upscaled first (``upscale``); windows are tightened to the
+  person (the training windows hold a 96 px person in 128 px). OpenCV 5 moved HOG out of the main
+  package into opencv-contrib: where ``cv2.HOGDescriptor`` is missing, construction fails with
+  a message saying so.
+* :class:`Mog2Detector` -- MOG2 background subtraction: foreground mask, morphology (open, close),
+  connected components above ``min_area``, fragments of one person (same columns, together no
+  taller than a person standing at the lower one's feet) joined, and blobs wider than one person
+  split at the emptiest columns. "One person" comes from the camera geometry when the detector is
+  given the camera (a ``person_size_m`` cylinder at the blob's foot point); without it, from the
+  blob's own height and a typical aspect ratio. It can start from an image of the empty scene
+  (``background``) instead of learning the background from the first frames.
+* :class:`OnnxDetector` -- a person detector in ONNX format (YOLOv5 / YOLOv8 style outputs, or
+  ``(n, 6)`` ``x0, y0, x1, y1, score, class`` rows) run by OpenCV's DNN module: letterboxed input
+  of ``input_size``, ``score_threshold``, class ``class_id``, non-maximum suppression at
+  ``nms_threshold``. The file is checked and loaded at construction: a missing or unreadable model
+  is a :class:`~edge_node.perception.PerceptionError` then, not a crash mid-run.
+"""
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Protocol, runtime_checkable
+
+import numpy as np
+
+from edge_node.perception import PerceptionError, require_cv2
+
+DETECTOR_KINDS = ("mog2", "hog", "onnx")
+Box = tuple[np.ndarray, float]
+
+
+@runtime_checkable
+class Detector(Protocol):
+    """Finds people in one BGR image."""
+
+    name: str
+
+    def detect(self, image: np.ndarray) -> list[Box]:
+        """``[(box (4,) x, y, w, h, score), ...]`` for ``image`` ``(H, W, 3)`` uint8 BGR."""
+        ...
+
+
+def nms(boxes: np.ndarray, scores: np.ndarray, threshold: float) -> np.ndarray:
+    """Indices kept by greedy non-maximum suppression at IoU ``threshold`` (highest score first)."""
+    b = np.asarray(boxes, float).reshape(-1, 4)
+    if len(b) == 0:
+        return np.zeros(0, int)
+    x0, y0 = b[:, 0], b[:, 1]
+    x1, y1 = x0 + b[:, 2], y0 + b[:, 3]
+    area = b[:, 2] * b[:, 3]
+    order = np.argsort(-np.asarray(scores, float), kind="stable")
+    keep = []
+    while len(order):
+        i = order[0]
+        keep.append(i)
+        rest = order[1:]
+        iw = np.clip(np.minimum(x1[i], x1[rest]) - np.maximum(x0[i], x0[rest]), 0, None)
+        ih = np.clip(np.minimum(y1[i], y1[rest]) - np.maximum(y0[i], y0[rest]), 0, None)
+        inter = iw * ih
+        iou = inter / np.maximum(area[i] + area[rest] - inter, 1e-12)
+        order = rest[iou <= threshold]
+    return np.array(keep, int)
+
+
+# -- HOG ----------------------------------------------------------------------------------------
+def hog_available() -> bool:
+    """Whether this OpenCV has the HOG people detector (OpenCV 4.x, or opencv-contrib 5.x)."""
+    try:
+        cv2 = require_cv2()
+    except PerceptionError:
+        return False
+    return hasattr(cv2, "HOGDescriptor")
+
+
+class HogDetector:
+    """OpenCV's default HOG people detector on an upscaled image, boxes tightened to the person."""
+
+    name = "hog"
+
+    def __init__(self, *, upscale: float = 2.0, win_stride: int = 8, padding: int = 8,
+                 scale: float = 1.05, hit_threshold: float = 0.0, nms_threshold: float = 0.4,
+                 min_score: float = 0.0, tighten: bool = True):
+        cv2 = require_cv2()
+        if not hasattr(cv2, "HOGDescriptor"):
+            raise PerceptionError(
+                f"this OpenCV ({cv2.__version__}) has no HOG people detector: OpenCV 5 moved it to "
+                "opencv-contrib (pip install opencv-contrib-python-headless in place of "
+                "opencv-python-headless, or OpenCV 4.x); or use detector = \"mog2\" / \"onnx\"")
+        if upscale <= 0 or scale <= 1 or win_stride < 1:
+            raise PerceptionError("hog: upscale > 0, scale > 1 and win_stride >= 1 are required")
+        self.cv2 = cv2
+        self.hog = cv2.HOGDescriptor()
+        getter = getattr(cv2.HOGDescriptor, "getDefaultPeopleDetector", None) or getattr(
+            cv2, "HOGDescriptor_getDefaultPeopleDetector")
+        self.hog.setSVMDetector(getter())
+        self.upscale = float(upscale)
+        self.win_stride = int(win_stride)
+        self.padding = int(padding)
+        self.scale = float(scale)
+        self.hit_threshold = float(hit_threshold)
+        self.nms_threshold = float(nms_threshold)
+        self.min_score = float(min_score)
+        self.tighten = bool(tighten)
+
+    def detect(self, image: np.ndarray) -> list[Box]:
+        cv2 = self.cv2
+        img = image
+        if self.upscale != 1.0:
+            img = cv2.resize(image, None, fx=self.upscale, fy=self.upscale,
+                             interpolation=cv2.INTER_LINEAR)
+        rects, weights = self.hog.detectMultiScale(
+            img, hitThreshold=self.hit_threshold, winStride=(self.win_stride, self.win_stride),
+            padding=(self.padding, self.padding), scale=self.scale)
+        if len(rects) == 0:
+            return []
+        b = np.asarray(rects, float).reshape(-1, 4) / self.upscale
+        s = np.asarray(weights, float).ravel()
+        if self.tighten:  # the 64x128 training window: person 96 px tall, ~32-40 px wide
+            b = np.stack([b[:, 0] + 0.2 * b[:, 2], b[:, 1] + 0.125 * b[:, 3],
+                          0.6 * b[:, 2], 0.75 * b[:, 3]], axis=1)
+        ok = s >= self.min_score
+        b, s = b[ok], s[ok]
+        keep = nms(b, s, self.nms_threshold)
+        return [(b[i], float(s[i])) for i in keep]
+
+
+# -- MOG2 ---------------------------------------------------------------------------------------
+class Mog2Detector:
+    """Background subtraction (MOG2) with morphology, fragment joining and blob splitting.
+
+    ``camera`` (an :class:`edge_node.geometry.Camera`) and ``units_per_metre`` give the expected
+    size of a person (``person_size_m`` = width, height in metres) at any foot point; without a
+    camera a person is ``aspect`` times as wide as the blob is tall. ``background``: an image (or
+    path) of the empty scene the model starts from; ``learning_rate``: MOG2's (negative = its
+    automatic ``1 / history``); a small rate keeps people who stand still in the foreground.
+    """
+
+    name = "mog2"
+
+    def __init__(self, *, camera=None, units_per_metre: float = 1.0,
+                 background: np.ndarray | str | Path | None = None, history: int = 500,
+                 var_threshold: float = 16.0, learning_rate: float = -1.0,
+                 min_area: int = 60, min_height: int = 12, open_px: int = 3, close_px: int = 5,
+                 split: bool = True, person_size_m: tuple[float, float] = (0.5, 1.75),
+                 aspect: float = 0.38, max_split: int = 6):
+        cv2 = require_cv2()
+        self.cv2 = cv2
+        if history < 1 or var_threshold <= 0 or min_area < 1:
+            raise PerceptionError("mog2: history >= 1, var_threshold > 0, min_area >= 1 required")
+        self.mog = cv2.createBackgroundSubtractorMOG2(history=int(history),
+                                                      varThreshold=float(var_threshold),
+                                                      detectShadows=False)
+        self.learning_rate = float(learning_rate)
+        self.min_area = int(min_area)
+        self.min_height = int(min_height)
+        self.k_open = (cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (open_px, open_px))
+                       if open_px > 1 else None)
+        self.k_close = (cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (close_px, close_px))
+                        if close_px > 1 else None)
+        self.split = bool(split)
+        self.camera = camera
+        self.upm = float(units_per_metre)
+        self.person_m = (float(person_size_m[0]), float(person_size_m[1]))
+        self.aspect = float(aspect)
+        self.max_split = int(max_split)
+        self.mask: np.ndarray | None = None  # the last cleaned foreground mask (for inspection)
+        if background is not None:
+            self.prime(background)
+
+    def prime(self, background: np.ndarray | str | Path, repeats: int = 5) -> None:
+        """Start the background model from an image of the empty scene."""
+        img = background
+        if not isinstance(background, np.ndarray):
+            img = self.cv2.imread(str(background), self.cv2.IMREAD_COLOR)
+            if img is None:
+                raise PerceptionError(f"mog2: cannot read the background image {background}")
+        self.mog.apply(img, learningRate=1.0)
+        for _ in range(max(0, repeats - 1)):
+            self.mog.apply(img, learningRate=0.5)
+
+    # -- geometry -------------------------------------------------------------------------------
+    def expected_size(self, u: float, v: float, blob_h: float) -> tuple[float, float]:
+        """Width and height (px) of a person whose feet are at pixel ``(u, v)``."""
+        cam = self.camera
+        if cam is not None:
+            try:
+                g = cam.to_ground(np.array([[u, v]]))[0]
+                if np.all(np.isfinite(g)) and cam.in_front(g[None])[0]:
+                    w, h = self.person_m
+                    box = cam.cylinder_to_box(np.array([g[0], g[1], w * self.upm, h * self.upm]))
+                    if np.all(np.isfinite(box)) and box[2] > 0 and box[3] > 0:
+                        return float(box[2]), float(box[3])
+            except (ValueError, FloatingPointError, np.linalg.LinAlgError):
+                pass
+        return self.aspect * blob_h, blob_h
+
+    # -- detection ------------------------------------------------------------------------------
+    def foreground(self, image: np.ndarray) -> np.ndarray:
+        cv2 = self.cv2
+        fg = self.mog.apply(image, learningRate=self.learning_rate)
+        _, fg = cv2.threshold(fg, 200, 255, cv2.THRESH_BINARY)
+        if self.k_open is not None:
+            fg = cv2.morphologyEx(fg, cv2.MORPH_OPEN, self.k_open)
+        if self.k_close is not None:
+            fg = cv2.morphologyEx(fg, cv2.MORPH_CLOSE, self.k_close)
+        self.mask = fg
+        return fg
+
+    def detect(self, image: np.ndarray) -> list[Box]:
+        cv2 = self.cv2
+        fg = self.foreground(image)
+        n, labels, stats, _ = cv2.connectedComponentsWithStats(fg, connectivity=8)
+        blobs = [list(map(int, stats[i, :4])) + [i] for i in range(1, n)
+                 if stats[i, cv2.CC_STAT_AREA] >= max(8, self.min_area // 4)]
+        groups = self._join(blobs)
+        out: list[Box] = []
+        for members in groups:
+            x0 = min(b[0] for b in members)
+            y0 = min(b[1] for b in members)
+            x1 = max(b[0] + b[2] for b in members)
+            y1 = max(b[1] + b[3] for b in members)
+            ids = [b[4] for b in members]
+            m = np.isin(labels[y0:y1, x0:x1], ids)
+            if int(m.sum()) < self.min_area:
+                continue
+            for (px0, py0, px1, py1) in self._split(m, x0, y0):
+                w, h = px1 - px0, py1 - py0
+                if h < self.min_height or w < 2:
+                    continue
+                part = m[py0 - y0:py1 - y0, px0 - x0:px1 - x0]
+                area = int(part.sum())
+                if area < self.min_area:
+                    continue
+                out.append((np.array([px0, py0, w, h], float), float(area) / float(w * h)))
+        return out
+
+    def _join(self, blobs: list[list[int]]) -> list[list[list[int]]]:
+        """Group fragments of one person: blobs sharing most of their columns, whose union is
+        no taller than a person at the lower one's feet (greedy, largest first)."""
+        blobs = sorted(blobs, key=lambda b: -b[2] * b[3])
+        groups: list[list[list[int]]] = []
+        for b in blobs:
+            placed = False
+            for g in groups:
+                gx0 = min(c[0] for c in g)
+                gx1 = max(c[0] + c[2] for c in g)
+                gy0 = min(c[1] for c in g)
+                gy1 = max(c[1] + c[3] for c in g)
+                ov = min(gx1, b[0] + b[2]) - max(gx0, b[0])
+                if ov < 0.5 * min(b[2], gx1 - gx0):
+                    continue
+                y0, y1 = min(gy0, b[1]), max(gy1, b[1] + b[3])
+                _, eh = self.expected_size((gx0 + gx1) / 2.0, y1, y1 - y0)
+                if y1 - y0 <= 1.15 * eh:
+                    g.append(b)
+                    placed = True
+                    break
+            if not placed:
+                groups.append([b])
+        return groups
+
+    def _split(self, m: np.ndarray, x0: int, y0: int) -> list[tuple[int, int, int, int]]:
+        """Cut a blob wider than one person at its emptiest columns; each part's box is its own
+        mask's extent."""
+        h, w = m.shape
+        parts = [(0, w)]
+        if self.split:
+            ew, _ = self.expected_size(x0 + w / 2.0, y0 + h, h)
+            k = int(round(w / max(ew, 1.0)))
+            if w > 1.5 * ew and k >= 2:
+                k = min(k, self.max_split)
+                cols = np.convolve(m.sum(axis=0).astype(float), np.ones(3) / 3.0, mode="same")
+                cuts = []
+                for j in range(1, k):
+                    c = j * w / k
+                    lo, hi = int(max(1, c - w / (3 * k))), int(min(w - 1, c + w / (3 * k)))
+                    if hi <= lo:
+                        continue
+                    cuts.append(lo + int(np.argmin(cols[lo:hi])))
+                edges = [0] + sorted(set(cuts)) + [w]
+                parts = [(a, b) for a, b in zip(edges[:-1], edges[1:]) if b > a]
+        out = []
+        for a, b in parts:
+            sub = m[:, a:b]
+            rows = np.flatnonzero(sub.any(axis=1))
+            cols = np.flatnonzero(sub.any(axis=0))
+            if len(rows) == 0:
+                continue
+            out.append((x0 + a + int(cols[0]), y0 + int(rows[0]), x0 + a + int(cols[-1]) + 1,
+                        y0 + int(rows[-1]) + 1))
+        return out
+
+
+# -- ONNX -----------------------------------------------------------------------------------------
+ONNX_LAYOUTS = ("auto", "yolov8", "yolov5", "xyxy")
+
+
+class OnnxDetector:
+    """An ONNX person detector through ``cv2.dnn``; the model is loaded (and so checked) here."""
+
+    name = "onnx"
+
+    def __init__(self, model: str | Path, *, input_size: tuple[int, int] = (640, 640),
+                 score_threshold: float = 0.5, nms_threshold: float = 0.45, class_id: int = 0,
+                 layout: str = "auto", swap_rb: bool = True):
+        cv2 = require_cv2()
+        path = Path(model)
+        if not path.is_file():
+            raise PerceptionError(f"onnx: model file not found: {path}")
+        if layout not in ONNX_LAYOUTS:
+            raise PerceptionError(f"onnx: layout must be one of {ONNX_LAYOUTS}, got {layout!r}")
+        try:
+            self.net = cv2.dnn.readNet(str(path))
+        except cv2.error as e:
+            msg = str(e).strip().splitlines()[-1] if str(e).strip() else type(e).__name__
+            raise PerceptionError(f"onnx: cannot load the model {path}: {msg}") from None
+        if self.net is None or self.net.empty():
+            raise PerceptionError(f"onnx: cannot load the model {path} (empty network)")
+        self.cv2 = cv2
+        self.path = path
+        self.input_w, self.input_h = int(input_size[0]), int(input_size[1])  # width, height
+        self.score_threshold = float(score_threshold)
+        self.nms_threshold = float(nms_threshold)
+        self.class_id = int(class_id)
+        self.layout = layout
+        self.swap_rb = bool(swap_rb)
+
+    def _letterbox(self, image: np.ndarray) -> tuple[np.ndarray, float, float, float]:
+        cv2 = self.cv2
+        H, W = image.shape[:2]
+        r = min(self.input_w / W, self.input_h / H)
+        nw, nh = int(round(W * r)), int(round(H * r))
+        px, py = (self.input_w - nw) / 2.0, (self.input_h - nh) / 2.0
+        canvas = np.full((self.input_h, self.input_w, 3), 114, np.uint8)
+        top, left = int(round(py - 0.1)), int(round(px - 0.1))
+        canvas[top:top + nh, left:left + nw] = cv2.resize(image, (nw, nh),
+                                                          interpolation=cv2.INTER_LINEAR)
+        return canvas, r, left, top
+
+    def _decode(self, out: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """``(boxes xyxy in network input pixels, scores)`` of the wanted class."""
+        a = np.asarray(out, np.float32)
+        while a.ndim > 2 and a.shape[0] == 1:
+            a = a[0]
+        if a.ndim != 2:
+            raise PerceptionError(f"onnx: unexpected output shape {np.shape(out)}")
+        layout = self.layout
+        if layout == "auto":
+            if a.shape[1] == 6 and a.shape[0] != 6:
+                layout = "xyxy"
+            elif a.shape[0] < a.shape[1]:
+                layout = "yolov8"
+            else:
+                layout = "yolov5"
+        if layout == "yolov8":  # (4 + classes, N): cx, cy, w, h, class scores
+            a = a.T
+            cls = a[:, 4:]
+            if self.class_id >= cls.shape[1]:
+                raise PerceptionError(f"onnx: class_id {self.class_id} but the model has "
+                                      f"{cls.shape[1]} classes")
+            score = cls[:, self.class_id]
+            keep = (score >= self.score_threshold) & (np.argmax(cls, axis=1) == self.class_id)
+        elif layout == "yolov5":  # (N, 5 + classes): cx, cy, w, h, objectness, class scores
+            cls = a[:, 5:]
+            if cls.shape[1] == 0:
+                score = a[:, 4]
+                keep = score >= self.score_threshold
+            else:
+                if self.class_id >= cls.shape[1]:
+                    raise PerceptionError(f"onnx: class_id {self.class_id} but the model has "
+                                          f"{cls.shape[1]} classes")
+                score = a[:, 4] * cls[:, self.class_id]
+                keep = (score >= self.score_threshold) & (np.argmax(cls, axis=1) == self.class_id)
+        else:  # xyxy: x0, y0, x1, y1, score, class
+            score = a[:, 4]
+            keep = (score >= self.score_threshold) & (a[:, 5].round() == self.class_id)
+            return a[keep, :4].astype(float), score[keep].astype(float)
+        c = a[keep, :4].astype(float)
+        xyxy = np.stack([c[:, 0] - c[:, 2] / 2, c[:, 1] - c[:, 3] / 2,
+                         c[:, 0] + c[:, 2] / 2, c[:, 1] + c[:, 3] / 2], axis=1)
+        return xyxy, score[keep].astype(float)
+
+    def detect(self, image: np.ndarray) -> list[Box]:
+        cv2 = self.cv2
+        canvas, r, left, top = self._letterbox(image)
+        blob = cv2.dnn.blobFromImage(canvas, 1.0 / 255.0, (self.input_w, self.input_h),
+                                     swapRB=self.swap_rb, crop=False)
+        self.net.setInput(blob)
+        out = self.net.forward()
+        xyxy, score = self._decode(out)
+        if len(score) == 0:
+            return []
+        H, W = image.shape[:2]
+        x0 = np.clip((xyxy[:, 0] - left) / r, 0, W)
+        y0 = np.clip((xyxy[:, 1] - top) / r, 0, H)
+        x1 = np.clip((xyxy[:, 2] - left) / r, 0, W)
+        y1 = np.clip((xyxy[:, 3] - top) / r, 0, H)
+        b = np.stack([x0, y0, x1 - x0, y1 - y0], axis=1)
+        ok = (b[:, 2] > 1) & (b[:, 3] > 1)
+        b, score = b[ok], score[ok]
+        keep = nms(b, score, self.nms_threshold)
+        return [(b[i], float(score[i])) for i in keep]
+
+
+def make_detector(kind: str, **options) -> Detector:
+    """The detector ``kind`` names (``DETECTOR_KINDS``) with its options."""
+    if kind == "mog2":
+        return Mog2Detector(**options)
+    if kind == "hog":
+        return HogDetector(**options)
+    if kind == "onnx":
+        if "model" not in options:
+            raise PerceptionError("onnx: a model file is required ([perception.onnx] model)")
+        return OnnxDetector(**options)
+    raise PerceptionError(f"unknown detector {kind!r} (known: {', '.join(DETECTOR_KINDS)})")

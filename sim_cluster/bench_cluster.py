@@ -1,0 +1,477 @@
+"""``sim_cluster bench-cluster``: what a real cluster of edge_node processes costs on loopback.
+
+For each node count N, ``repeats`` times, a cluster of N ``edge_node run`` processes (the configs
+``sim_cluster up`` writes: one listen endpoint per node, connects on both ends of every link) plays
+``frames`` frames of a scenario in sync mode with no pacing, and the benchmark measures:
+
+latency
+    one hop, from the sender's ``sent_at`` stamp (just before ``put``) to the receiving node's
+    Zenoh callback. The nodes keep their samples but write only a summary (median, p99) to
+    ``counters_node<i>.json``, so the figures are the **median of the node medians** and the
+    **max of the node p99s** (not pooled percentiles). The passive subscriber below also stamps
+    every message it receives; its pooled median / p99 (one hop into a process that does nothing
+    else) is reported beside them.
+frames per second
+    the rate the cluster sustains in lock-step: ``(F - 1) / (t_last - t_first)`` where
+    ``t_first`` is the moment the last node sent its frame 0 (from then on every node is
+    running; earlier nodes were only waiting for a neighbour to come up) and ``t_last`` the
+    moment the last node sent frame ``F - 1`` (``sent_at`` of the messages, seen on the wire).
+    ``fps_wall`` = ``F / (last message received - first node's first frame start)`` includes that
+    start-up skew. ``busy_ms_per_frame`` (median over nodes of ``(prepare + update) / frames``
+    from ``timing_s``) says how much of a frame period is the tracker's own work.
+bytes per link per frame
+    counted by a **passive subscriber**: the benchmark opens its own Zenoh peer session,
+    subscribed to ``all_links_key(network)`` (``dmtt/<net>/link/**``) before any node starts its
+    frames, and counts payload bytes and messages per key. Reported as the median over links of
+    bytes / frames and as the network-wide total per frame, next to the same figures from the
+    nodes' own ``bytes_per_link`` counters; the two must agree (per link: ``agree``).
+start-up
+    per node, wall time from ``spawn`` to the node's ``"starting"`` status (imports, scenario,
+    Zenoh open: the process's own start), to its ``"running"`` status (start-up barrier passed:
+    its first frame begins), and to its frame 0 on the wire; ``startup_s`` (the barrier alone)
+    from the counters. Medians over nodes.
+
+Why the monitor sees every message: a node publishes frame 0 as soon as its neighbours are
+ready, which for the last node to start is a few milliseconds after its Zenoh session opened.
+A subscriber that only connects to the nodes (retrying until their listen endpoints are up) can
+miss those first messages. So the benchmark listens first, and every node's ``connect`` list
+gets the monitor's endpoint too (both ends of the link connect, as for the cluster's own links):
+the node opens its session connected to the monitor, learns its subscription in the handshake,
+and only then runs its barrier. The monitor never publishes and declares no liveliness token,
+so it changes nothing in the nodes' behaviour but one extra TCP connection each.
+
+Figures vary with the machine and its load; quote medians over repeats.
+"""
+from __future__ import annotations
+
+import json
+import os
+import statistics
+import subprocess
+import threading
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from sim_cluster.cluster import (STATE, ClusterError, ClusterState, NodeProc, alive, node_config,
+                                 node_counters, node_status, free_ports, spawn,
+                                 terminate)
+
+RESULT = "bench_cluster.json"
+POLL_S = 0.01
+
+
+# -- the passive subscriber ------------------------------------------------------------------
+@dataclass
+class LinkTally:
+    bytes: int = 0
+    messages: int = 0
+    frames: dict[int, float] = field(default_factory=dict)  # frame -> sender's sent_at
+    latency_s: list[float] = field(default_factory=list)  # receipt here minus sent_at
+    last_recv: float = 0.0
+    undecodable: int = 0
+
+
+class LinkMonitor:
+    """A Zenoh peer session that only listens: counts bytes and messages on every link key of
+    ``network`` and keeps each message's frame and ``sent_at`` (decoded after the run)."""
+
+    def __init__(self, network: str, listen: str, connect: list[str]):
+        import zenoh
+
+        from edge_node.runtime.transport import zenoh_config
+        from protocol.keys import all_links_key
+
+        conf = zenoh_config([listen], connect)
+        # retry the nodes' endpoints quickly: they are not listening yet when we open
+        conf.insert_json5("connect/retry", '{"period_init_ms": 20, "period_max_ms": 100, '
+                                           '"period_increase_factor": 1.5}')
+        self.network = network
+        self._raw: list[tuple[str, bytes, float]] = []
+        self._lock = threading.Lock()
+        self.session = zenoh.open(conf)
+        self._sub = self.session.declare_subscriber(all_links_key(network), self._on_sample)
+
+    def _on_sample(self, sample) -> None:
+        now = time.time()
+        payload = sample.payload.to_bytes()
+        with self._lock:
+            self._raw.append((str(sample.key_expr), payload, now))
+
+    def count(self) -> int:
+        with self._lock:
+            return len(self._raw)
+
+    def close(self) -> None:
+        for obj in (self._sub, self.session):
+            try:
+                obj.undeclare() if obj is self._sub else obj.close()
+            except Exception:  # noqa: BLE001 - best effort on the way out
+                pass
+
+    def tallies(self) -> dict[str, LinkTally]:
+        """Per link ``"src->dst"``: bytes, messages, frames and latencies seen."""
+        from protocol import codec
+        from protocol.errors import ProtocolError
+        from protocol.keys import parse_link_key
+
+        with self._lock:
+            raw = list(self._raw)
+        out: dict[str, LinkTally] = {}
+        for key, payload, t in raw:
+            try:
+                _, src, dst = parse_link_key(key)
+            except ProtocolError:
+                continue
+            tl = out.setdefault(f"{src}->{dst}", LinkTally())
+            tl.bytes += len(payload)
+            tl.messages += 1
+            tl.last_recv = max(tl.last_recv, t)
+            try:
+                msg = codec.decode(payload, expect_network=self.network, expect_sender=src)
+            except ProtocolError:
+                tl.undecodable += 1
+                continue
+            tl.frames[msg.frame] = msg.sent_at
+            if msg.sent_at > 0:
+                tl.latency_s.append(t - msg.sent_at)
+        return out
+
+
+# -- one cluster run -------------------------------------------------------------------------
+def _median(xs):
+    xs = [x for x in xs if x is not None]
+    return statistics.median(xs) if xs else None
+
+
+def _percentile(xs, q):
+    import numpy as np
+
+    return float(np.percentile(np.asarray(xs, float), q)) if len(xs) else None
+
+
+def run_cluster(scenario: str, n: int, frames: int, out: Path, *, topology: str = "ring",
+                seed: int = 0, config: str = "dkf+lda+dtm", network: str | None = None,
+                sync_timeout_s: float = 10.0, startup_timeout_s: float = 60.0,
+                timeout_s: float | None = None, data_root: str | None = None,
+                monitor_connect_back: bool = True) -> dict:
+    """Start an ``n``-node cluster in sync mode without pacing, run ``frames`` frames with the
+    passive monitor attached, stop everything, and return the measured figures (module
+    docstring). Raises :class:`ClusterError` when a node fails or the run takes longer than
+    ``timeout_s`` (default: generous, from ``frames``). No process outlives this call."""
+    from sim_cluster import topology as topo
+
+    out = Path(out).resolve()
+    for sub in ("nodes", "configs", "logs"):
+        (out / sub).mkdir(parents=True, exist_ok=True)
+    for f in (out / "nodes").glob("*"):
+        f.unlink()
+    for f in (out / "logs").glob("*"):
+        f.unlink()
+    network = network or f"bench{n}"
+    adjacency = topo.build(topology, n)
+    state = ClusterState(str(out), network, scenario, seed, frames, "sync", Path(topology).stem,
+                         {str(i): list(v) for i, v in adjacency.items()},
+                         data_root=str(Path(data_root).resolve()) if data_root else None)
+    *node_ports, mon_port = free_ports(n + 1)
+    ports = dict(enumerate(node_ports))
+    mon_ep = f"tcp/127.0.0.1:{mon_port}"
+    for i in range(n):
+        text = node_config(i, state, ports, config=config, sync_timeout_s=sync_timeout_s,
+                           startup_timeout_s=startup_timeout_s, fps=0.0)
+        if monitor_connect_back:  # the monitor's endpoint first in the node's connect list
+            lines = text.splitlines()
+            j = next(k for k, line in enumerate(lines) if line.startswith("connect = "))
+            eps = json.loads(lines[j].split("=", 1)[1])
+            lines[j] = f"connect = {json.dumps([mon_ep, *eps])}"
+            text = "\n".join(lines) + "\n"
+        cfg = out / "configs" / f"node{i}.toml"
+        cfg.write_text(text)
+        state.nodes[str(i)] = NodeProc(i, str(cfg), str(out / "logs" / f"node{i}.log"), ports[i])
+
+    from edge_node.runtime.output import status_path
+
+    timeout_s = timeout_s if timeout_s is not None else startup_timeout_s + 60 + 0.5 * frames
+    procs: dict[int, subprocess.Popen] = {}
+    spawned: dict[int, float] = {}
+    seen: dict[int, dict[str, float]] = {i: {} for i in range(n)}  # phase -> its updated_at
+    monitor = None
+    try:
+        # the monitor listens before any node starts (they connect to it), and connects to
+        # every node's endpoint as soon as it is up
+        monitor = LinkMonitor(network, mon_ep, [f"tcp/127.0.0.1:{ports[i]}" for i in range(n)])
+        state.started_at = time.time()
+        for p in state.nodes.values():
+            spawned[p.node] = time.time()
+            procs[p.node] = spawn(p)
+            p.pid = procs[p.node].pid
+        state.save()
+        deadline = time.time() + timeout_s
+        running = dict(procs)
+        while running:
+            for node, pr in list(running.items()):
+                code = pr.poll()
+                if code is None:
+                    continue
+                del running[node]
+                if code != 0:
+                    tail = Path(state.nodes[str(node)].log).read_text(errors="replace")
+                    tail = "\n".join(tail.splitlines()[-8:])
+                    raise ClusterError(f"node {node} exited with code {code}; its log "
+                                       f"({state.nodes[str(node)].log}) ends:\n{tail}")
+            for i in running:  # catch the short-lived "starting" and first "running" statuses
+                if "running" in seen[i]:
+                    continue
+                try:
+                    st = json.loads(status_path(out / "nodes", i).read_text())
+                except (OSError, json.JSONDecodeError):
+                    continue
+                phase = st.get("phase")
+                if phase == "starting":
+                    seen[i].setdefault("starting", st["updated_at"])
+                elif phase == "running" and not st.get("frames_done"):
+                    seen[i]["running"] = st["updated_at"]
+            if time.time() > deadline:
+                raise ClusterError(f"{n}-node cluster did not finish {frames} frames within "
+                                   f"{timeout_s:.0f} s (logs in {out / 'logs'})")
+            time.sleep(POLL_S)
+        # every node has finished, so every message reached its neighbour; give the monitor a
+        # moment for the last ones in flight to it
+        expected = sum(node_counters(state, i).get("messages_sent", 0) for i in range(n))
+        settle = time.time() + 2.0
+        while monitor.count() < expected and time.time() < settle:
+            time.sleep(POLL_S)
+    finally:
+        if procs:
+            terminate([pr.pid for pr in procs.values()])
+            for pr in procs.values():
+                pr.wait()
+        if monitor is not None:
+            monitor.close()
+    if any(alive(pr.pid) for pr in procs.values()):
+        raise ClusterError("a node could not be stopped")
+    return _figures(state, n, frames, spawned, seen, monitor.tallies())
+
+
+def _figures(state: ClusterState, n: int, frames: int, spawned: dict[int, float],
+             seen: dict[int, dict[str, float]], tallies: dict[str, LinkTally]) -> dict:
+    counters = {i: node_counters(state, i) for i in range(n)}
+    for i, c in counters.items():
+        if c.get("frames_done") != frames:
+            raise ClusterError(f"node {i} did only {c.get('frames_done')} of {frames} frames")
+    # -- latency (nodes' summaries) and the monitor's pooled samples
+    lat = [c.get("latency") or {} for c in counters.values()]
+    pooled = [s for t in tallies.values() for s in t.latency_s]
+    latency = {
+        "median_of_node_medians_ms": _median([x.get("median_ms") for x in lat]),
+        "max_of_node_p99_ms": max((x["p99_ms"] for x in lat if x.get("p99_ms") is not None),
+                                  default=None),
+        "node_medians_ms": [x.get("median_ms") for x in lat],
+        "node_p99_ms": [x.get("p99_ms") for x in lat],
+        "samples": sum(x.get("count") or 0 for x in lat),
+        "monitor_pooled_median_ms": _percentile([s * 1e3 for s in pooled], 50),
+        "monitor_pooled_p99_ms": _percentile([s * 1e3 for s in pooled], 99),
+    }
+    # -- bytes per link: the monitor against the nodes' own counters
+    ctr_bytes: dict[str, int] = {}
+    ctr_msgs: dict[str, int] = {}
+    for c in counters.values():
+        ctr_bytes.update(c.get("bytes_per_link") or {})
+        ctr_msgs.update(c.get("messages_per_link") or {})
+    links = sorted(set(ctr_bytes) | set(tallies))
+    per_link = {}
+    for link in links:
+        t = tallies.get(link, LinkTally())
+        per_link[link] = {"monitor_bytes": t.bytes, "monitor_messages": t.messages,
+                          "counter_bytes": ctr_bytes.get(link, 0),
+                          "counter_messages": ctr_msgs.get(link, 0),
+                          "missed_frames": sorted(set(range(frames)) - set(t.frames))[:10]}
+    mon_b = [per_link[k]["monitor_bytes"] / frames for k in links]
+    ctr_b = [per_link[k]["counter_bytes"] / frames for k in links]
+    bandwidth = {
+        "links": len(links),
+        "monitor_bytes_per_link_frame_median": _median(mon_b),
+        "counter_bytes_per_link_frame_median": _median(ctr_b),
+        "monitor_bytes_per_frame_total": sum(mon_b),
+        "counter_bytes_per_frame_total": sum(ctr_b),
+        "monitor_messages": sum(t.messages for t in tallies.values()),
+        "counter_messages": sum(ctr_msgs.values()),
+        "agree": all(v["monitor_bytes"] == v["counter_bytes"]
+                     and v["monitor_messages"] == v["counter_messages"]
+                     for v in per_link.values()),
+        "per_link": per_link,
+    }
+    # -- frame rate from the senders' stamps of frame 0 and frame F-1 (per node: any of its links)
+    first_sent: dict[int, float] = {}
+    last_sent: dict[int, float] = {}
+    for link, t in tallies.items():
+        src = int(link.split("->")[0])
+        if 0 in t.frames:
+            first_sent[src] = t.frames[0]
+        if frames - 1 in t.frames:
+            last_sent[src] = t.frames[frames - 1]
+    fps = fps_wall = None
+    if len(first_sent) == n and len(last_sent) == n and frames > 1:
+        span = max(last_sent.values()) - max(first_sent.values())
+        fps = (frames - 1) / span if span > 0 else None
+        starts = [seen[i].get("running", first_sent[i]) for i in range(n)]
+        end = max(t.last_recv for t in tallies.values())
+        fps_wall = frames / (end - min(starts)) if end > min(starts) else None
+    busy = [((c.get("timing_s") or {}).get("prepare", 0) + (c.get("timing_s") or {}).get("update", 0))
+            / frames * 1e3 for c in counters.values()]
+    wait = [(c.get("timing_s") or {}).get("wait", 0) / frames * 1e3 for c in counters.values()]
+    # -- start-up
+    def since_spawn(ts: dict[int, float | None]) -> list[float | None]:
+        return [None if ts.get(i) is None else ts[i] - spawned[i] for i in range(n)]
+
+    # FrameLoop.started_at (in every status file): the Zenoh session is open, the barrier starts
+    started = {i: node_status(state, i).get("started_at") or seen[i].get("starting")
+               for i in range(n)}
+    to_starting = since_spawn(started)
+    to_running = since_spawn({i: seen[i].get("running") for i in range(n)})
+    to_frame0 = since_spawn(first_sent)
+    startup = {
+        "spawn_to_first_frame_s": _median(to_frame0),
+        "spawn_to_running_status_s": _median(to_running),
+        "spawn_to_starting_status_s": _median(to_starting),
+        "barrier_s": _median([c.get("startup_s") for c in counters.values()]),
+        "per_node": {str(i): {"to_starting": to_starting[i], "to_running": to_running[i],
+                              "to_frame0": to_frame0[i],
+                              "barrier": counters[i].get("startup_s")} for i in range(n)},
+    }
+    problems = {k: sum(sum((c.get(k) or {}).values()) for c in counters.values())
+                for k in ("timeouts", "late", "rejected", "duplicates", "overflow")}
+    return {"nodes": n, "frames": frames, "topology": state.topology, "scenario": state.scenario,
+            "fps": fps, "fps_wall": fps_wall,
+            "busy_ms_per_frame": _median(busy), "wait_ms_per_frame": _median(wait),
+            "latency": latency, "bandwidth": bandwidth, "startup": startup, "problems": problems}
+
+
+# -- the command -----------------------------------------------------------------------------
+HEADLINE = {  # name in the summary -> path in one run's figures
+    "fps": ("fps",),
+    "fps_wall": ("fps_wall",),
+    "busy_ms_per_frame": ("busy_ms_per_frame",),
+    "latency_median_ms": ("latency", "median_of_node_medians_ms"),
+    "latency_p99_ms": ("latency", "max_of_node_p99_ms"),
+    "monitor_latency_median_ms": ("latency", "monitor_pooled_median_ms"),
+    "monitor_latency_p99_ms": ("latency", "monitor_pooled_p99_ms"),
+    "bytes_per_link_frame_monitor": ("bandwidth", "monitor_bytes_per_link_frame_median"),
+    "bytes_per_link_frame_counters": ("bandwidth", "counter_bytes_per_link_frame_median"),
+    "bytes_per_frame_total_monitor": ("bandwidth", "monitor_bytes_per_frame_total"),
+    "bytes_per_frame_total_counters": ("bandwidth", "counter_bytes_per_frame_total"),
+    "spawn_to_first_frame_s": ("startup", "spawn_to_first_frame_s"),
+    "spawn_to_starting_status_s": ("startup", "spawn_to_starting_status_s"),
+    "barrier_s": ("startup", "barrier_s"),
+}
+
+
+def _get(d: dict, path: tuple[str, ...]):
+    for p in path:
+        d = d.get(p) if isinstance(d, dict) else None
+    return d
+
+
+def bench(node_counts: list[int], frames: int, repeats: int, topology: str, out: Path, *,
+          scenario: str = "ring8-sim", seed: int = 0, config: str = "dkf+lda+dtm",
+          sync_timeout_s: float = 10.0, startup_timeout_s: float = 60.0,
+          data_root: str | None = None, log=print) -> dict:
+    """Run every node count ``repeats`` times; the summary holds each headline figure's median
+    over repeats (``summary[n]``) and every run's full figures (``runs[n]``)."""
+    from sim_cluster.scenario import load_scenario
+
+    data = load_scenario(scenario, seed=seed, frames=1, data_root=data_root)
+    for n in node_counts:
+        if not 1 < n <= data.num_cameras:
+            raise ClusterError(f"--nodes {n}: scenario {data.name} has {data.num_cameras} "
+                               f"cameras (and a cluster needs at least 2 nodes)")
+    out = Path(out)
+    result = {"scenario": scenario, "seed": seed, "frames": frames, "repeats": repeats,
+              "topology": topology, "mode": "sync", "fps_pacing": 0.0, "config": config,
+              "cpus": os.cpu_count(), "load_average_at_start": list(os.getloadavg()),
+              "runs": {}, "summary": {}}
+    for n in node_counts:
+        runs = []
+        for r in range(repeats):
+            t0 = time.time()
+            fig = run_cluster(scenario, n, frames, out / f"n{n}" / f"r{r}", topology=topology,
+                              seed=seed, config=config, network=f"bench{n}r{r}",
+                              sync_timeout_s=sync_timeout_s, startup_timeout_s=startup_timeout_s,
+                              data_root=data_root)
+            runs.append(fig)
+            log(f"  {n} nodes, run {r + 1}/{repeats}: {_fmt(fig['fps'], '.1f')} frames/s, "
+                f"latency {_fmt(_get(fig, HEADLINE['latency_median_ms']), '.2f')} / "
+                f"{_fmt(_get(fig, HEADLINE['latency_p99_ms']), '.2f')} ms, "
+                f"monitor {'agrees' if fig['bandwidth']['agree'] else 'DISAGREES'}, "
+                f"{time.time() - t0:.1f} s")
+        result["runs"][str(n)] = runs
+        result["summary"][str(n)] = {
+            **{k: _median([_get(f, p) for f in runs]) for k, p in HEADLINE.items()},
+            "monitor_agrees_in_every_run": all(f["bandwidth"]["agree"] for f in runs),
+            "problems": {k: sum(f["problems"][k] for f in runs) for k in runs[0]["problems"]},
+        }
+    result["load_average_at_end"] = list(os.getloadavg())
+    return result
+
+
+def _fmt(v, spec: str) -> str:
+    return "-" if v is None else format(v, spec)
+
+
+def table(result: dict) -> str:
+    rows = [f"bench-cluster: {result['scenario']} seed {result['seed']}, {result['topology']}, "
+            f"sync, no pacing, {result['frames']} frames, median of {result['repeats']} "
+            f"repeat(s)",
+            f"{'nodes':>5} {'frames/s':>8} {'busy ms':>7} {'lat med':>7} {'lat p99':>7} "
+            f"{'B/link/frame':>12} {'(counters)':>10} {'B/frame':>8} {'(counters)':>10} "
+            f"{'to frame 0':>10} {'to start':>8} {'barrier':>7}",
+            f"{'':>5} {'':>8} {'':>7} {'ms':>7} {'ms':>7} {'monitor':>12} {'':>10} "
+            f"{'monitor':>8} {'':>10} {'s':>10} {'s':>8} {'s':>7}"]
+    for n, s in result["summary"].items():
+        rows.append(
+            f"{n:>5} {_fmt(s['fps'], '.1f'):>8} {_fmt(s['busy_ms_per_frame'], '.2f'):>7} "
+            f"{_fmt(s['latency_median_ms'], '.2f'):>7} {_fmt(s['latency_p99_ms'], '.2f'):>7} "
+            f"{_fmt(s['bytes_per_link_frame_monitor'], '.0f'):>12} "
+            f"{_fmt(s['bytes_per_link_frame_counters'], '.0f'):>10} "
+            f"{_fmt(s['bytes_per_frame_total_monitor'], '.0f'):>8} "
+            f"{_fmt(s['bytes_per_frame_total_counters'], '.0f'):>10} "
+            f"{_fmt(s['spawn_to_first_frame_s'], '.2f'):>10} "
+            f"{_fmt(s['spawn_to_starting_status_s'], '.2f'):>8} {_fmt(s['barrier_s'], '.2f'):>7}")
+    rows.append("latency: one hop, median of node medians / max of node p99s (nodes write "
+                "summaries only); frames/s: lock-step rate from the last node's frame 0 to its "
+                "frame F-1; busy: prepare+update per frame (median node); to frame 0 / to start: "
+                "spawn to the node's frame 0 on the wire / to its 'starting' status; barrier: "
+                "the nodes' startup_s (medians over nodes)")
+    for n, s in result["summary"].items():
+        extra = [f"monitor pooled latency {_fmt(s['monitor_latency_median_ms'], '.2f')} / "
+                 f"{_fmt(s['monitor_latency_p99_ms'], '.2f')} ms",
+                 f"frames/s incl. start-up skew {_fmt(s['fps_wall'], '.1f')}"]
+        if not s["monitor_agrees_in_every_run"]:
+            extra.append("MONITOR AND COUNTERS DISAGREE (see per_link in the JSON)")
+        bad = {k: v for k, v in s["problems"].items() if v}
+        if bad:
+            extra.append(f"problems {bad}")
+        rows.append(f"{n:>5} nodes: " + "; ".join(extra))
+    return "\n".join(rows)
+
+
+def main(args) -> int:
+    try:
+        counts = [int(x) for x in str(args.nodes).split(",") if x.strip()]
+    except ValueError:
+        raise ClusterError(f"--nodes {args.nodes!r}: give node counts like 4,8") from None
+    if not counts or args.frames < 2 or args.repeats < 1:
+        raise ClusterError("need at least one node count, --frames >= 2 and --repeats >= 1")
+    out = Path(args.out)
+    if (out / STATE).exists():
+        raise ClusterError(f"{out} holds a cluster (sim_cluster up); use another --out")
+    out.mkdir(parents=True, exist_ok=True)
+    print(f"bench-cluster: {args.scenario}, {args.topology}, nodes {counts}, {args.frames} frames, "
+          f"{args.repeats} repeat(s), out {out}")
+    result = bench(counts, args.frames, args.repeats, args.topology, out, scenario=args.scenario,
+                   seed=args.seed, sync_timeout_s=args.sync_timeout,
+                   startup_timeout_s=args.startup_timeout)
+    (out / RESULT).write_text(json.dumps(result, indent=2, sort_keys=True))
+    print(table(result))
+    print(f"wrote {out / RESULT}")
+    return 0
