@@ -19,9 +19,10 @@ $(STAMP): pyproject.toml
 	touch $(STAMP)
 
 # The main job: one edge_node process per camera of the embedded default scenario (terrace-sim,
-# 4 cameras in a chain) talking over Zenoh on loopback; prints the per-node metrics table.
+# 4 cameras in a chain) talking over Zenoh on loopback; prints the per-node metrics table, saves
+# the run's Rerun recording (runs/latest.rrd) and prints the command that opens it.
 run: setup
-	$(BIN)/sim_cluster up --scenario terrace-sim --topology chain --config dkf+lda+dtm --seed 0 --out runs/latest
+	$(BIN)/sim_cluster up --scenario terrace-sim --topology chain --config dkf+lda+dtm --seed 0 --out runs/latest --rerun save runs/latest.rrd
 
 test: setup
 	$(BIN)/python -m pytest -q

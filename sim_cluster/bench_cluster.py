@@ -382,9 +382,13 @@ def bench(node_counts: list[int], frames: int, repeats: int, topology: str, out:
 
     data = load_scenario(scenario, seed=seed, frames=1, data_root=data_root)
     for n in node_counts:
-        if not 1 < n <= data.num_cameras:
-            raise ClusterError(f"--nodes {n}: scenario {data.name} has {data.num_cameras} "
-                               f"cameras (and a cluster needs at least 2 nodes)")
+        if n < 2:
+            raise ClusterError(f"--nodes {n}: a cluster needs at least 2 nodes")
+        if n > data.num_cameras:
+            raise ClusterError(f"--nodes {n}: scenario {data.name} has only "
+                               f"{data.num_cameras} cameras")
+    log(f"bench-cluster: {scenario}, {topology}, nodes {node_counts}, {frames} frames, "
+        f"{repeats} repeat(s), out {out}")
     out = Path(out)
     result = {"scenario": scenario, "seed": seed, "frames": frames, "repeats": repeats,
               "topology": topology, "mode": "sync", "fps_pacing": 0.0, "config": config,
@@ -466,8 +470,6 @@ def main(args) -> int:
     if (out / STATE).exists():
         raise ClusterError(f"{out} holds a cluster (sim_cluster up); use another --out")
     out.mkdir(parents=True, exist_ok=True)
-    print(f"bench-cluster: {args.scenario}, {args.topology}, nodes {counts}, {args.frames} frames, "
-          f"{args.repeats} repeat(s), out {out}")
     result = bench(counts, args.frames, args.repeats, args.topology, out, scenario=args.scenario,
                    seed=args.seed, sync_timeout_s=args.sync_timeout,
                    startup_timeout_s=args.startup_timeout)

@@ -246,6 +246,14 @@ def build_parser() -> argparse.ArgumentParser:
         c.add_argument("--out", default="runs/cluster")
         c.set_defaults(func=_cluster(name))
 
+    fr = sub.add_parser("fault-report", help="standard faults (kill, restart, loss, delay, "
+                        "partition) against the fault-free run")
+    scenario_args(fr)
+    fr.add_argument("--out", default="runs/faults")
+    fr.add_argument("--quiet", action="store_true")
+    fr.set_defaults(func=lambda a: __import__("sim_cluster.faultreport",
+                                              fromlist=["main"]).main(a))
+
     e = sub.add_parser("export-detections",
                        help="write a scenario's detections (det.txt + .npy), truth and calibration")
     scenario_args(e)

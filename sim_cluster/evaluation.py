@@ -244,19 +244,20 @@ def visible_box(camera: Camera, x: np.ndarray, clip: bool = True) -> np.ndarray 
 
 def image_accumulator(frames: Mapping[int, list[tuple[Any, np.ndarray]]], scenario: ScenarioData,
                       camera_index: int, num_frames: int, iou_threshold: float = 0.5,
-                      clip: bool = True) -> mm.MOTAccumulator:
-    """Events of one node's tracks against its camera's ground-truth boxes."""
+                      clip: bool = True, start: int = 0) -> mm.MOTAccumulator:
+    """Events of one node's tracks against its camera's ground-truth boxes, frames
+    ``start..num_frames-1``."""
     camera = scenario.cameras[camera_index]
     gt_cam = scenario.truth.boxes[camera_index]
     acc = mm.MOTAccumulator(auto_id=False)
     hid = _IdMap()
-    rows = [(k, tid, x[:4]) for k in range(num_frames) for tid, x in frames.get(k, ())]
+    rows = [(k, tid, x[:4]) for k in range(start, num_frames) for tid, x in frames.get(k, ())]
     boxes, ok = visible_boxes(camera, np.array([r[2] for r in rows]).reshape(-1, 4), clip)
     per_frame: list[list[int]] = [[] for _ in range(num_frames)]
     for r, (k, _, _) in enumerate(rows):
         if ok[r]:
             per_frame[k].append(r)
-    for k in range(num_frames):
+    for k in range(start, num_frames):
         gt_ids, gt_boxes = gt_cam[k] if k < len(gt_cam) else (np.zeros(0, int), np.zeros((0, 4)))
         sel = per_frame[k]
         d = iou_distances(np.asarray(gt_boxes).reshape(-1, 4), boxes[sel].reshape(-1, 4),
@@ -267,12 +268,14 @@ def image_accumulator(frames: Mapping[int, list[tuple[Any, np.ndarray]]], scenar
 
 
 def ground_accumulator(frames: Mapping[int, list[tuple[Any, np.ndarray]]], scenario: ScenarioData,
-                       num_frames: int, threshold_m: float = 1.0) -> mm.MOTAccumulator:
-    """Events of one node's tracks against everyone in the monitored area, on the ground."""
+                       num_frames: int, threshold_m: float = 1.0,
+                       start: int = 0) -> mm.MOTAccumulator:
+    """Events of one node's tracks against everyone in the monitored area, on the ground,
+    frames ``start..num_frames-1``."""
     truth = scenario.truth
     acc = mm.MOTAccumulator(auto_id=False)
     hid = _IdMap()
-    for k in range(num_frames):
+    for k in range(start, num_frames):
         ts = frames.get(k, ())
         hids = [hid(tid) for tid, _ in ts]
         hxy = np.array([x[:2] for _, x in ts]).reshape(-1, 2)
@@ -331,7 +334,7 @@ def median_over(per_node: Mapping[str, Mapping[str, int | float | None]],
 
 # -- entry points -------------------------------------------------------------------------------------
 def evaluate_image(tracks: RunTracks, scenario: ScenarioData, iou_threshold: float = 0.5,
-                   frames: int | None = None, clip: bool = True) -> dict[str, Any]:
+                   frames: int | None = None, clip: bool = True, start: int = 0) -> dict[str, Any]:
     """Image-plane metrics: ``{"median": {...}, "per_node": {"0": {...}, ...}}``."""
     nodes = _nodes_of(tracks)
     n = _num_frames(nodes, scenario, frames)
@@ -339,32 +342,33 @@ def evaluate_image(tracks: RunTracks, scenario: ScenarioData, iou_threshold: flo
     for node in sorted(nodes):
         if not 0 <= node < scenario.num_cameras:
             raise EvaluationError(f"node {node} has no camera (scenario has {scenario.num_cameras})")
-        acc = image_accumulator(nodes[node], scenario, node, n, iou_threshold, clip)
+        acc = image_accumulator(nodes[node], scenario, node, n, iou_threshold, clip, start)
         per[str(node)] = summarize(acc, "image")
     return {"median": median_over(per, IMAGE_METRICS), "per_node": per}
 
 
 def evaluate_ground(tracks: RunTracks, scenario: ScenarioData, threshold_m: float = 1.0,
-                    frames: int | None = None) -> dict[str, Any]:
+                    frames: int | None = None, start: int = 0) -> dict[str, Any]:
     """Ground-plane metrics: ``{"median": {...}, "per_node": {"0": {...}, ...}}``."""
     if threshold_m <= 0 or scenario.units_per_metre <= 0:
         raise EvaluationError("threshold_m and the scenario's units_per_metre must be positive")
     nodes = _nodes_of(tracks)
     n = _num_frames(nodes, scenario, frames)
-    per = {str(node): summarize(ground_accumulator(nodes[node], scenario, n, threshold_m), "ground")
+    per = {str(node): summarize(ground_accumulator(nodes[node], scenario, n, threshold_m, start),
+                                "ground")
            for node in sorted(nodes)}
     return {"median": median_over(per, GROUND_METRICS), "per_node": per}
 
 
 def evaluate(tracks: RunTracks, scenario: ScenarioData, *, iou_threshold: float = 0.5,
              ground_threshold_m: float = 1.0, frames: int | None = None,
-             views: Sequence[str] = ("image", "ground")) -> dict[str, Any]:
+             views: Sequence[str] = ("image", "ground"), start: int = 0) -> dict[str, Any]:
     """Both views of a run, JSON-able.
 
     ``{"image": {"median": {...}, "per_node": {"0": {...}}}, "ground": {...},
     "ground_threshold_m": 1.0, "iou_threshold": 0.5, "frames": n}``. ``frames`` defaults to the
     longest node's track list (capped by the ground truth); frames a node has no entry for count
-    as frames without tracks.
+    as frames without tracks. ``start``: evaluate frames ``start..frames-1`` only.
     """
     unknown = set(views) - {"image", "ground"}
     if unknown:
@@ -373,9 +377,9 @@ def evaluate(tracks: RunTracks, scenario: ScenarioData, *, iou_threshold: float 
     n = _num_frames(nodes, scenario, frames)
     out: dict[str, Any] = {}
     if "image" in views:
-        out["image"] = evaluate_image(nodes, scenario, iou_threshold, n)
+        out["image"] = evaluate_image(nodes, scenario, iou_threshold, n, start=start)
     if "ground" in views:
-        out["ground"] = evaluate_ground(nodes, scenario, ground_threshold_m, n)
+        out["ground"] = evaluate_ground(nodes, scenario, ground_threshold_m, n, start=start)
     out["ground_threshold_m"] = float(ground_threshold_m)
     out["iou_threshold"] = float(iou_threshold)
     out["frames"] = n

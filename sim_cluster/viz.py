@@ -99,7 +99,7 @@ def record_run(spec: VizSpec, result, data) -> None:
         return
     nodes = sorted(result.tracks)
     sink = open_sink(spec, recording_id=new_recording_id(),
-                     blueprint=make_blueprint(nodes, area=data.area))
+                     blueprint=make_blueprint(nodes, area=data.area, cameras=data.cameras))
     try:
         log_run(sink, result, data)
     finally:
@@ -115,8 +115,14 @@ def announce(spec: VizSpec, sink) -> None:
 
 
 def rerun_command() -> str:
+    """The viewer command of this environment (relative when under the working directory)."""
     exe = Path(sys.executable).parent / "rerun"
-    return str(exe) if exe.exists() else "rerun"
+    if not exe.exists():
+        return "rerun"
+    try:
+        return str(exe.relative_to(Path.cwd()))
+    except ValueError:
+        return str(exe)
 
 
 def merge_rrd(parts: list[Path], dest: Path) -> None:
@@ -184,7 +190,8 @@ class ClusterViz:
         if spec.kind == "save":
             spec = VizSpec("save", str(self.dir / "world.rrd"))
         self.sink = open_sink(spec, recording_id=self.recording_id, grpc_port=self.grpc_port,
-                              blueprint=make_blueprint(list(range(self.n)), area=self.data.area))
+                              blueprint=make_blueprint(list(range(self.n)), area=self.data.area,
+                                                       cameras=self.data.cameras))
         log_world(self.sink, self.data, cameras=False)  # each node logs its own camera
 
     def log_truth(self, frames: int) -> None:

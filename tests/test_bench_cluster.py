@@ -60,3 +60,16 @@ def test_command_writes_summary_and_table(tmp_path, capsys):
     pids = [p["pid"] for p in json.loads((tmp_path / "n2" / "r0" / "cluster.json").read_text())
             ["nodes"].values()]
     assert pids and not any(alive(p) for p in pids)
+
+
+def test_ring8_preset_loads():
+    from sim_cluster.scenario import list_presets, load_scenario
+
+    assert "ring8-sim" in list_presets()
+    s = load_scenario("ring8-sim", frames=100)
+    assert s.name == "ring8-sim" and s.num_cameras == 8 and s.frames == 100 and s.fps == 25.0
+    assert all(c.image_size == (360, 288) and c.P is not None for c in s.cameras)
+    people = [len(ids) for ids in s.truth.ids]
+    assert max(people) == 12 and sum(people) / len(people) > 10
+    for c in range(8):  # every camera sees most of the plaza's people
+        assert sum(len(s.truth.boxes[c][k][0]) for k in range(s.frames)) / s.frames > 7

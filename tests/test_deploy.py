@@ -10,7 +10,7 @@ from sim_cluster.scenario import load_scenario
 DEPLOY = Path(__file__).resolve().parent.parent / "deploy"
 
 
-@pytest.mark.parametrize("name", ["peer.json5", "peer-mtls.json5"])
+@pytest.mark.parametrize("name", ["peer.json5", "peer-mtls.json5", "peer-acl.json5"])
 def test_zenoh_configs_parse(name):
     import zenoh
 

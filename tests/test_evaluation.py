@@ -196,3 +196,21 @@ def test_bad_node_is_an_error():
         evaluate_image({5: [[]]}, scenario())
     with pytest.raises(EvaluationError, match="track entry"):
         evaluate_ground({0: [[42]]}, scenario())
+
+
+def test_start_frame_evaluates_only_the_later_frames():
+    """Frames before ``start`` are neither misses nor false positives."""
+    import numpy as np
+    from types import SimpleNamespace
+    from sim_cluster.evaluation import evaluate_ground
+
+    xy = [np.array([[0.0, 0.0]])] * 4
+    truth = SimpleNamespace(ids=[np.array([1])] * 4, xy=xy, wh=[np.array([[0.5, 1.7]])] * 4,
+                            boxes=[])
+    scen = SimpleNamespace(truth=truth, units_per_metre=1.0, num_cameras=1, frames=4)
+    tracks = {0: [[], [], [((0, 0), np.array([0.1, 0, 0.5, 1.7, 0, 0]))],
+                  [((0, 0), np.array([0.1, 0, 0.5, 1.7, 0, 0]))]]}
+    full = evaluate_ground(tracks, scen, frames=4)["per_node"]["0"]
+    late = evaluate_ground(tracks, scen, frames=4, start=2)["per_node"]["0"]
+    assert full["mota"] == 0.5 and full["num_misses"] == 2  # 2 of 4 frames missed by hand
+    assert late["mota"] == 1.0 and late["num_objects"] == 2 and late["num_misses"] == 0

@@ -216,6 +216,7 @@ class Mog2Detector:
     def detect(self, image: np.ndarray) -> list[Box]:
         cv2 = self.cv2
         fg = self.foreground(image)
+        H, W = fg.shape[:2]
         n, labels, stats, _ = cv2.connectedComponentsWithStats(fg, connectivity=8)
         blobs = [list(map(int, stats[i, :4])) + [i] for i in range(1, n)
                  if stats[i, cv2.CC_STAT_AREA] >= max(8, self.min_area // 4)]
@@ -230,15 +231,18 @@ class Mog2Detector:
             m = np.isin(labels[y0:y1, x0:x1], ids)
             if int(m.sum()) < self.min_area:
                 continue
-            for (px0, py0, px1, py1) in self._split(m, x0, y0):
+            for (px0, py0, px1, py1, area) in self._people(m, x0, y0, H):
                 w, h = px1 - px0, py1 - py0
-                if h < self.min_height or w < 2:
+                if h < self.min_height or w < 2 or area < self.min_area:
                     continue
-                part = m[py0 - y0:py1 - y0, px0 - x0:px1 - x0]
-                area = int(part.sum())
-                if area < self.min_area:
+                if py1 >= H - 1:  # feet below the image: no foot point to measure
                     continue
-                out.append((np.array([px0, py0, w, h], float), float(area) / float(w * h)))
+                if px0 <= 0 or px1 >= W:  # cut by a side: keep only most of a person
+                    ew, _ = self.expected_size((px0 + px1) / 2.0, py1, h)
+                    if w < 0.5 * ew:
+                        continue
+                out.append((np.array([px0, py0, w, h], float),
+                            float(min(1.0, area / float(max(w * h, 1))))))
         return out
 
     def _join(self, blobs: list[list[int]]) -> list[list[list[int]]]:
@@ -266,35 +270,101 @@ class Mog2Detector:
                 groups.append([b])
         return groups
 
-    def _split(self, m: np.ndarray, x0: int, y0: int) -> list[tuple[int, int, int, int]]:
-        """Cut a blob wider than one person at its emptiest columns; each part's box is its own
-        mask's extent."""
+    def _columns(self, m: np.ndarray, x0: int, y0: int) -> list[tuple[int, int]]:
+        """Column spans of the people side by side in a blob: a blob wider than one person (at
+        its foot point) is cut at its emptiest columns near the nominal cuts."""
         h, w = m.shape
-        parts = [(0, w)]
-        if self.split:
-            ew, _ = self.expected_size(x0 + w / 2.0, y0 + h, h)
-            k = int(round(w / max(ew, 1.0)))
-            if w > 1.5 * ew and k >= 2:
-                k = min(k, self.max_split)
-                cols = np.convolve(m.sum(axis=0).astype(float), np.ones(3) / 3.0, mode="same")
-                cuts = []
-                for j in range(1, k):
-                    c = j * w / k
-                    lo, hi = int(max(1, c - w / (3 * k))), int(min(w - 1, c + w / (3 * k)))
-                    if hi <= lo:
-                        continue
-                    cuts.append(lo + int(np.argmin(cols[lo:hi])))
-                edges = [0] + sorted(set(cuts)) + [w]
-                parts = [(a, b) for a, b in zip(edges[:-1], edges[1:]) if b > a]
+        if not self.split:
+            return [(0, w)]
+        ew, _ = self.expected_size(x0 + w / 2.0, y0 + h, h)
+        if w <= 1.35 * ew:
+            return [(0, w)]
+        k = min(max(2, int(round(w / max(ew, 1.0)))), self.max_split)
+        cols = np.convolve(m.sum(axis=0).astype(float), np.ones(3) / 3.0, mode="same")
+        cuts = []
+        for j in range(1, k):
+            c = j * w / k
+            lo, hi = int(max(1, c - w / (3 * k))), int(min(w - 1, c + w / (3 * k)))
+            if hi > lo:
+                cuts.append(lo + int(np.argmin(cols[lo:hi])))
+        edges = [0] + sorted(set(cuts)) + [w]
+        return [(a, b) for a, b in zip(edges[:-1], edges[1:]) if b > a]
+
+    def _people(self, m: np.ndarray, x0: int, y0: int, H: int
+                ) -> list[tuple[int, int, int, int, int]]:
+        """Boxes ``(x0, y0, x1, y1, area)`` of the people in one blob mask.
+
+        Without a camera: column cuts only. With one, nearest first: people stand on the
+        ground, so the lowest foreground pixels are the nearest person's feet. Their centre is
+        the column run of foreground in the bottom rows that holds the lowest pixel; a person
+        standing there (``expected_size``) claims the foreground in a box 1.3 widths wide and
+        1.1 heights tall above it; the rest of the blob is analysed again. The box is centred
+        on the feet, as wide as the claimed lower body. Like a detector missing the mostly
+        hidden, a part shorter than half a person is dropped, and so is one shorter than 0.7 of
+        a person whose lowest row rests on a nearer person (its feet are hidden: placing them
+        from the head's height would cost metres on the ground at these camera heights).
+        """
+        if self.camera is None or not self.split:
+            out = []
+            for a, b in self._columns(m, x0, y0):
+                sub = m[:, a:b]
+                rows = np.flatnonzero(sub.any(axis=1))
+                cols = np.flatnonzero(sub.any(axis=0))
+                if len(rows):
+                    out.append((x0 + a + int(cols[0]), y0 + int(rows[0]), x0 + a + int(cols[-1]) + 1,
+                                y0 + int(rows[-1]) + 1, int(sub.sum())))
+            return out
+        hh, ww = m.shape
+        rem = m.copy()
+        claimed = np.zeros_like(m)
         out = []
-        for a, b in parts:
-            sub = m[:, a:b]
-            rows = np.flatnonzero(sub.any(axis=1))
-            cols = np.flatnonzero(sub.any(axis=0))
-            if len(rows) == 0:
+        for _ in range(2 * self.max_split):
+            if int(rem.sum()) < max(8, self.min_area // 2):
+                break
+            rows = np.flatnonzero(rem.any(axis=1))
+            top, v1 = int(rows[0]), int(rows[-1]) + 1
+            low = np.flatnonzero(rem[v1 - 1])
+            ew, eh = self.expected_size(x0 + float(low.mean()), y0 + v1, v1 - top)
+            band = rem[max(0, int(v1 - 0.15 * eh)):v1].any(axis=0)
+            # the run of foot columns holding the lowest pixel (gaps up to 0.35 widths bridged)
+            gap = max(1, int(0.35 * ew))
+            cols = np.flatnonzero(band)
+            seed = int(low[len(low) // 2])
+            lo = hi = seed
+            for c in cols[cols < seed][::-1]:
+                if lo - c > gap:
+                    break
+                lo = int(c)
+            for c in cols[cols > seed]:
+                if c - hi > gap:
+                    break
+                hi = int(c)
+            u = (lo + hi + 1) / 2.0
+            ew, eh = self.expected_size(x0 + u, y0 + v1, v1 - top)
+            cx0 = max(0, int(np.floor(u - 0.65 * ew)))
+            cx1 = min(ww, int(np.ceil(u + 0.65 * ew)))
+            cy0 = max(0, int(np.floor(v1 - 1.1 * eh)))
+            claim = rem[cy0:v1, cx0:cx1]
+            rr = np.flatnonzero(claim.any(axis=1))
+            cc = np.flatnonzero(claim.any(axis=0))
+            area = int(claim.sum())
+            if len(rr) == 0:  # cannot happen (the lowest pixel is inside), but never loop forever
+                rem[v1 - 1] = False
                 continue
-            out.append((x0 + a + int(cols[0]), y0 + int(rows[0]), x0 + a + int(cols[-1]) + 1,
-                        y0 + int(rows[-1]) + 1))
+            by0, by1 = y0 + cy0 + int(rr[0]), y0 + v1
+            vis = by1 - by0
+            hidden = bool(claimed[v1:min(hh, v1 + 3), cx0:cx1].any())  # resting on a nearer one
+            if vis >= 0.5 * eh and (not hidden or vis >= 0.7 * eh):
+                # width from the lower body (arms and whatever stands behind are above it),
+                # centred on the feet
+                lower = claim[max(0, int(rr[-1] + 1 - 0.6 * (rr[-1] + 1 - rr[0]))):]
+                lc = np.flatnonzero(lower.any(axis=0))
+                w = float(lc[-1] + 1 - lc[0]) if len(lc) else float(cc[-1] + 1 - cc[0])
+                w = max(w, 0.6 * ew)
+                xc = x0 + u
+                out.append((int(round(xc - w / 2.0)), by0, int(round(xc + w / 2.0)), by1, area))
+            claimed[cy0:v1, cx0:cx1] |= claim
+            rem[cy0:v1, cx0:cx1] = False
         return out
 
 

@@ -38,6 +38,9 @@ Schema (defaults in brackets)::
     # kind = "scenario"             # developer convenience: play back a sim_cluster scenario
     # scenario = "terrace-sim"      #   preset name or path
     # seed = 0  frames = 200  data_root = "..."  camera = 0
+    # kind = "video"                # frames: "video" | "images" | "epfl" | "camera", run through
+    # path = "cam0.avi"             #   [perception] (detector, re-id); needs [camera] (except
+                                    #   epfl with homographies.json): edge_node/perception/settings.py
 
     [camera]                        # optional: overrides the calibration from the source
     homography = [[...], [...], [...]]   # image (scaled pixels) -> ground, 3x3
@@ -87,7 +90,8 @@ from protocol.keys import is_valid_network, is_valid_node
 
 MODES = ("sync", "async")
 _TRIGGER = TriggerConfig()
-SOURCE_KINDS = ("det-file", "scenario")
+SOURCE_KINDS = ("det-file", "scenario", "video", "images", "epfl", "camera")
+FRAME_SOURCE_KINDS = ("video", "images", "epfl", "camera")  # edge_node/perception
 
 _REQUIRED = object()
 _ENDPOINT_RE = re.compile(r"(?P<proto>[a-z][a-z0-9-]*)/(?P<addr>[^?#]+)(?:\?[^#]*)?(?:#.*)?")
@@ -282,6 +286,10 @@ class SourceSettings:
     seed: int | None = None
     frames: int | None = None
     data_root: Path | None = None
+    sequence: str | None = None  # epfl: the files' prefix (terrace1)
+    pattern: str | None = None  # images: a glob
+    device: int | str | None = None  # camera: device index or stream URL
+    fps: float | None = None  # images / camera: frame rate
 
 
 @dataclass(frozen=True)
@@ -316,6 +324,7 @@ class NodeConfig:
     output: OutputSettings = field(default_factory=OutputSettings)
     faults: Path | None = None  # a fault plan TOML (tests, fault reports)
     viz: VizSettings = field(default_factory=VizSettings)
+    perception: Any = None  # edge_node.perception.settings.PerceptionSettings (frame sources)
 
     @property
     def name(self) -> str:
@@ -360,6 +369,7 @@ class NodeConfig:
             "tracker": {"ablation": self.ablation, **{k: conv(v) for k, v in self.tracker.to_dict().items()}},
             "output": table(self.output),
             "viz": table(self.viz),
+            "perception": None if self.perception is None else self.perception.to_dict(),
         }
 
 
@@ -414,6 +424,7 @@ def parse_node_config(data: dict, path: str | Path) -> NodeConfig:
     output = _output(top.table("output"), base)
     faults = _faults(top.table("faults"), base)
     viz = _viz(top.table("viz"), base)
+    perception = _perception(top.table("perception"), base, source, camera, file)
     top.finish()
     if runtime.staleness_frames is not None and "staleness_frames" in explicit:
         raise NodeConfigError(file, "runtime.staleness_frames", "and tracker.staleness_frames are "
@@ -421,7 +432,7 @@ def parse_node_config(data: dict, path: str | Path) -> NodeConfig:
     return NodeConfig(file=path, node=node, network=network, neighbours=tuple(sorted(seen)),
                       zenoh=zenoh_s, runtime=runtime, source=source, tracker=tracker,
                       ablation=ablation, tracker_explicit=explicit, camera=camera, output=output,
-                      faults=faults, viz=viz)
+                      faults=faults, viz=viz, perception=perception)
 
 
 def _endpoints(t: _Table, key: str, listen: bool) -> tuple[str, ...]:
@@ -469,6 +480,12 @@ def _runtime(t: _Table | None, file: str) -> RuntimeSettings:
 def _source(t: _Table, base: Path, node: int) -> SourceSettings:
     kind = t.string("kind", choices=SOURCE_KINDS)
     camera = t.integer("camera", node, lo=0)
+    if kind in FRAME_SOURCE_KINDS:
+        from edge_node.perception.settings import parse_frame_source  # no OpenCV / torch
+
+        fields_ = parse_frame_source(t, kind, base)
+        t.finish()
+        return SourceSettings(kind, camera, **fields_)
     if kind == "det-file":
         p = t.path("path", base)
         if not p.exists():
@@ -567,6 +584,23 @@ def _viz(t: _Table | None, base: Path) -> VizSettings:
             raise t.error("area", f"must have xmin < xmax and ymin < ymax, got {a!r}")
     t.finish()
     return VizSettings(str(spec), rid, blueprint, area)
+
+
+def _perception(t: _Table | None, base: Path, source: SourceSettings,
+                camera: CameraSettings | None, file: str):
+    """``[perception]`` (frame sources only; edge_node/perception/settings.py)."""
+    if source.kind not in FRAME_SOURCE_KINDS:
+        if t is not None:
+            raise t.error(None, f"applies to frame sources ({', '.join(FRAME_SOURCE_KINDS)}), "
+                          f"not to source kind {source.kind!r}")
+        return None
+    if camera is None and source.kind != "epfl":
+        raise NodeConfigError(file, "camera", f"is required for source "
+                              f"kind {source.kind!r}: the image-to-ground homography (see "
+                              "docs/real-cameras.md, edge_node calibrate)")
+    from edge_node.perception.settings import PerceptionSettings, parse_perception
+
+    return parse_perception(t, base) if t is not None else PerceptionSettings()
 
 
 def _output(t: _Table | None, base: Path) -> OutputSettings:

@@ -170,6 +170,14 @@ def open_source(cfg: NodeConfig) -> Source:
         src = load_det_file_camera(s.path, s.camera, cfg.node)
     elif s.kind == "scenario":
         src = load_scenario_camera(s.scenario, s.camera, cfg.node, s.seed, s.frames, s.data_root)
+    elif s.kind in ("video", "images", "epfl", "camera"):  # frames -> edge_node/perception
+        from edge_node.perception import PerceptionError
+        from edge_node.perception.pipeline import open_frame_source
+
+        try:  # detector, re-id weights and frames are all opened here, at start-up
+            return open_frame_source(cfg)  # its camera is [camera] (or EPFL's homographies)
+        except PerceptionError as e:
+            raise SourceError(str(e)) from None
     else:  # pragma: no cover - the config validated it
         raise NodeConfigError(cfg.name, "source.kind", f"unknown kind {s.kind!r}")
     if cfg.camera is not None:

@@ -39,6 +39,9 @@ log = logging.getLogger("edge_node.transport")
 LATENCY_SAMPLES = 200_000  # newest one-hop latency samples kept for the summary
 
 
+GONE_GRACE_S = 0.25  # how long frame k still waits for a neighbour whose liveliness just ended
+
+
 class StartupError(RuntimeError):
     """The start-up barrier timed out; ``missing`` are the neighbours that were not ready."""
 
@@ -128,6 +131,7 @@ class ZenohTransport:
         self._pending: dict[int, int] = defaultdict(int)  # sender -> entries in _inbox
         self._floor = -1  # sync: frames below this are late
         self._alive: set[int] = set()  # alive neighbours
+        self._gone_at: dict[int, float] = {}  # neighbour -> when its liveliness went away
         self._alive_any: set[int] = set()  # every alive node seen (direct connections only)
         # counters
         self.bytes_sent: dict[int, int] = defaultdict(int)
@@ -222,8 +226,10 @@ class ZenohTransport:
             self._inbox[key] = msg
             self._pending[src] += 1
             if self._pending[src] > self.max_pending_frames:
-                oldest = min(f for (s, f) in self._inbox if s == src)
-                del self._inbox[(src, oldest)]
+                # drop the frame farthest ahead, not the one needed next: a flood of (forged)
+                # future frames must not push out the message this node is waiting for
+                newest = max(f for (s, f) in self._inbox if s == src)
+                del self._inbox[(src, newest)]
                 self._pending[src] -= 1
                 self.overflow[src] += 1
             self._cond.notify_all()
@@ -240,6 +246,8 @@ class ZenohTransport:
             with self._cond:
                 if gone:
                     self._alive_any.discard(n)
+                    if n in self._alive:
+                        self._gone_at[n] = time.monotonic()
                     self._alive.discard(n)
                 else:
                     self._alive_any.add(n)
@@ -282,7 +290,12 @@ class ZenohTransport:
                 if remaining <= 0 or (stop is not None and stop.is_set()):
                     return None
                 self._cond.wait(min(remaining, 0.1))
-            return max(f for (_, f) in self._inbox)
+            # Each sender's newest frame; the smallest of those: one key (forged, without the
+            # access-control config) cannot make a restarting node jump far ahead.
+            newest: dict[int, int] = {}
+            for (src, f) in self._inbox:
+                newest[src] = max(f, newest.get(src, -1))
+            return min(newest.values())
 
     def alive_neighbours(self) -> set[int]:
         with self._cond:
@@ -340,7 +353,11 @@ class ZenohTransport:
                 self.late[key[0]] += 1
             while True:
                 have = {s for s in self.neighbours if (s, frame) in self._inbox}
-                missing = self._alive - have
+                # A neighbour that just left (its last frame done) may have its last message
+                # still in flight behind the liveliness DELETE: wait for it a moment longer.
+                now = time.monotonic()
+                leaving = {s for s, t in self._gone_at.items() if now - t < GONE_GRACE_S}
+                missing = (self._alive | leaving) - have
                 if not missing or (stop is not None and stop.is_set()):
                     break
                 remaining = deadline - time.monotonic()

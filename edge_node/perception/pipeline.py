@@ -1,0 +1,193 @@
+"""Frame -> detections with descriptors, and the runtime source that feeds a node from frames.
+
+:class:`Perception` runs a detector and (optionally) a re-id extractor on one image and returns the
+tracker core's :class:`~edge_node.core.types.Detection` objects; it keeps per-stage timings.
+:class:`FrameDetections` is what ``edge_node run`` calls for frame ``k`` when ``[source]`` is a
+video, an image folder, the EPFL layout or a live camera: it reads frames in order and runs the
+perception on each (a frame the node skips is read and dropped, so frame ``k`` is always the
+source's ``k``-th frame).
+"""
+from __future__ import annotations
+
+import logging
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from edge_node.core.types import Detection
+from edge_node.perception import PerceptionError
+from edge_node.perception.detectors import Detector, make_detector
+from edge_node.perception.frames import FrameSource, open_frames
+from edge_node.perception.reid import ReidExtractor, make_reid
+
+log = logging.getLogger("edge_node.perception")
+UNBOUNDED_FRAMES = 2**31 - 1  # a live camera runs until stopped (or [runtime] frames)
+
+
+@dataclass
+class PerceptionStats:
+    frames: int = 0
+    boxes: int = 0
+    read_s: float = 0.0
+    detect_s: float = 0.0
+    reid_s: float = 0.0
+
+    def per_frame_ms(self) -> dict:
+        n = max(self.frames, 1)
+        return {"frames": self.frames, "boxes_per_frame": self.boxes / n,
+                "read_ms": 1e3 * self.read_s / n, "detect_ms": 1e3 * self.detect_s / n,
+                "reid_ms": 1e3 * self.reid_s / n}
+
+
+class Perception:
+    """``detector`` (+ ``reid``) on one image -> ``[Detection]``; boxes shorter than
+    ``min_height_px`` are dropped before re-id."""
+
+    def __init__(self, detector: Detector, reid: ReidExtractor | None = None,
+                 min_height_px: float = 0.0):
+        self.detector = detector
+        self.reid = reid
+        self.min_height_px = float(min_height_px)
+        self.stats = PerceptionStats()
+
+    def process(self, image: np.ndarray | None) -> list[Detection]:
+        if image is None:
+            return []
+        t0 = time.perf_counter()
+        found = [(b, s) for b, s in self.detector.detect(image) if b[3] >= self.min_height_px]
+        t1 = time.perf_counter()
+        boxes = np.array([b for b, _ in found], float).reshape(-1, 4)
+        desc = None
+        if self.reid is not None and len(boxes):
+            desc = self.reid.extract(image, boxes)
+        t2 = time.perf_counter()
+        st = self.stats
+        st.frames += 1
+        st.boxes += len(found)
+        st.detect_s += t1 - t0
+        st.reid_s += t2 - t1
+        out = []
+        for i, (b, s) in enumerate(found):
+            d = None
+            if desc is not None and np.all(np.isfinite(desc[i])):
+                d = desc[i]
+            out.append(Detection(box=np.asarray(b, float), descriptor=d, score=float(s)))
+        return out
+
+
+@dataclass
+class FrameDetections:
+    """A node's source fed by frames: the attributes ``edge_node.runtime`` reads of a ``Source``
+    (``camera``, ``frames``, ``fps``, ``units_per_metre``, ``description``) and ``source(k)``."""
+
+    camera: object
+    frames: int
+    fps: float
+    units_per_metre: float
+    frames_in: FrameSource
+    perception: Perception
+    description: str = ""
+    log_every: int = 250
+    timestamps: list = field(default_factory=list)  # (index, timestamp) of the frames processed
+    _next: int = 0
+    _ended: bool = False
+
+    def __call__(self, k: int) -> list[Detection]:
+        st = self.perception.stats
+        frame = None
+        while not self._ended and self._next <= k:
+            t0 = time.perf_counter()
+            frame = self.frames_in.read()
+            st.read_s += time.perf_counter() - t0
+            if frame is None:
+                self._ended = True
+                log.info("perception: the source ended after %d frames (%s)", self._next,
+                         self.summary())
+                break
+            self._next += 1
+            if frame.index != k:
+                frame = None  # a frame before k: skipped
+        if frame is None:
+            return []
+        dets = self.perception.process(frame.image)
+        if len(self.timestamps) < 100_000:
+            self.timestamps.append((frame.index, frame.timestamp))
+        if self.log_every and st.frames % self.log_every == 0:
+            log.info("perception: %s", self.summary())
+        return dets
+
+    def summary(self) -> str:
+        s = self.perception.stats.per_frame_ms()
+        return (f"{s['frames']} frames, {s['boxes_per_frame']:.1f} boxes/frame; per frame: read "
+                f"{s['read_ms']:.1f} ms, detect {s['detect_ms']:.1f} ms, re-id {s['reid_ms']:.1f} ms")
+
+    def close(self) -> None:
+        self.frames_in.close()
+
+
+def build_perception(settings, *, camera=None, units_per_metre: float = 1.0) -> Perception:
+    """A :class:`Perception` from ``PerceptionSettings`` (``edge_node.perception.settings``);
+    the MOG2 detector gets the camera for its person-size geometry."""
+    opts = dict(getattr(settings, settings.detector))
+    if settings.detector == "mog2":
+        opts.setdefault("camera", camera)
+        opts.setdefault("units_per_metre", units_per_metre)
+        if "person_size_m" in opts:
+            opts["person_size_m"] = tuple(opts["person_size_m"])
+    if settings.detector == "onnx" and "input_size" in opts:
+        opts["input_size"] = tuple(opts["input_size"])
+    detector = make_detector(settings.detector, **opts)
+    o = settings.osnet
+    reid = make_reid(settings.reid, weights=o.get("weights"), batch=o.get("batch", 32),
+                     threads=o.get("threads"))
+    return Perception(detector, reid, settings.min_height_px)
+
+
+def open_frame_source(cfg) -> FrameDetections:
+    """The runtime source of a ``NodeConfig`` whose ``[source]`` is a frame kind. Raises
+    :class:`PerceptionError` for anything that cannot be opened or loaded (at start-up)."""
+    from edge_node.perception.settings import PerceptionSettings
+
+    s = cfg.source
+    fps_hint = s.fps if s.fps is not None else (cfg.camera.fps if cfg.camera is not None else None)
+    frames_in = open_frames(s.kind, path=s.path, camera=s.camera, sequence=s.sequence,
+                            pattern=s.pattern, device=s.device, fps=fps_hint)
+    try:
+        if cfg.camera is not None:
+            camera = cfg.camera.camera(cfg.node)
+            upm = cfg.camera.units_per_metre or 1.0
+        elif s.kind == "epfl":
+            camera = frames_in.camera(cfg.node)
+            if camera is None:
+                raise PerceptionError(f"{s.path}: no homographies.json for the camera's "
+                                      "calibration; give a [camera] table")
+            upm = 30.0  # EPFL calibration units (about 30 per metre), as sim_cluster's EPFL scenarios
+        else:  # pragma: no cover - the config requires [camera] for the other kinds
+            raise PerceptionError(f"source kind {s.kind!r} needs a [camera] table (calibration)")
+        W, H = frames_in.image_size
+        cw, ch = camera.image_size
+        if (W, H) != (cw, ch):
+            log.warning("frames are %dx%d but the camera's calibration says %dx%d: boxes are in "
+                        "frame pixels; check [camera] image_size / pixel_scale", W, H, cw, ch)
+        settings = cfg.perception if cfg.perception is not None else PerceptionSettings()
+        perception = build_perception(settings, camera=camera, units_per_metre=upm)
+    except Exception:
+        frames_in.close()
+        raise
+    n = frames_in.frames if frames_in.frames is not None else UNBOUNDED_FRAMES
+    desc = (f"{frames_in.description} -> {perception.detector.name}"
+            f" + {perception.reid.name if perception.reid else 'no re-id'}")
+    return FrameDetections(camera, int(n), float(frames_in.fps), float(upm), frames_in,
+                           perception, desc, log_every=settings.log_every)
+
+
+def describe_frames(path: str | Path) -> dict:
+    """Frame count, fps and size of a video or image folder (``edge_node check``)."""
+    p = Path(path)
+    src = open_frames("images" if p.is_dir() else "video", path=p)
+    try:
+        return {"frames": src.frames, "fps": src.fps, "image_size": list(src.image_size)}
+    finally:
+        src.close()
