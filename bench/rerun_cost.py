@@ -9,12 +9,15 @@
               ``started_at`` minus its start-up barrier ``startup_s``): the rate the cluster
               sustains in lock-step, Rerun logging and the final flush included;
 ``command s`` wall time of the whole ``sim_cluster up`` (process start-up with Rerun's import,
-              the run, evaluation, and for ``save`` logging the world and merging the files).
+              the run, evaluation, and for ``save`` logging the world and merging the files);
+``cpu ms``    CPU time of the launcher and all its processes (user + system, from
+              ``getrusage(RUSAGE_CHILDREN)``) per node and frame.
 
 Medians over the repeats are printed and written to ``<out>/rerun_cost.json``.
 """
 import argparse
 import json
+import resource
 import statistics
 import subprocess
 import sys
@@ -26,11 +29,14 @@ BIN = Path(sys.executable).parent
 
 def one(out: Path, frames: int, rerun: list[str]) -> dict:
     t0 = time.time()
+    ru0 = resource.getrusage(resource.RUSAGE_CHILDREN)
     r = subprocess.run([str(BIN / "sim_cluster"), "up", "--scenario", "terrace-sim", "--topology",
                         "chain", "--frames", str(frames), "--mode", "sync", "--sync-timeout", "30",
                         "--out", str(out), "--quiet", "--rerun", *rerun],
                        capture_output=True, text=True)
     wall = time.time() - t0
+    ru1 = resource.getrusage(resource.RUSAGE_CHILDREN)
+    cpu = (ru1.ru_utime - ru0.ru_utime) + (ru1.ru_stime - ru0.ru_stime)
     if r.returncode != 0:
         raise SystemExit(r.stdout + r.stderr)
     loops = []
@@ -39,7 +45,8 @@ def one(out: Path, frames: int, rerun: list[str]) -> dict:
         c = json.loads((out / "nodes" / f"counters_node{i}.json").read_text())
         assert c["frames_done"] == frames, c
         loops.append(st["updated_at"] - st["started_at"] - (c.get("startup_s") or 0.0))
-    return {"loop_fps": frames / max(loops), "command_s": wall}
+    return {"loop_fps": frames / max(loops), "command_s": wall,
+            "cpu_ms_per_node_frame": cpu / (4 * frames) * 1e3}
 
 
 def main() -> int:
@@ -54,17 +61,20 @@ def main() -> int:
         for name in ("off", "save"):
             spec = ["off"] if name == "off" else ["save", str(out / "cost.rrd")]
             runs[name].append(one(out / name, a.frames, spec))
-            print(f"run {rep + 1} {name:>4}: {runs[name][-1]['loop_fps']:.1f} frames/s, "
-                  f"command {runs[name][-1]['command_s']:.1f} s", flush=True)
-    med = {k: {m: statistics.median(r[m] for r in v) for m in ("loop_fps", "command_s")}
-           for k, v in runs.items()}
+            x = runs[name][-1]
+            print(f"run {rep + 1} {name:>4}: {x['loop_fps']:.1f} frames/s, command "
+                  f"{x['command_s']:.1f} s, cpu {x['cpu_ms_per_node_frame']:.1f} ms per node-frame",
+                  flush=True)
+    metrics = ("loop_fps", "command_s", "cpu_ms_per_node_frame")
+    med = {k: {m: statistics.median(r[m] for r in v) for m in metrics} for k, v in runs.items()}
     res = {"frames": a.frames, "repeats": a.repeats, "runs": runs, "median": med,
            "rrd_bytes": (out / "cost.rrd").stat().st_size}
     (out / "rerun_cost.json").write_text(json.dumps(res, indent=2))
     print(f"median frames/s: off {med['off']['loop_fps']:.1f}, save {med['save']['loop_fps']:.1f} "
           f"({100 * (med['save']['loop_fps'] / med['off']['loop_fps'] - 1):+.0f}%); command: off "
-          f"{med['off']['command_s']:.1f} s, save {med['save']['command_s']:.1f} s; "
-          f"recording {res['rrd_bytes'] / 1e6:.1f} MB")
+          f"{med['off']['command_s']:.1f} s, save {med['save']['command_s']:.1f} s; cpu per "
+          f"node-frame: off {med['off']['cpu_ms_per_node_frame']:.1f} ms, save "
+          f"{med['save']['cpu_ms_per_node_frame']:.1f} ms; recording {res['rrd_bytes'] / 1e6:.1f} MB")
     return 0
 
 

@@ -3,7 +3,8 @@
 For T targets walking in a 20 m x 20 m area seen by 5 cameras on a complete graph (so every node
 has 4 neighbours), it times ``prepare`` + ``update`` of every node in every frame (the codec is
 timed separately) and reports medians, plus the encoded bytes per tracker per frame and per new
-tracker's appearance. Figures vary with the machine; quote medians and ratios.
+tracker's appearance. Times are CPU time of this process (``time.process_time``), not wall
+time, so other work on a shared machine inflates them far less; still quote medians and ratios.
 """
 from __future__ import annotations
 
@@ -70,18 +71,18 @@ def bench_targets(targets: int, neighbours: int = 4, frames: int = 60, seed: int
         t_core = 0.0
         msgs, payloads = [], []
         for node, d in zip(nodes, dets):
-            t0 = time.perf_counter()
+            t0 = time.process_time()
             msgs.append(node.prepare(k, d))
-            t_core += time.perf_counter() - t0
-        t0 = time.perf_counter()
+            t_core += time.process_time() - t0
+        t0 = time.process_time()
         for m in msgs:
             payloads.append(codec.encode(m))
         inbox = [[codec.decode(payloads[j]) for j in range(n) if j != i] for i in range(n)]
-        t_codec = time.perf_counter() - t0
+        t_codec = time.process_time() - t0
         for node, box in zip(nodes, inbox):
-            t0 = time.perf_counter()
+            t0 = time.process_time()
             node.update(box)
-            t_core += time.perf_counter() - t0
+            t_core += time.process_time() - t0
         core_ms.append(1000 * t_core / n)
         codec_ms.append(1000 * t_codec / n)
         for m, p in zip(msgs, payloads):

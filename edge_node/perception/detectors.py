@@ -149,7 +149,8 @@ class Mog2Detector:
                  var_threshold: float = 16.0, learning_rate: float = -1.0,
                  min_area: int = 60, min_height: int = 12, open_px: int = 3, close_px: int = 5,
                  split: bool = True, person_size_m: tuple[float, float] = (0.5, 1.75),
-                 aspect: float = 0.38, max_split: int = 6):
+                 aspect: float = 0.38, max_split: int = 6, min_visible_height: float = 0.8,
+                 merge_m: float = 0.4):
         cv2 = require_cv2()
         self.cv2 = cv2
         if history < 1 or var_threshold <= 0 or min_area < 1:
@@ -170,6 +171,8 @@ class Mog2Detector:
         self.person_m = (float(person_size_m[0]), float(person_size_m[1]))
         self.aspect = float(aspect)
         self.max_split = int(max_split)
+        self.min_visible_height = float(min_visible_height)
+        self.merge_m = float(merge_m)
         self.mask: np.ndarray | None = None  # the last cleaned foreground mask (for inspection)
         if background is not None:
             self.prime(background)
@@ -235,7 +238,7 @@ class Mog2Detector:
                 w, h = px1 - px0, py1 - py0
                 if h < self.min_height or w < 2 or area < self.min_area:
                     continue
-                if py1 >= H - 1:  # feet below the image: no foot point to measure
+                if py1 >= H - 1.5:  # feet below the image: no foot point to measure
                     continue
                 if px0 <= 0 or px1 >= W:  # cut by a side: keep only most of a person
                     ew, _ = self.expected_size((px0 + px1) / 2.0, py1, h)
@@ -243,7 +246,32 @@ class Mog2Detector:
                         continue
                 out.append((np.array([px0, py0, w, h], float),
                             float(min(1.0, area / float(max(w * h, 1))))))
-        return out
+        return self._merge_close(out)
+
+    def _merge_close(self, found: list[Box]) -> list[Box]:
+        """Two boxes whose foot points are closer on the ground than two bodies can stand
+        (``merge_m``) are parts of one person: their union."""
+        cam = self.camera
+        if cam is None or len(found) < 2 or self.merge_m <= 0:
+            return found
+        boxes = [b for b, _ in found]
+        scores = [s for _, s in found]
+        feet = cam.to_ground(np.array([[b[0] + b[2] / 2.0, b[1] + b[3]] for b in boxes]))
+        alive = [True] * len(boxes)
+        lim = self.merge_m * self.upm
+        for i in range(len(boxes)):
+            for j in range(i + 1, len(boxes)):
+                if not (alive[i] and alive[j]):
+                    continue
+                if np.all(np.isfinite(feet[[i, j]])) and np.hypot(*(feet[i] - feet[j])) < lim:
+                    a, b = boxes[i], boxes[j]
+                    x0, y0 = min(a[0], b[0]), min(a[1], b[1])
+                    x1, y1 = max(a[0] + a[2], b[0] + b[2]), max(a[1] + a[3], b[1] + b[3])
+                    boxes[i] = np.array([x0, y0, x1 - x0, y1 - y0])
+                    scores[i] = max(scores[i], scores[j])
+                    feet[i] = cam.to_ground(np.array([[x0 + (x1 - x0) / 2.0, y1]]))[0]
+                    alive[j] = False
+        return [(boxes[i], scores[i]) for i in range(len(boxes)) if alive[i]]
 
     def _join(self, blobs: list[list[int]]) -> list[list[list[int]]]:
         """Group fragments of one person: blobs sharing most of their columns, whose union is
@@ -297,12 +325,13 @@ class Mog2Detector:
         Without a camera: column cuts only. With one, nearest first: people stand on the
         ground, so the lowest foreground pixels are the nearest person's feet. Their centre is
         the column run of foreground in the bottom rows that holds the lowest pixel; a person
-        standing there (``expected_size``) claims the foreground in a box 1.3 widths wide and
+        standing there (``expected_size``) claims the foreground in a box 1.6 widths wide and
         1.1 heights tall above it; the rest of the blob is analysed again. The box is centred
-        on the feet, as wide as the claimed lower body. Like a detector missing the mostly
-        hidden, a part shorter than half a person is dropped, and so is one shorter than 0.7 of
-        a person whose lowest row rests on a nearer person (its feet are hidden: placing them
-        from the head's height would cost metres on the ground at these camera heights).
+        on the feet, as wide as the claimed lower body. A part shorter than
+        ``min_visible_height`` of a person standing at its lowest row is dropped: people stand
+        on the ground, so a person seen shorter than that has hidden feet (behind a nearer
+        person) or is a fragment, and its lowest row is no foot point. (Placing hidden feet from
+        the head's height would cost metres on the ground at these camera heights.)
         """
         if self.camera is None or not self.split:
             out = []
@@ -316,7 +345,6 @@ class Mog2Detector:
             return out
         hh, ww = m.shape
         rem = m.copy()
-        claimed = np.zeros_like(m)
         out = []
         for _ in range(2 * self.max_split):
             if int(rem.sum()) < max(8, self.min_area // 2):
@@ -326,8 +354,9 @@ class Mog2Detector:
             low = np.flatnonzero(rem[v1 - 1])
             ew, eh = self.expected_size(x0 + float(low.mean()), y0 + v1, v1 - top)
             band = rem[max(0, int(v1 - 0.15 * eh)):v1].any(axis=0)
-            # the run of foot columns holding the lowest pixel (gaps up to 0.35 widths bridged)
-            gap = max(1, int(0.35 * ew))
+            # the run of foot columns holding the lowest pixel (gaps up to 0.9 widths bridged:
+            # a walker's feet are up to a stride apart)
+            gap = max(1, int(0.9 * ew))
             cols = np.flatnonzero(band)
             seed = int(low[len(low) // 2])
             lo = hi = seed
@@ -341,8 +370,8 @@ class Mog2Detector:
                 hi = int(c)
             u = (lo + hi + 1) / 2.0
             ew, eh = self.expected_size(x0 + u, y0 + v1, v1 - top)
-            cx0 = max(0, int(np.floor(u - 0.65 * ew)))
-            cx1 = min(ww, int(np.ceil(u + 0.65 * ew)))
+            cx0 = max(0, int(np.floor(u - 0.8 * ew)))
+            cx1 = min(ww, int(np.ceil(u + 0.8 * ew)))
             cy0 = max(0, int(np.floor(v1 - 1.1 * eh)))
             claim = rem[cy0:v1, cx0:cx1]
             rr = np.flatnonzero(claim.any(axis=1))
@@ -352,9 +381,7 @@ class Mog2Detector:
                 rem[v1 - 1] = False
                 continue
             by0, by1 = y0 + cy0 + int(rr[0]), y0 + v1
-            vis = by1 - by0
-            hidden = bool(claimed[v1:min(hh, v1 + 3), cx0:cx1].any())  # resting on a nearer one
-            if vis >= 0.5 * eh and (not hidden or vis >= 0.7 * eh):
+            if by1 - by0 >= self.min_visible_height * eh:
                 # width from the lower body (arms and whatever stands behind are above it),
                 # centred on the feet
                 lower = claim[max(0, int(rr[-1] + 1 - 0.6 * (rr[-1] + 1 - rr[0]))):]
@@ -362,8 +389,7 @@ class Mog2Detector:
                 w = float(lc[-1] + 1 - lc[0]) if len(lc) else float(cc[-1] + 1 - cc[0])
                 w = max(w, 0.6 * ew)
                 xc = x0 + u
-                out.append((int(round(xc - w / 2.0)), by0, int(round(xc + w / 2.0)), by1, area))
-            claimed[cy0:v1, cx0:cx1] |= claim
+                out.append((xc - w / 2.0, by0, xc + w / 2.0, by1 - 0.5, area))
             rem[cy0:v1, cx0:cx1] = False
         return out
 

@@ -43,20 +43,44 @@ class PerceptionStats:
 
 class Perception:
     """``detector`` (+ ``reid``) on one image -> ``[Detection]``; boxes shorter than
-    ``min_height_px`` are dropped before re-id."""
+    ``min_height_px`` are dropped before re-id.
+
+    ``foot_offset_m`` (needs ``camera``): a box's bottom edge is the person's lowest pixel, the
+    nearer foot, which lies closer to the camera than the centre of the body the tracker
+    estimates (half a step when walking towards the camera, the foot's width when side-on). The
+    bottom edge is raised by the pixels that move its ground point this far away from the camera
+    (through the homography's Jacobian); the top stays.
+    """
 
     def __init__(self, detector: Detector, reid: ReidExtractor | None = None,
-                 min_height_px: float = 0.0):
+                 min_height_px: float = 0.0, *, camera=None, units_per_metre: float = 1.0,
+                 foot_offset_m: float = 0.0):
         self.detector = detector
         self.reid = reid
         self.min_height_px = float(min_height_px)
+        self.camera = camera
+        self.foot_offset = float(foot_offset_m) * float(units_per_metre)
         self.stats = PerceptionStats()
+
+    def _raise_feet(self, b: np.ndarray) -> np.ndarray:
+        u, v = b[0] + b[2] / 2.0, b[1] + b[3]
+        try:
+            J = self.camera.ground_jacobian(np.array([u, v]))
+        except (ValueError, np.linalg.LinAlgError):
+            return b
+        per_px = float(np.hypot(J[0, 1], J[1, 1]))  # ground units per pixel down the image
+        if not np.isfinite(per_px) or per_px <= 0:
+            return b
+        dv = min(self.foot_offset / per_px, 0.25 * b[3])
+        return np.array([b[0], b[1], b[2], b[3] - dv])
 
     def process(self, image: np.ndarray | None) -> list[Detection]:
         if image is None:
             return []
         t0 = time.perf_counter()
         found = [(b, s) for b, s in self.detector.detect(image) if b[3] >= self.min_height_px]
+        if self.camera is not None and self.foot_offset > 0:
+            found = [(self._raise_feet(np.asarray(b, float)), s) for b, s in found]
         t1 = time.perf_counter()
         boxes = np.array([b for b, _ in found], float).reshape(-1, 4)
         desc = None
@@ -142,7 +166,8 @@ def build_perception(settings, *, camera=None, units_per_metre: float = 1.0) -> 
     o = settings.osnet
     reid = make_reid(settings.reid, weights=o.get("weights"), batch=o.get("batch", 32),
                      threads=o.get("threads"))
-    return Perception(detector, reid, settings.min_height_px)
+    return Perception(detector, reid, settings.min_height_px, camera=camera,
+                      units_per_metre=units_per_metre, foot_offset_m=settings.foot_offset_m)
 
 
 def open_frame_source(cfg) -> FrameDetections:

@@ -16,6 +16,8 @@ Schema (defaults in brackets)::
     detector = "mog2"               # "mog2" | "hog" | "onnx"                            ["mog2"]
     reid = "histogram"              # "histogram" | "osnet_x1_0" | "osnet_x0_25" | ... | "none"
     min_height_px = 0               # drop boxes shorter than this                           [0]
+    foot_offset_m = 0.2             # raise each box's bottom so its ground point moves this far
+                                    # from the camera (the lowest pixel is the nearer foot) [0.2]
     log_every = 250                 # log perception timings every N frames (0 = only at the end)
 
     [perception.mog2]               # every key optional
@@ -71,6 +73,7 @@ class PerceptionSettings:
     reid: str = "histogram"
     min_height_px: float = 0.0
     log_every: int = 250
+    foot_offset_m: float = 0.2
     mog2: dict = field(default_factory=dict)  # Mog2Detector keyword arguments
     hog: dict = field(default_factory=dict)  # HogDetector keyword arguments
     onnx: dict = field(default_factory=dict)  # OnnxDetector keyword arguments
@@ -78,7 +81,7 @@ class PerceptionSettings:
 
     def to_dict(self) -> dict:
         return {"detector": self.detector, "reid": self.reid, "min_height_px": self.min_height_px,
-                "log_every": self.log_every, "mog2": dict(self.mog2), "hog": dict(self.hog),
+                "log_every": self.log_every, "foot_offset_m": self.foot_offset_m, "mog2": dict(self.mog2), "hog": dict(self.hog),
                 "onnx": dict(self.onnx), "osnet": dict(self.osnet)}
 
 
@@ -125,6 +128,7 @@ def parse_perception(t, base: Path) -> PerceptionSettings:
     reid = t.string("reid", "histogram", choices=REID_KINDS)
     min_h = t.number("min_height_px", 0.0, lo=0)
     log_every = t.integer("log_every", 250, lo=0)
+    foot_offset = _number(t, "foot_offset_m", lo=0, hi=1.0)
 
     m = t.table("mog2")
     mog2: dict[str, Any] = {}
@@ -188,7 +192,9 @@ def parse_perception(t, base: Path) -> PerceptionSettings:
         raise t.error("osnet", f"is required for reid = {reid!r} ([perception.osnet] weights = "
                       "\"...pth\", a torchreid checkpoint; see docs/real-cameras.md)")
     t.finish()
-    return PerceptionSettings(detector, reid, float(min_h), int(log_every), mog2, hog, onnx, osnet)
+    return PerceptionSettings(detector, reid, float(min_h), int(log_every),
+                              0.2 if foot_offset is None else float(foot_offset),
+                              mog2, hog, onnx, osnet)
 
 
 def parse_frame_source(t, kind: str, base: Path) -> dict:
