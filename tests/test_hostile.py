@@ -44,6 +44,8 @@ from protocol import codec
 from protocol.errors import ProtocolError
 from protocol.keys import parse_link_key
 
+from tests.loopback import ep, export_scenario, free_port, wait_for  # noqa: E402
+
 NET = "hx"
 FRAMES = 24
 FUZZ_AT = (3, 8, 13, 19)  # frames at which node 0 is flooded while it waits for neighbour 1
@@ -52,33 +54,12 @@ OVERSIZE_PER_BATCH = 3  # plus a few blobs just over Limits.max_bytes (1 MiB)
 MAX_BYTES = codec.DEFAULT_LIMITS.max_bytes
 
 
-def free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
 
-
-def ep(port: int) -> str:
-    return f"tcp/127.0.0.1:{port}"
-
-
-def wait_for(pred, timeout: float = 10.0, every: float = 0.005) -> bool:
-    deadline = time.monotonic() + timeout
-    while time.monotonic() < deadline:
-        if pred():
-            return True
-        time.sleep(every)
-    return pred()
 
 
 @pytest.fixture(scope="module")
 def export_dir(tmp_path_factory) -> Path:
-    from sim_cluster.detfiles import export_detections
-    from sim_cluster.scenario import load_scenario
-
-    d = tmp_path_factory.mktemp("export")
-    export_detections(load_scenario("terrace-sim", frames=FRAMES), d)
-    return d
+    return export_scenario(tmp_path_factory.mktemp("export"), FRAMES)
 
 
 class ListWriter(TrackWriter):

@@ -25,38 +25,19 @@ from protocol.keys import link_key
 from protocol.messages import FrameMessage, TrackerInfo
 from tests.fakes import det, topdown_camera
 
+from tests.loopback import ep, export_scenario, free_port, wait_for  # noqa: E402
+
 REPO = Path(__file__).resolve().parents[1]
 FRAMES = 40
 
 
-def free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
 
-
-def ep(port: int) -> str:
-    return f"tcp/127.0.0.1:{port}"
-
-
-def wait_for(pred, timeout: float = 5.0, every: float = 0.01) -> bool:
-    deadline = time.monotonic() + timeout
-    while time.monotonic() < deadline:
-        if pred():
-            return True
-        time.sleep(every)
-    return pred()
 
 
 # -- fixtures -----------------------------------------------------------------------------------------
 @pytest.fixture(scope="module")
 def export_dir(tmp_path_factory) -> Path:
-    from sim_cluster.detfiles import export_detections
-    from sim_cluster.scenario import load_scenario
-
-    d = tmp_path_factory.mktemp("export")
-    export_detections(load_scenario("terrace-sim", frames=FRAMES), d)
-    return d
+    return export_scenario(tmp_path_factory.mktemp("export"), FRAMES)
 
 
 @pytest.fixture

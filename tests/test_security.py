@@ -32,6 +32,8 @@ from protocol.messages import FrameMessage, TrackerInfo
 REPO = Path(__file__).resolve().parents[1]
 DEPLOY = REPO / "deploy"
 MAKE_CERTS = DEPLOY / "tls" / "make-certs.sh"
+from tests.loopback import ep, export_scenario, free_port, wait_for  # noqa: E402
+
 NET = "terrace"  # the network deploy/zenoh/peer-acl.json5 is written for (boxes cam0..cam3)
 
 pytestmark = pytest.mark.skipif(
@@ -40,23 +42,10 @@ pytestmark = pytest.mark.skipif(
            "test CA and certificates")
 
 
-def free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
-
 
 def tls(port: int) -> str:
-    return f"tls/127.0.0.1:{port}"
+    return ep(port, "tls")
 
-
-def wait_for(pred, timeout: float = 5.0, every: float = 0.01) -> bool:
-    deadline = time.monotonic() + timeout
-    while time.monotonic() < deadline:
-        if pred():
-            return True
-        time.sleep(every)
-    return pred()
 
 
 def _msg(sender: int, frame: int) -> bytes:

@@ -475,60 +475,6 @@ class RerunSink:
                 self.rec.disconnect()
 
 
-@dataclass(frozen=True)
-class _TrackView:  # what log_frame reads of a Track, copied (the core may reuse its arrays)
-    id: tuple[int, int]
-    x: np.ndarray
-
-
-class BackgroundSink:
-    """Runs a sink's ``log_frame`` on a worker thread, so that a node's frame loop hands the
-    frame over and goes on: the logging then overlaps the loop's wait for its neighbours'
-    messages instead of lengthening every lock-step frame. A bounded queue applies back
-    pressure; a logging error is reported once and turns the view off, never the node."""
-
-    enabled = True
-
-    def __init__(self, sink: "RerunSink", maxsize: int = 64):
-        import queue
-        import threading
-
-        self.inner = sink
-        self.spec, self.url = sink.spec, sink.url
-        self._q: queue.Queue = queue.Queue(maxsize)
-        self._failed = False
-        self._worker = threading.Thread(target=self._run, name="rerun-log", daemon=True)
-        self._worker.start()
-
-    def __getattr__(self, name):  # log_world, log_cameras, ...: straight through
-        return getattr(self.inner, name)
-
-    def _run(self) -> None:
-        import logging
-
-        while True:
-            item = self._q.get()
-            if item is None:
-                return
-            if self._failed:
-                continue
-            try:
-                self.inner.log_frame(item[0], item[1], **item[2])
-            except Exception:  # noqa: BLE001
-                self._failed = True
-                logging.getLogger("edge_node.viz").exception("Rerun logging failed: view off")
-
-    def log_frame(self, k: int, tracks: Sequence[Any], **kw) -> None:
-        if not self._failed:
-            view = [_TrackView(tuple(t.id), np.array(t.x[:4], float)) for t in tracks]
-            self._q.put((k, view, kw))
-
-    def close(self) -> None:
-        self._q.put(None)
-        self._worker.join()
-        self.inner.close()
-
-
 def open_node_sink(cfg, camera, units_per_metre: float = 1.0, *, keep_existing: bool = False):
     """The sink of one ``edge_node`` process from its ``[viz]`` settings (``NullSink`` when
     off), with its camera logged. A Rerun that cannot start is a config error on
@@ -548,7 +494,6 @@ def open_node_sink(cfg, camera, units_per_metre: float = 1.0, *, keep_existing: 
                          node=cfg.node,
                          blueprint=make_blueprint(None, area=viz.area) if viz.blueprint else None)
         sink.log_world(area=viz.area, units_per_metre=units_per_metre, cameras=[camera])
-        sink = BackgroundSink(sink)
     except Exception as e:  # noqa: BLE001 - port in use, unwritable file, no viewer binary ...
         from edge_node.runtime.config import NodeConfigError
 

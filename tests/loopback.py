@@ -1,0 +1,35 @@
+"""Helpers for tests that talk over loopback: free ports, endpoints, polling."""
+from __future__ import annotations
+
+import socket
+import time
+from pathlib import Path
+
+
+def free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def ep(port: int, proto: str = "tcp") -> str:
+    return f"{proto}/127.0.0.1:{port}"
+
+
+def wait_for(pred, timeout: float = 10.0, every: float = 0.01) -> bool:
+    """Poll ``pred`` until it holds or ``timeout`` s pass; its last value."""
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        if pred():
+            return True
+        time.sleep(every)
+    return pred()
+
+
+def export_scenario(directory: Path, frames: int, scenario: str = "terrace-sim") -> Path:
+    """A det-files export of ``scenario`` (what file-source nodes play back)."""
+    from sim_cluster.detfiles import export_detections
+    from sim_cluster.scenario import load_scenario
+
+    export_detections(load_scenario(scenario, frames=frames), directory)
+    return directory
