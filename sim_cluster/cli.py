@@ -150,6 +150,12 @@ def _cluster(name: str):
     return cmd
 
 
+def cmd_fault_report(args) -> int:
+    from sim_cluster.faultreport import main as report_main
+
+    return report_main(args)
+
+
 def cmd_scenarios(args) -> int:
     from sim_cluster.scenario import list_presets
 
@@ -251,8 +257,7 @@ def build_parser() -> argparse.ArgumentParser:
     scenario_args(fr)
     fr.add_argument("--out", default="runs/faults")
     fr.add_argument("--quiet", action="store_true")
-    fr.set_defaults(func=lambda a: __import__("sim_cluster.faultreport",
-                                              fromlist=["main"]).main(a))
+    fr.set_defaults(func=cmd_fault_report)
 
     e = sub.add_parser("export-detections",
                        help="write a scenario's detections (det.txt + .npy), truth and calibration")

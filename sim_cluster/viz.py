@@ -76,12 +76,18 @@ def log_run(sink, result, data) -> None:
 
 
 def wait_for_interrupt(url: str) -> None:
-    """``serve``: keep the server up for the browser until Ctrl-C."""
+    """``serve``: keep the server up for the browser until Ctrl-C (or SIGTERM)."""
+    import signal
+
     print(f"Rerun web viewer: {url}  (Ctrl-C to stop serving)", flush=True)
+    done = threading.Event()
+    old = {s: signal.signal(s, lambda *_: done.set()) for s in (signal.SIGINT, signal.SIGTERM)}
     try:
-        threading.Event().wait()
-    except KeyboardInterrupt:
-        pass
+        while not done.wait(0.5):
+            pass
+    finally:
+        for s, h in old.items():
+            signal.signal(s, h)
 
 
 def open_sink(spec: VizSpec, **kw):

@@ -202,3 +202,56 @@ print("RERUN", bad)
     r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
     assert r.returncode == 0, r.stderr
     assert "RERUN []" in r.stdout, r.stdout
+
+
+def test_cluster_up_streams_to_a_running_viewer(tmp_path):
+    """``--rerun connect ADDR``: the launcher and every node stream into one recording of a
+    running Rerun server (here a headless one that saves what it receives)."""
+    import os
+    import signal
+    import socket
+    import time
+
+    import rerun_cli
+
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        port = s.getsockname()[1]
+    got = tmp_path / "received.rrd"
+    server = subprocess.Popen([str(Path(rerun_cli.__file__).parent / "rerun"), "--bind",
+                               "127.0.0.1", "--port", str(port), "--save", str(got)],
+                              stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    try:
+        deadline = time.time() + 20
+        while True:  # wait for the server to listen
+            try:
+                socket.create_connection(("127.0.0.1", port), timeout=1).close()
+                break
+            except OSError:
+                assert time.time() < deadline, "rerun server did not start"
+                time.sleep(0.2)
+        r = subprocess.run([str(BIN / "sim_cluster"), "up", "--scenario", "terrace-sim",
+                            "--nodes", "2", "--frames", "20", "--out", str(tmp_path / "c"),
+                            "--quiet", "--sync-timeout", "30", "--rerun", "connect",
+                            f"127.0.0.1:{port}"], capture_output=True, text=True, timeout=240)
+        assert r.returncode == 0, r.stdout + r.stderr
+        time.sleep(1.0)
+    finally:
+        server.send_signal(signal.SIGINT)
+        try:
+            server.wait(10)
+        except subprocess.TimeoutExpired:
+            os.kill(server.pid, signal.SIGKILL)
+            server.wait()
+    from rerun.chunk import RrdReader
+
+    import warnings
+
+    with warnings.catch_warnings():  # a streamed file has no footer: read it with stream()
+        warnings.simplefilter("ignore")
+        reader = RrdReader(str(got))
+    recs = reader.recordings()
+    assert len(recs) == 1 and recs[0].application_id == "dmtt"
+    paths = {c.entity_path for c in reader.stream().to_chunks()}
+    assert {"/nodes/0/tracks", "/nodes/1/tracks", "/world/ground_truth",
+            "/world/disagreement/max", "/world/cameras/1/fov"} <= paths

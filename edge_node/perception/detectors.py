@@ -149,8 +149,8 @@ class Mog2Detector:
                  var_threshold: float = 16.0, learning_rate: float = -1.0,
                  min_area: int = 60, min_height: int = 12, open_px: int = 3, close_px: int = 5,
                  split: bool = True, person_size_m: tuple[float, float] = (0.5, 1.75),
-                 aspect: float = 0.38, max_split: int = 6, min_visible_height: float = 0.8,
-                 merge_m: float = 0.4):
+                 aspect: float = 0.38, max_split: int = 6, min_visible_height: float = 0.87,
+                 merge_m: float = 0.55):
         cv2 = require_cv2()
         self.cv2 = cv2
         if history < 1 or var_threshold <= 0 or min_area < 1:
@@ -326,7 +326,7 @@ class Mog2Detector:
         ground, so the lowest foreground pixels are the nearest person's feet. Their centre is
         the column run of foreground in the bottom rows that holds the lowest pixel; a person
         standing there (``expected_size``) claims the foreground in a box 1.6 widths wide and
-        1.1 heights tall above it; the rest of the blob is analysed again. The box is centred
+        1.02 heights tall above it; the rest of the blob is analysed again. The box is centred
         on the feet, as wide as the claimed lower body. A part shorter than
         ``min_visible_height`` of a person standing at its lowest row is dropped: people stand
         on the ground, so a person seen shorter than that has hidden feet (behind a nearer
@@ -372,7 +372,7 @@ class Mog2Detector:
             ew, eh = self.expected_size(x0 + u, y0 + v1, v1 - top)
             cx0 = max(0, int(np.floor(u - 0.8 * ew)))
             cx1 = min(ww, int(np.ceil(u + 0.8 * ew)))
-            cy0 = max(0, int(np.floor(v1 - 1.1 * eh)))
+            cy0 = max(0, int(np.floor(v1 - 1.02 * eh)))
             claim = rem[cy0:v1, cx0:cx1]
             rr = np.flatnonzero(claim.any(axis=1))
             cc = np.flatnonzero(claim.any(axis=0))

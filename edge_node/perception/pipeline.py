@@ -54,12 +54,13 @@ class Perception:
 
     def __init__(self, detector: Detector, reid: ReidExtractor | None = None,
                  min_height_px: float = 0.0, *, camera=None, units_per_metre: float = 1.0,
-                 foot_offset_m: float = 0.0):
+                 foot_offset_m: float = 0.0, occluded_overlap: float = 0.3):
         self.detector = detector
         self.reid = reid
         self.min_height_px = float(min_height_px)
         self.camera = camera
         self.foot_offset = float(foot_offset_m) * float(units_per_metre)
+        self.occluded_overlap = float(occluded_overlap)
         self.stats = PerceptionStats()
 
     def _raise_feet(self, b: np.ndarray) -> np.ndarray:
@@ -85,7 +86,13 @@ class Perception:
         boxes = np.array([b for b, _ in found], float).reshape(-1, 4)
         desc = None
         if self.reid is not None and len(boxes):
-            desc = self.reid.extract(image, boxes)
+            keep = np.ones(len(boxes), bool)
+            if self.occluded_overlap < 1 and not getattr(self.reid, "handles_overlap", False):
+                keep = ~occluded(boxes, self.occluded_overlap)
+            desc = np.full((len(boxes), self.reid.dim), np.nan, np.float32)
+            if keep.any():
+                desc[keep] = self.reid.extract(image, boxes[keep],
+                                               getattr(self.detector, "mask", None))
         t2 = time.perf_counter()
         st = self.stats
         st.frames += 1
@@ -99,6 +106,26 @@ class Perception:
                 d = desc[i]
             out.append(Detection(box=np.asarray(b, float), descriptor=d, score=float(s)))
         return out
+
+
+def occluded(boxes: np.ndarray, overlap: float) -> np.ndarray:
+    """Whether each box ``(n, 4)`` is partly hidden by a nearer one: more than ``overlap`` of
+    its area lies inside a box whose bottom edge is lower in the image (people stand on the
+    ground: lower feet are nearer). Such a box's pixels mix two people, so its appearance is
+    not trusted (no descriptor: the tracker associates it by position alone)."""
+    b = np.asarray(boxes, float).reshape(-1, 4)
+    n = len(b)
+    out = np.zeros(n, bool)
+    if n < 2:
+        return out
+    x0, y0 = b[:, 0], b[:, 1]
+    x1, y1 = x0 + b[:, 2], y0 + b[:, 3]
+    iw = np.clip(np.minimum(x1[:, None], x1[None]) - np.maximum(x0[:, None], x0[None]), 0, None)
+    ih = np.clip(np.minimum(y1[:, None], y1[None]) - np.maximum(y0[:, None], y0[None]), 0, None)
+    frac = iw * ih / np.maximum(b[:, 2] * b[:, 3], 1e-9)[:, None]  # [i, j]: part of i inside j
+    nearer = y1[None, :] > y1[:, None]
+    np.fill_diagonal(frac, 0.0)
+    return np.any((frac > overlap) & nearer, axis=1)
 
 
 @dataclass

@@ -35,9 +35,12 @@ class ReidExtractor(Protocol):
     name: str
     dim: int
 
-    def extract(self, image: np.ndarray, boxes: np.ndarray) -> np.ndarray:
+    def extract(self, image: np.ndarray, boxes: np.ndarray,
+                mask: np.ndarray | None = None) -> np.ndarray:
         """``image`` BGR ``(H, W, 3)`` uint8, ``boxes (n, 4)`` ``(x, y, w, h)`` pixels ->
-        ``(n, dim)`` float32 unit rows (all-NaN for a box with no pixels in the image)."""
+        ``(n, dim)`` float32 unit rows (all-NaN for a box with no pixels in the image).
+        ``mask``: the detector's foreground mask (``(H, W)`` uint8) when it has one; an
+        extractor may use it to leave the background out."""
         ...
 
 
@@ -62,14 +65,21 @@ class HistogramReid:
 
     ``upper`` and ``lower`` are the row spans of the box (fractions of its height) whose pixels
     describe the torso and the legs; ``centre`` the central fraction of its width that is used.
+    Only a person's own pixels count: with ``exclusive`` the pixels a box shares with another
+    box of the same frame are left out (they may show the other person), and with the detector's
+    foreground ``mask`` so is the background. A part (upper or lower) left with fewer than
+    ``min_own`` of its pixels makes the descriptor missing (all-NaN): a mixed colour histogram
+    teaches a track's gallery another person's look, a missing one only leaves the association
+    to geometry.
     """
 
     name = "histogram"
     dim = DIM
+    handles_overlap = True  # Perception need not hide overlapping boxes from it
 
     def __init__(self, bins: tuple[int, int, int] = (16, 4, 4),
                  upper: tuple[float, float] = (0.12, 0.5), lower: tuple[float, float] = (0.5, 0.92),
-                 centre: float = 0.6):
+                 centre: float = 0.6, exclusive: bool = True, min_own: float = 0.3):
         if int(np.prod(bins)) * 2 != DIM:
             raise PerceptionError(f"histogram bins {bins} do not give {DIM} dimensions")
         if not 0 < centre <= 1:
@@ -78,14 +88,18 @@ class HistogramReid:
         self.bins = tuple(int(b) for b in bins)
         self.parts = (upper, lower)
         self.centre = float(centre)
+        self.exclusive = bool(exclusive)
+        self.min_own = float(min_own)
 
-    def _part(self, hsv: np.ndarray) -> np.ndarray:
-        h = self.cv2.calcHist([hsv], [0, 1, 2], None, list(self.bins), [0, 180, 0, 256, 0, 256])
+    def _part(self, hsv: np.ndarray, mask: np.ndarray | None = None) -> np.ndarray:
+        h = self.cv2.calcHist([hsv], [0, 1, 2], mask, list(self.bins), [0, 180, 0, 256, 0, 256])
         h = np.sqrt(h.ravel())
         n = np.linalg.norm(h)
         return h / n if n > 0 else h
 
-    def extract(self, image: np.ndarray, boxes: np.ndarray) -> np.ndarray:
+    def extract(self, image: np.ndarray, boxes: np.ndarray,
+                mask: np.ndarray | None = None) -> np.ndarray:
+        """See :class:`ReidExtractor` and the class docstring."""
         cv2 = self.cv2
         ib = _int_boxes(boxes, image.shape)
         out = np.full((len(ib), DIM), np.nan, np.float32)
@@ -98,10 +112,29 @@ class HistogramReid:
             if cx1 <= cx0:
                 cx0, cx1 = x0, x1
             hsv = cv2.cvtColor(np.ascontiguousarray(image[y0:y1, cx0:cx1]), cv2.COLOR_BGR2HSV)
+            own = np.full((y1 - y0, cx1 - cx0), 255, np.uint8)
+            if self.exclusive:
+                for j, (ox0, oy0, ox1, oy1) in enumerate(ib):
+                    if j == i:
+                        continue
+                    ax0, ax1 = max(ox0, cx0) - cx0, min(ox1, cx1) - cx0
+                    ay0, ay1 = max(oy0, y0) - y0, min(oy1, y1) - y0
+                    if ax1 > ax0 and ay1 > ay0:
+                        own[ay0:ay1, ax0:ax1] = 0
+            fg = None if mask is None else mask[y0:y1, cx0:cx1]
             parts = []
             for lo, hi in self.parts:
                 r0, r1 = int(lo * h), max(int(hi * h), int(lo * h) + 1)
-                parts.append(self._part(np.ascontiguousarray(hsv[r0:r1])))
+                pm = np.ascontiguousarray(own[r0:r1])
+                if cv2.countNonZero(pm) < self.min_own * pm.size:
+                    break
+                if fg is not None:
+                    both = cv2.bitwise_and(pm, np.ascontiguousarray(fg[r0:r1]))
+                    if cv2.countNonZero(both) >= 0.15 * pm.size:
+                        pm = both
+                parts.append(self._part(np.ascontiguousarray(hsv[r0:r1]), pm))
+            if len(parts) < len(self.parts):
+                continue
             v = np.concatenate(parts)
             n = np.linalg.norm(v)
             if n > 0:
@@ -165,7 +198,8 @@ class OsnetReid:
         x = (x / 255.0 - self.MEAN) / self.STD
         return np.ascontiguousarray(x.transpose(0, 3, 1, 2)), keep
 
-    def extract(self, image: np.ndarray, boxes: np.ndarray) -> np.ndarray:
+    def extract(self, image: np.ndarray, boxes: np.ndarray,
+                mask: np.ndarray | None = None) -> np.ndarray:
         torch = self.torch
         boxes = np.asarray(boxes, float).reshape(-1, 4)
         out = np.full((len(boxes), self.dim), np.nan, np.float32)

@@ -1,0 +1,34 @@
+"""``sim_cluster fault-report``: every standard case runs, nothing crashes, ratios add up."""
+import pytest
+
+from sim_cluster.faultreport import run_report, standard_cases, table
+from sim_cluster.scenario import load_scenario
+
+
+@pytest.fixture(scope="module")
+def report():
+    return run_report(load_scenario("lab-sim", seed=0, frames=160))
+
+
+def test_every_case_runs_without_crashes(report):
+    names = [c.name for c in standard_cases(160)]
+    assert [r["case"] for r in report["cases"]] == names
+    assert all(r["crashes"] == 0 and "got" in r for r in report["cases"])
+
+
+def test_ratios_and_recovery_are_consistent(report):
+    for r in report["cases"]:
+        for m in ("mota", "idf1"):
+            assert r["ratio"][m] == pytest.approx(r["got"][m] / r["fault_free"][m])
+        if r["case"] in ("kill and restart", "partition {0,1} | {2,3}"):
+            assert r["frames_to_recover"] is not None and r["frames_to_recover"] >= 0
+        else:
+            assert r["frames_to_recover"] is None
+    # the faults cost something but the network keeps tracking
+    assert all(r["ratio"]["mota"] > 0.8 for r in report["cases"])
+
+
+def test_table_lists_every_case(report):
+    text = table(report)
+    for r in report["cases"]:
+        assert r["case"] in text
