@@ -301,22 +301,25 @@ def _figures(state: ClusterState, n: int, frames: int, spawned: dict[int, float]
                      for v in per_link.values()),
         "per_link": per_link,
     }
-    # -- frame rate from the senders' stamps of frame 0 and frame F-1 (per node: any of its links)
-    first_sent: dict[int, float] = {}
-    last_sent: dict[int, float] = {}
+    # -- frame rate from the senders' stamps of frame f0 and frame F-1 (per node: any of its
+    # links). f0 is 0 unless the monitor missed a sender's first frame (the start-up race):
+    # then the first frame it saw from every sender.
+    seen_frames: dict[int, dict[int, float]] = {}
     for link, t in tallies.items():
         src = int(link.split("->")[0])
-        if 0 in t.frames:
-            first_sent[src] = t.frames[0]
-        if frames - 1 in t.frames:
-            last_sent[src] = t.frames[frames - 1]
+        for f, ts in t.frames.items():
+            seen_frames.setdefault(src, {}).setdefault(f, ts)
     fps = fps_wall = None
-    if len(first_sent) == n and len(last_sent) == n and frames > 1:
-        span = max(last_sent.values()) - max(first_sent.values())
-        fps = (frames - 1) / span if span > 0 else None
-        starts = [seen[i].get("running", first_sent[i]) for i in range(n)]
-        end = max(t.last_recv for t in tallies.values())
-        fps_wall = frames / (end - min(starts)) if end > min(starts) else None
+    first_sent: dict[int, float] = {}
+    if len(seen_frames) == n and frames > 1:
+        f0 = max(min(fs) for fs in seen_frames.values())
+        if all(f0 in fs and frames - 1 in fs for fs in seen_frames.values()):
+            first_sent = {src: fs[f0] for src, fs in seen_frames.items()}
+            span = max(fs[frames - 1] for fs in seen_frames.values()) - max(first_sent.values())
+            fps = (frames - 1 - f0) / span if span > 0 else None
+            starts = [seen[i].get("running", first_sent[i]) for i in range(n)]
+            end = max(t.last_recv for t in tallies.values())
+            fps_wall = frames / (end - min(starts)) if end > min(starts) else None
     busy = [((c.get("timing_s") or {}).get("prepare", 0) + (c.get("timing_s") or {}).get("update", 0))
             / frames * 1e3 for c in counters.values()]
     wait = [(c.get("timing_s") or {}).get("wait", 0) / frames * 1e3 for c in counters.values()]

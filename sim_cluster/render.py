@@ -64,17 +64,20 @@ def _hsv_bgr(h: float, s: float, v: float) -> tuple[int, int, int]:
 
 
 def person_look(seed: int, pid: int) -> Look:
-    """Deterministic per-identity colours and pattern."""
+    """Deterministic per-identity colours and pattern. Shirt and trousers hues step through the
+    colour circle by the golden ratio with the person id (people who are in the scene together,
+    whose ids are close, get well separated hues), with a per-scenario offset; saturation,
+    brightness, skin, hair and the shirt pattern are drawn per person."""
     rng = np.random.default_rng([int(seed), _TAG_RENDER, int(pid)])
-    h1 = rng.uniform()
-    shirt = _hsv_bgr(h1, rng.uniform(0.55, 0.95), rng.uniform(0.45, 0.95))
-    h2 = (h1 + rng.uniform(0.25, 0.75)) % 1.0
+    off = np.random.default_rng([int(seed), _TAG_RENDER]).uniform(size=2)
+    golden = 0.6180339887
+    h1 = (off[0] + pid * golden) % 1.0
+    shirt = _hsv_bgr(h1, rng.uniform(0.6, 0.95), rng.uniform(0.55, 0.95))
+    h2 = (h1 + rng.uniform(0.3, 0.7)) % 1.0
     shirt2 = _hsv_bgr(h2, rng.uniform(0.3, 0.9), rng.uniform(0.5, 1.0))
     pattern = str(rng.choice(["plain", "plain", "stripes", "twotone"]))
-    if rng.uniform() < 0.35:  # jeans / dark trousers are common
-        trousers = _hsv_bgr(rng.uniform(0.55, 0.66), rng.uniform(0.3, 0.7), rng.uniform(0.2, 0.55))
-    else:
-        trousers = _hsv_bgr(rng.uniform(), rng.uniform(0.35, 0.9), rng.uniform(0.25, 0.85))
+    ht = (off[1] + pid * golden * golden) % 1.0
+    trousers = _hsv_bgr(ht, rng.uniform(0.4, 0.85), rng.uniform(0.3, 0.8))
     skin = _hsv_bgr(rng.uniform(0.03, 0.09), rng.uniform(0.25, 0.6), rng.uniform(0.35, 0.95))
     hair = _hsv_bgr(rng.uniform(0.02, 0.12), rng.uniform(0.2, 0.7), rng.uniform(0.05, 0.6))
     shoes = _hsv_bgr(rng.uniform(), rng.uniform(0.0, 0.4), rng.uniform(0.05, 0.35))
