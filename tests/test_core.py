@@ -8,6 +8,7 @@ from edge_node.core.gallery import Gallery
 from edge_node.core.manager import MergeView, find_merges
 from sim_cluster.topology import build, diameter
 from fakes import det, identity, make_nodes, step
+from protocol import codec
 
 
 def _gallery(pid):
@@ -247,3 +248,43 @@ def test_stale_messages_fused_once_and_aged():
     before = n1.stats.ignored_messages
     n1.update([late], stale_ok=True)
     assert n1.stats.ignored_messages == before + 1  # too old to use
+
+
+def test_targets_only_a_dead_node_saw_are_dropped_by_the_survivors():
+    """Node 0 alone sees person 5 and dies at frame 20. Its neighbours stop hearing about the
+    person; the ell consensus drops it on every survivor within kappa + diameter frames."""
+    adj = build("chain", 4)
+    cfg = TrackerConfig()
+    nodes = make_nodes(adj, cfg)
+    rng = np.random.default_rng(7)
+    last_held = {}
+    for k in range(70):
+        alive = [i for i in adj if not (i == 0 and k >= 20)]
+        dets = {0: [det(2.0 + 0.02 * k, 2.0, 5, rng)]}
+        msgs = {i: codec.encode(nodes[i].prepare(k, dets.get(i, []))) for i in alive}
+        for i in alive:
+            out = nodes[i].update([codec.decode(msgs[j]) for j in nodes[i].neighbours if j in msgs])
+            if out:
+                last_held[i] = k
+    for i in (1, 2, 3):
+        assert 20 <= last_held[i] <= 20 + cfg.kappa + diameter(adj)
+
+
+def test_a_cut_chain_keeps_tracking_on_both_sides():
+    """A chain 0-1-2-3 cut between 1 and 2: each half keeps tracking what its cameras see."""
+    adj = build("chain", 4)
+    nodes = make_nodes(adj, TrackerConfig())
+    rng = np.random.default_rng(8)
+    for k in range(60):
+        dets = {0: [det(2.0, 2.0 + 0.02 * k, 1, rng)], 3: [det(7.0, 7.0 - 0.02 * k, 2, rng)]}
+        msgs = {i: codec.encode(n.prepare(k, dets.get(i, []))) for i, n in nodes.items()}
+        cut = k >= 20 and {(1, 2), (2, 1)}
+        out = {i: n.update([codec.decode(msgs[j]) for j in n.neighbours
+                            if not (cut and (j, i) in cut)]) for i, n in nodes.items()}
+    left = {t.id for i in (0, 1) for t in out[i]}
+    right = {t.id for i in (2, 3) for t in out[i]}
+    # each half still tracks its own person, with the id the whole network agreed on before
+    assert all(len(out[i]) == 1 for i in nodes)
+    assert len(left) == 1 and len(right) == 1 and left != right
+    assert abs(out[0][0].x[1] - (2.0 + 0.02 * 59)) < 0.3
+    assert abs(out[3][0].x[1] - (7.0 - 0.02 * 59)) < 0.3
