@@ -189,6 +189,31 @@ def cmd_ablation(args) -> int:
         raise CliError(str(e)) from None
 
 
+def _source_args(sp) -> None:
+    """``up --source video``: every node runs from its camera's rendered frames
+    (sim_cluster/render.py, edge_node/perception)."""
+    sp.add_argument("--source", default="scenario", choices=("scenario", "video"),
+                    help="scenario: each node replays the scenario's simulated detections; "
+                         "video: render each camera's frames, nodes run detector + re-id on them")
+    sp.add_argument("--detector", default="mog2", choices=("mog2", "hog", "onnx"),
+                    help="--source video: the people detector (default mog2)")
+    sp.add_argument("--reid", default="histogram",
+                    choices=("histogram", "osnet_x1_0", "osnet_x0_25", "none"),
+                    help="--source video: the appearance descriptor (default histogram)")
+    sp.add_argument("--reid-weights", default=None, help="torchreid checkpoint for --reid osnet_*")
+    sp.add_argument("--onnx-model", default=None, help="ONNX person detector for --detector onnx")
+
+
+def cmd_render(args) -> int:
+    from sim_cluster.render import render_scenario
+
+    info = render_scenario(args.scenario, Path(args.out), seed=args.seed, frames=args.frames,
+                           fmt="png" if args.png else "avi", noise=args.noise)
+    for c, v in info["cameras"].items():
+        print(f"camera {c}: {v['frames']} (background {v['background']})")
+    return 0
+
+
 def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="sim_cluster", description=__doc__,
                                 formatter_class=argparse.RawDescriptionHelpFormatter)
@@ -241,6 +266,7 @@ def build_parser() -> argparse.ArgumentParser:
                         "as fast as possible in sync mode)")
     u.add_argument("--quiet", action="store_true")
     _rerun_arg(u)
+    _source_args(u)
     u.set_defaults(func=_cluster("up"))
     for name, what in (("status", "list a cluster's nodes"), ("down", "stop every node")):
         c = sub.add_parser(name, help=what)
@@ -265,6 +291,14 @@ def build_parser() -> argparse.ArgumentParser:
     e.add_argument("--out", required=True, help="folder to write (one c<i>/ per camera)")
     e.add_argument("--float32", action="store_true", help="descriptors as float32 (default float16)")
     e.set_defaults(func=cmd_export)
+
+    rd = sub.add_parser("render", help="render each camera's frames of a synthetic scenario "
+                        "(MJPG .avi or PNG folders, plus the empty background)")
+    scenario_args(rd)
+    rd.add_argument("--out", required=True, help="folder to write")
+    rd.add_argument("--png", action="store_true", help="PNG folders c<i>/ instead of c<i>.avi")
+    rd.add_argument("--noise", type=float, default=2.0, help="sensor noise sigma (grey levels)")
+    rd.set_defaults(func=cmd_render)
 
     s = sub.add_parser("scenarios", help="list the scenario presets")
     s.set_defaults(func=cmd_scenarios)
@@ -322,10 +356,11 @@ def _input_errors() -> tuple[type[BaseException], ...]:
     from sim_cluster.scenario import ScenarioError
     from sim_cluster.topology import TopologyError
     from sim_cluster.world import WorldError
+    from sim_cluster.render import RenderError
 
     return (CliError, ConfigError, FaultPlanError, GeometryError, AppearanceError,
             DetectorParamsError, DetFilesError, EpflFormatError, ScenarioError, TopologyError,
-            WorldError, OSError)
+            WorldError, RenderError, OSError)
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -142,7 +142,7 @@ def _toml_str(v: str) -> str:
 
 def node_config(i: int, state: ClusterState, ports: dict[int, int], *, config: str,
                 sync_timeout_s: float, startup_timeout_s: float, fps: float = 0.0,
-                faults: Path | None = None) -> str:
+                faults: Path | None = None, source_toml: str | None = None) -> str:
     """The TOML of node ``i`` (schema: ``edge_node/runtime/config.py``)."""
     neighbours = state.adjacency[str(i)]
     listen = [f"tcp/127.0.0.1:{ports[i]}"]
@@ -170,7 +170,9 @@ def node_config(i: int, state: ClusterState, ports: dict[int, int], *, config: s
     ]
     if state.frames is not None:
         lines.insert(lines.index("[source]") - 1, f"frames = {state.frames}")
-    if src.is_dir() or src.suffix == ".json":  # an exported detections folder
+    if source_toml is not None:  # frames rendered for this camera (sim_cluster/render.py)
+        lines += source_toml.splitlines()
+    elif src.is_dir() or src.suffix == ".json":  # an exported detections folder
         lines += ['kind = "det-file"', f"path = {_toml_str(str(src.resolve()))}", f"camera = {i}"]
     else:  # the scenario itself, regenerated in the process: identical detections
         name = str(src.resolve()) if src.suffix == ".toml" else scenario
@@ -319,12 +321,16 @@ def up(args) -> int:
     # start), so a cluster whose fault plan kills nodes also plays at camera rate.
     realtime = args.mode == "async" or (plan is not None and bool(plan.nodes))
     fps = args.fps if args.fps is not None else (data.fps if realtime else 0.0)
+    from sim_cluster.render import cluster_video_sources  # --source video: render, then configs
+
+    videos = cluster_video_sources(args, data, out, n) or {}
     for i in range(n):
         cfg = out / "configs" / f"node{i}.toml"
         cfg.write_text(node_config(i, state, ports, config=args.config,
                                    sync_timeout_s=args.sync_timeout,
                                    startup_timeout_s=args.startup_timeout, fps=fps,
-                                   faults=faults_file) + viz.node_toml(i))
+                                   faults=faults_file, source_toml=videos.get(i))
+                       + viz.node_toml(i))
         state.nodes[str(i)] = NodeProc(i, str(cfg), str(out / "logs" / f"node{i}.log"), ports[i])
     procs: dict[int, subprocess.Popen] = {}
     state.started_at = time.time()

@@ -471,3 +471,82 @@ def render_scenario(scenario: str | Path, out: str | Path, *, seed: int | None =
                                       "image_size": [W, H]}
     (out / "render.json").write_text(json.dumps(written, indent=2))
     return written
+
+
+# -- sim_cluster up --source video ------------------------------------------------------------------
+def _toml_matrix(m) -> str:
+    return "[" + ", ".join("[" + ", ".join(repr(float(v)) for v in row) + "]"
+                           for row in np.asarray(m, float)) + "]"
+
+
+def ensure_rendered(scenario: str | Path, out: str | Path, seed: int | None, frames: int | None,
+                    cameras: list[int] | None = None, progress=None) -> dict:
+    """``render_scenario`` into ``out`` unless ``out/render.json`` already holds this scenario,
+    seed and frame count (a re-run of a cluster reuses its videos)."""
+    out = Path(out)
+    cfg = load_world(scenario, seed, frames)
+    try:
+        done = json.loads((out / "render.json").read_text())
+        same = (done.get("scenario") == cfg.name and done.get("seed") == int(cfg.seed)
+                and done.get("frames") == cfg.frames and done.get("format") == "avi"
+                and all(Path(v["frames"]).is_file() and Path(v["background"]).is_file()
+                        for v in done["cameras"].values())
+                and all(str(c) in done["cameras"] for c in (cameras or range(len(cfg.cameras)))))
+        if same:
+            return done
+    except (OSError, ValueError, KeyError, TypeError):
+        pass
+    return render_scenario(scenario, out, seed=seed, frames=frames, cameras=cameras,
+                           progress=progress)
+
+
+def video_source_toml(camera: Camera, video: str | Path, background: str | Path | None, *,
+                      detector: str = "mog2", reid: str = "histogram",
+                      reid_weights: str | Path | None = None, onnx_model: str | Path | None = None,
+                      units_per_metre: float = 1.0) -> str:
+    """The ``[source]`` body, ``[camera]`` and ``[perception]`` tables of a node that runs from a
+    rendered video (what ``sim_cluster up --source video`` writes; schema in
+    ``edge_node/perception/settings.py``)."""
+    lines = ['kind = "video"', f"path = {json.dumps(str(Path(video).resolve()))}", "",
+             "[camera]",
+             f"homography = {_toml_matrix(camera.G)}"]
+    if camera.P is not None:
+        lines.append(f"projection = {_toml_matrix(camera.P)}")
+    lines += [f"image_size = [{int(camera.image_size[0])}, {int(camera.image_size[1])}]",
+              f"pixel_scale = {float(camera.pixel_scale)!r}", f"fps = {float(camera.fps)!r}",
+              f"units_per_metre = {float(units_per_metre)!r}", "",
+              "[perception]", f"detector = {json.dumps(detector)}", f"reid = {json.dumps(reid)}"]
+    if detector == "mog2":
+        lines += ["", "[perception.mog2]", "learning_rate = 0.001  # people who pause stay foreground"]
+        if background is not None:
+            lines.append(f"background = {json.dumps(str(Path(background).resolve()))}")
+    if detector == "onnx":
+        lines += ["", "[perception.onnx]", f"model = {json.dumps(str(Path(onnx_model).resolve()))}"]
+    if reid.startswith("osnet_"):
+        lines += ["", "[perception.osnet]", "threads = 1"]
+        if reid_weights is not None:
+            lines.append(f"weights = {json.dumps(str(Path(reid_weights).resolve()))}")
+    return "\n".join(lines)
+
+
+def cluster_video_sources(args, data, out: Path, n: int) -> dict[int, str] | None:
+    """For ``sim_cluster up``: with ``--source video``, render each camera's video into
+    ``out/video`` (reused when already there) and return each node's source TOML; else ``None``."""
+    if getattr(args, "source", "scenario") != "video":
+        return None
+    detector = getattr(args, "detector", "mog2") or "mog2"
+    reid = getattr(args, "reid", "histogram") or "histogram"
+    if reid.startswith("osnet_") and not getattr(args, "reid_weights", None):
+        raise RenderError(f"--reid {reid} needs --reid-weights (a torchreid checkpoint)")
+    if detector == "onnx" and not getattr(args, "onnx_model", None):
+        raise RenderError("--detector onnx needs --onnx-model (an ONNX person detector)")
+    if not getattr(args, "quiet", False):
+        print(f"rendering {n} camera videos of {data.name} ({data.frames} frames) into {out / 'video'}")
+    info = ensure_rendered(args.scenario, out / "video", args.seed, data.frames,
+                           cameras=list(range(n)))
+    return {i: video_source_toml(data.cameras[i], info["cameras"][str(i)]["frames"],
+                                 info["cameras"][str(i)]["background"], detector=detector,
+                                 reid=reid, reid_weights=getattr(args, "reid_weights", None),
+                                 onnx_model=getattr(args, "onnx_model", None),
+                                 units_per_metre=data.units_per_metre)
+            for i in range(n)}
