@@ -3,6 +3,8 @@
     edge_node run   --config cam0.toml [--frames N] [--mode sync|async] [--log-level INFO]
                     [--rerun off|spawn|connect ADDR|save FILE.rrd|serve] [--recording-id ID]
     edge_node check --config cam0.toml       # validate and print the resolved config (JSON)
+    edge_node calibrate --points pairs.csv [--image-size W H] [--ransac PX]
+                                             # image-to-ground homography from >= 4 point pairs
 
 Exit codes: 0 done (or stopped by SIGINT / SIGTERM), 1 internal error, 2 bad command line /
 config / source files, 3 start-up barrier timed out, 4 Zenoh could not start
@@ -26,7 +28,7 @@ class _Parser(argparse.ArgumentParser):
 
 def _parser() -> argparse.ArgumentParser:
     p = _Parser(prog=PROG, description="One camera node of the distributed tracker.")
-    sub = p.add_subparsers(dest="command", metavar="{run,check}", parser_class=_Parser)
+    sub = p.add_subparsers(dest="command", metavar="{run,check,calibrate}", parser_class=_Parser)
     sub.required = True
     r = sub.add_parser("run", help="run this camera's tracker and exchange messages over Zenoh")
     r.add_argument("--config", required=True, help="camera config TOML file")
@@ -45,7 +47,28 @@ def _parser() -> argparse.ArgumentParser:
                    choices=("DEBUG", "INFO", "WARNING", "ERROR", "debug", "info", "warning", "error"))
     c = sub.add_parser("check", help="validate the config and print it resolved")
     c.add_argument("--config", required=True, help="camera config TOML file")
+    k = sub.add_parser("calibrate", help="fit the image-to-ground homography to point pairs "
+                       "(prints a [camera] table and the reprojection errors)")
+    k.add_argument("--points", required=True,
+                   help="file of u, v, x, y lines: pixel (u, v) shows ground point (x, y)")
+    k.add_argument("--image-size", type=int, nargs=2, metavar=("W", "H"), default=None,
+                   help="the image size, written into the [camera] table")
+    k.add_argument("--ransac", type=float, default=None, metavar="PX",
+                   help="robust fit: pairs off by more than PX pixels are left out")
     return p
+
+
+def _calibrate(args) -> int:
+    from edge_node.perception import PerceptionError
+    from edge_node.perception.calibrate import fit_homography, read_pairs, report
+
+    try:
+        img, gnd = read_pairs(args.points)
+        cal = fit_homography(img, gnd, ransac_px=args.ransac)
+    except PerceptionError as e:
+        return _fail(str(e))
+    print(report(cal, tuple(args.image_size) if args.image_size else None))
+    return 0
 
 
 def _fail(message: str, code: int = 2) -> int:
@@ -118,6 +141,8 @@ def main(argv: list[str] | None = None) -> int:
     args = _parser().parse_args(argv)
     if args.command == "check":
         return _check(args)
+    if args.command == "calibrate":
+        return _calibrate(args)
     return _run(args)
 
 

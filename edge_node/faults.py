@@ -28,7 +28,7 @@ TOML form (``sim_cluster up --faults faults.toml``, ``sim_cluster run --faults``
 from __future__ import annotations
 
 import tomllib
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np

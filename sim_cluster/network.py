@@ -20,7 +20,7 @@ from edge_node.core.types import Track
 from protocol import codec
 from protocol.messages import FrameMessage
 from sim_cluster.data import ScenarioData
-from sim_cluster.topology import Adjacency, links
+from sim_cluster.topology import Adjacency
 
 CENTRALIZED = "centralized"
 

@@ -19,7 +19,9 @@ against the scenario's ground truth. Per camera:
   them in the image.
 
 ``render_scenario`` writes ``c<i>.avi`` (MJPG, plays anywhere, written headless) or ``c<i>/`` PNG
-folders, plus ``background_c<i>.png`` (the empty scene, for MOG2) and ``render.json``.
+folders, the empty scene for MOG2 (``background_c<i>.avi``: two seconds of it through the same
+codec, so the model learns the noise and the JPEG artefacts; ``background_c<i>.png`` for PNG
+folders) and ``render.json``.
 """
 from __future__ import annotations
 
@@ -382,6 +384,15 @@ class Renderer:
             img = cv2.subtract(cv2.add(img, pos[j]), neg[j])
         return img
 
+    def empty_frame(self, c: int) -> np.ndarray:
+        """The empty scene of camera ``c`` with fresh sensor noise (a clip of it primes MOG2)."""
+        img = self.background(c)
+        if self.noise <= 0:
+            return img.copy()
+        pos, neg = self._noise(c, img.shape)
+        j = int(self._rng[c].integers(len(pos)))
+        return self.cv2.subtract(self.cv2.add(img, pos[j]), neg[j])
+
     def _noise(self, c: int, shape) -> tuple[list, list]:
         """A bank of sensor-noise images for camera ``c`` (as saturating +/- uint8 parts); each
         frame draws one of them (drawing fresh noise per frame costs more than the figures)."""
@@ -444,9 +455,17 @@ def render_scenario(scenario: str | Path, out: str | Path, *, seed: int | None =
     for c in cams:
         cam = cfg.cameras[c]
         W, H = cam.image_size
-        bg_path = out / f"background_c{c}.png"
-        cv2.imwrite(str(bg_path), r.background(c))
         if fmt == "avi":
+            bg_path = out / f"background_c{c}.avi"
+            vw = cv2.VideoWriter(str(bg_path), cv2.VideoWriter_fourcc(*"MJPG"), float(cfg.fps),
+                                 (W, H))
+            if not vw.isOpened():
+                raise RenderError(f"OpenCV cannot write {bg_path} (MJPG)")
+            try:
+                for _ in range(int(round(2 * cfg.fps))):
+                    vw.write(r.empty_frame(c))
+            finally:
+                vw.release()
             path = out / f"c{c}.avi"
             vw = cv2.VideoWriter(str(path), cv2.VideoWriter_fourcc(*"MJPG"), float(cfg.fps), (W, H))
             if not vw.isOpened():
@@ -460,6 +479,8 @@ def render_scenario(scenario: str | Path, out: str | Path, *, seed: int | None =
             finally:
                 vw.release()
         else:
+            bg_path = out / f"background_c{c}.png"
+            cv2.imwrite(str(bg_path), r.background(c))
             path = out / f"c{c}"
             path.mkdir(exist_ok=True)
             for k in range(cfg.frames):

@@ -16,7 +16,7 @@ over unchanged, while the gates are re-expressed here:
 """
 from __future__ import annotations
 
-from dataclasses import asdict, dataclass, field, fields, replace
+from dataclasses import asdict, dataclass, fields, replace
 
 ABLATIONS = ("dkf", "dkf+lda", "dkf+lda+dtm")
 

@@ -178,15 +178,31 @@ class Mog2Detector:
             self.prime(background)
 
     def prime(self, background: np.ndarray | str | Path, repeats: int = 5) -> None:
-        """Start the background model from an image of the empty scene."""
-        img = background
-        if not isinstance(background, np.ndarray):
-            img = self.cv2.imread(str(background), self.cv2.IMREAD_COLOR)
-            if img is None:
-                raise PerceptionError(f"mog2: cannot read the background image {background}")
-        self.mog.apply(img, learningRate=1.0)
-        for _ in range(max(0, repeats - 1)):
-            self.mog.apply(img, learningRate=0.5)
+        """Start the background model from the empty scene: an image (array or file) or a
+        short video of it. A video is better: it shows the camera's noise and compression, so
+        MOG2 learns each pixel's variance instead of starting from its default."""
+        cv2 = self.cv2
+        frames: list[np.ndarray] = []
+        if isinstance(background, np.ndarray):
+            frames = [background] * repeats
+        else:
+            path = Path(background)
+            img = cv2.imread(str(path), cv2.IMREAD_COLOR) if path.is_file() else None
+            if img is not None:
+                frames = [img] * repeats
+            elif path.is_file():
+                cap = cv2.VideoCapture(str(path))
+                while len(frames) < 500:
+                    ok, f = cap.read()
+                    if not ok or f is None:
+                        break
+                    frames.append(f)
+                cap.release()
+            if not frames:
+                raise PerceptionError(f"mog2: cannot read the background {path} (an image or a "
+                                      "video of the empty scene)")
+        for i, f in enumerate(frames):  # a running average: every frame weighs the same
+            self.mog.apply(f, learningRate=1.0 / (i + 1))
 
     # -- geometry -------------------------------------------------------------------------------
     def expected_size(self, u: float, v: float, blob_h: float) -> tuple[float, float]:
@@ -370,8 +386,16 @@ class Mog2Detector:
                 hi = int(c)
             u = (lo + hi + 1) / 2.0
             ew, eh = self.expected_size(x0 + u, y0 + v1, v1 - top)
-            cx0 = max(0, int(np.floor(u - 0.8 * ew)))
-            cx1 = min(ww, int(np.ceil(u + 0.8 * ew)))
+            half = 0.8 * ew
+            if hi + 1 - lo > 1.5 * ew:  # feet of people side by side: one person's share
+                k = min(max(2, int(round((hi + 1 - lo) / ew))), self.max_split)
+                step = (hi + 1 - lo) / k
+                j = min(int((seed - lo) / step), k - 1)
+                u = lo + (j + 0.5) * step
+                half = 0.5 * step
+                ew, eh = self.expected_size(x0 + u, y0 + v1, v1 - top)
+            cx0 = max(0, int(np.floor(u - half)))
+            cx1 = min(ww, int(np.ceil(u + half)))
             cy0 = max(0, int(np.floor(v1 - 1.02 * eh)))
             claim = rem[cy0:v1, cx0:cx1]
             rr = np.flatnonzero(claim.any(axis=1))

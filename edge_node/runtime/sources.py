@@ -13,9 +13,8 @@ import json
 from dataclasses import dataclass, replace
 from pathlib import Path
 
-import numpy as np
-
 from edge_node.core.types import Detection
+from edge_node.detfile import DetFilesError, camera_from_entry, last_frame, read_det
 from edge_node.geometry import Camera
 from edge_node.runtime.config import NodeConfig, NodeConfigError
 
@@ -40,66 +39,14 @@ class Source:
 
 
 # -- det-files --------------------------------------------------------------------------------------
-def _read_table(path: Path, min_cols: int) -> np.ndarray:
-    if not path.is_file():
-        raise SourceError(f"det.txt file not found: {path}")
-    rows: list[list[float]] = []
-    for i, line in enumerate(path.read_text(encoding="utf-8").splitlines(), start=1):
-        s = line.strip()
-        if not s or s.startswith("#"):
-            continue
-        f = [x.strip() for x in s.split(",")]
-        if len(f) < min_cols:
-            raise SourceError(f"{path}:{i}: det.txt row needs at least {min_cols} fields, got {len(f)}")
-        try:
-            rows.append([float(x) for x in f])
-        except ValueError:
-            raise SourceError(f"{path}:{i}: non-numeric field in det.txt row: {s!r}") from None
-    width = max((len(r) for r in rows), default=min_cols)
-    out = np.full((len(rows), width), np.nan)
-    for i, r in enumerate(rows):
-        out[i, :len(r)] = r
-    if len(out) and np.any(out[:, 0] < 1):
-        raise SourceError(f"{path}: frames are 1-based (MOTChallenge); found a frame < 1")
-    return out
-
-
-def _last_frame(path: Path) -> int:
-    if not path.is_file():
-        return 0
-    t = _read_table(path, 1)
-    return int(t[:, 0].max()) if len(t) else 0
-
-
 def read_camera_detections(det: Path, frames: int, npy: Path | None, require_npy: bool
                            ) -> list[list[Detection]]:
-    t = _read_table(det, 6)
-    desc = no_desc = None
-    if npy is not None and require_npy and not npy.is_file():
-        raise SourceError(f"descriptor file not found: {npy} (named for {det})")
-    if npy is not None and npy.is_file():
-        try:
-            desc = np.load(npy, allow_pickle=False)
-        except ValueError as e:
-            raise SourceError(f"{npy}: not a numeric .npy array ({e})") from None
-        if desc.ndim != 2 or len(desc) != len(t):
-            raise SourceError(f"{npy}: shape {desc.shape} does not match {len(t)} rows of {det}")
-        desc = desc.astype(np.float32, copy=False)
-        no_desc = np.all(np.isnan(desc), axis=1)
-    if len(t) and np.any(t[:, 4:6] <= 0):
-        raise SourceError(f"{det}: non-positive box width or height")
-    groups: list[list[int]] = [[] for _ in range(frames)]
-    for r, k in enumerate(t[:, 0].astype(int) - 1):
-        if 0 <= k < frames:
-            groups[k].append(r)
-    out = []
-    for rows in groups:
-        conf = t[rows, 6] if t.shape[1] > 6 else np.ones(len(rows))
-        conf = np.where(np.isfinite(conf), conf, 1.0)
-        out.append([Detection(box=t[r, 2:6].copy(),
-                              descriptor=None if desc is None or no_desc[r] else desc[r],
-                              score=float(c)) for r, c in zip(rows, conf)])
-    return out
+    """One camera's detections per frame ``0..frames-1`` (the shared det-file reader)."""
+    try:
+        dets, _ = read_det(det, frames, npy, require_npy)
+    except DetFilesError as e:
+        raise SourceError(str(e)) from None
+    return dets
 
 
 def load_det_file_camera(calibration: Path, index: int, node: int,
@@ -117,23 +64,18 @@ def load_det_file_camera(calibration: Path, index: int, node: int,
     e = entries[index]
     fps = float(doc.get("fps", 25.0))
     try:
-        size = e["image_size"]
-        P = e.get("P")
-        cam = Camera(id=node, image_size=(int(size[0]), int(size[1])),
-                     G=np.asarray(e["G"], dtype=float),
-                     P=None if P is None else np.asarray(P, dtype=float),
-                     pixel_scale=float(e.get("pixel_scale", 1.0)), fps=float(e.get("fps", fps)))
-    except (KeyError, TypeError, ValueError, IndexError) as ex:
-        raise SourceError(f"{calibration}: cameras[{index}] is not a usable camera ({ex})") from None
+        cam = replace(camera_from_entry(index, e, calibration, fps), id=node)
+    except DetFilesError as ex:
+        raise SourceError(str(ex)) from None
     base = calibration.parent
     det_rel = e.get("det", f"c{index}/det.txt")
     npy_rel = e.get("descriptors", str(Path(det_rel).with_suffix(".npy")))
     det = base / det_rel
     n = doc.get("frames")
     if n is None:  # as load_det_files: the last frame in any camera's det.txt / gt.txt / gt_ground
-        n = max([_last_frame(base / x.get("det", f"c{c}/det.txt")) for c, x in enumerate(entries)]
-                + [_last_frame(base / x.get("gt", f"c{c}/gt.txt")) for c, x in enumerate(entries)]
-                + [_last_frame(base / doc.get("gt_ground", "gt_ground.csv"))])
+        n = max([last_frame(base / x.get("det", f"c{c}/det.txt")) for c, x in enumerate(entries)]
+                + [last_frame(base / x.get("gt", f"c{c}/gt.txt")) for c, x in enumerate(entries)]
+                + [last_frame(base / doc.get("gt_ground", "gt_ground.csv"))])
     n = int(n) if frames is None else min(int(n), frames)
     if n <= 0:
         raise SourceError(f"{calibration}: no frames")
