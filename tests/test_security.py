@@ -16,7 +16,6 @@ from __future__ import annotations
 import json
 import os
 import shutil
-import socket
 import subprocess
 import sys
 import time
@@ -32,7 +31,7 @@ from protocol.messages import FrameMessage, TrackerInfo
 REPO = Path(__file__).resolve().parents[1]
 DEPLOY = REPO / "deploy"
 MAKE_CERTS = DEPLOY / "tls" / "make-certs.sh"
-from tests.loopback import ep, export_scenario, free_port, wait_for  # noqa: E402
+from tests.loopback import ep, free_port, wait_for  # noqa: E402
 
 NET = "terrace"  # the network deploy/zenoh/peer-acl.json5 is written for (boxes cam0..cam3)
 
