@@ -118,7 +118,7 @@ path = "EXPORT"
     (("[source]", "[runtime]\nmode = \"fast\"\n[source]"),
      "cam0.toml: runtime.mode must be one of 'sync', 'async', got 'fast'"),
     (("[source]", "[runtime]\nsync_timeout_s = 0\n[source]"), "cam0.toml: runtime.sync_timeout_s must be > 0"),
-    (('kind = "det-file"', 'kind = "video"'), "cam0.toml: source.kind must be one of"),
+    (('kind = "det-file"', 'kind = "hologram"'), "cam0.toml: source.kind must be one of"),
     (('path = "EXPORT"', 'path = "nowhere"'), "cam0.toml: source.path does not exist"),
     (("[source]", "[tracker]\ntau = -1\n[source]"), "cam0.toml: tracker.tau must be a positive number"),
     (("[source]", "[tracker]\nablation = \"x\"\n[source]"), "cam0.toml: tracker.ablation must be one of"),

@@ -10,13 +10,15 @@ each backend aims for boxes whose bottom edge is the feet.
   person (the training windows hold a 96 px person in 128 px). OpenCV 5 moved HOG out of the main
   package into opencv-contrib: where ``cv2.HOGDescriptor`` is missing, construction fails with
   a message saying so.
-* :class:`Mog2Detector` -- MOG2 background subtraction: foreground mask, morphology (open, close),
-  connected components above ``min_area``, fragments of one person (same columns, together no
-  taller than a person standing at the lower one's feet) joined, and blobs wider than one person
-  split at the emptiest columns. "One person" comes from the camera geometry when the detector is
-  given the camera (a ``person_size_m`` cylinder at the blob's foot point); without it, from the
-  blob's own height and a typical aspect ratio. It can start from an image of the empty scene
-  (``background``) instead of learning the background from the first frames.
+* :class:`Mog2Detector` -- MOG2 background subtraction: foreground mask, morphology (open,
+  close), connected components, fragments of one person joined. With the camera's geometry (a
+  ``person_size_m`` cylinder at any foot point) each blob is then read nearest person first (the
+  lowest feet are the nearest person's), so people side by side and one behind the other come
+  apart; a person seen shorter than a person standing at their lowest pixel has hidden feet and
+  is dropped; two boxes whose feet are closer on the ground than two bodies can stand are
+  merged. Without a camera, blobs wider than a typical person are cut at their emptiest
+  columns. It starts from a video (or image) of the empty scene (``background``) instead of
+  learning the background from the first frames.
 * :class:`OnnxDetector` -- a person detector in ONNX format (YOLOv5 / YOLOv8 style outputs, or
   ``(n, 6)`` ``x0, y0, x1, y1, score, class`` rows) run by OpenCV's DNN module: letterboxed input
   of ``input_size``, ``score_threshold``, class ``class_id``, non-maximum suppression at
@@ -44,7 +46,6 @@ class Detector(Protocol):
 
     def detect(self, image: np.ndarray) -> list[Box]:
         """``[(box (4,) x, y, w, h, score), ...]`` for ``image`` ``(H, W, 3)`` uint8 BGR."""
-        ...
 
 
 def nms(boxes: np.ndarray, scores: np.ndarray, threshold: float) -> np.ndarray:
@@ -137,8 +138,8 @@ class Mog2Detector:
 
     ``camera`` (an :class:`edge_node.geometry.Camera`) and ``units_per_metre`` give the expected
     size of a person (``person_size_m`` = width, height in metres) at any foot point; without a
-    camera a person is ``aspect`` times as wide as the blob is tall. ``background``: an image (or
-    path) of the empty scene the model starts from; ``learning_rate``: MOG2's (negative = its
+    camera a person is ``aspect`` times as wide as the blob is tall. ``background``: a video or image
+    (array or path) of the empty scene the model starts from; ``learning_rate``: MOG2's (negative = its
     automatic ``1 / history``); a small rate keeps people who stand still in the foreground.
     """
 
@@ -149,8 +150,8 @@ class Mog2Detector:
                  var_threshold: float = 16.0, learning_rate: float = -1.0,
                  min_area: int = 60, min_height: int = 12, open_px: int = 3, close_px: int = 5,
                  split: bool = True, person_size_m: tuple[float, float] = (0.5, 1.75),
-                 aspect: float = 0.38, max_split: int = 6, min_visible_height: float = 0.87,
-                 merge_m: float = 0.55):
+                 aspect: float = 0.38, max_split: int = 6, min_visible_height: float = 0.8,
+                 hidden_visible_height: float = 0.95, merge_m: float = 0.55):
         cv2 = require_cv2()
         self.cv2 = cv2
         if history < 1 or var_threshold <= 0 or min_area < 1:
@@ -172,6 +173,7 @@ class Mog2Detector:
         self.aspect = float(aspect)
         self.max_split = int(max_split)
         self.min_visible_height = float(min_visible_height)
+        self.hidden_visible_height = float(hidden_visible_height)
         self.merge_m = float(merge_m)
         self.mask: np.ndarray | None = None  # the last cleaned foreground mask (for inspection)
         if background is not None:
@@ -344,10 +346,11 @@ class Mog2Detector:
         standing there (``expected_size``) claims the foreground in a box 1.6 widths wide and
         1.02 heights tall above it; the rest of the blob is analysed again. The box is centred
         on the feet, as wide as the claimed lower body. A part shorter than
-        ``min_visible_height`` of a person standing at its lowest row is dropped: people stand
-        on the ground, so a person seen shorter than that has hidden feet (behind a nearer
-        person) or is a fragment, and its lowest row is no foot point. (Placing hidden feet from
-        the head's height would cost metres on the ground at these camera heights.)
+        ``min_visible_height`` of a person standing at its lowest row is dropped (a fragment),
+        and so is one shorter than ``hidden_visible_height`` whose lowest row rests on a nearer
+        person's pixels: people stand on the ground, so a person seen shorter than a person
+        standing there has hidden feet, and its lowest row is no foot point. (Placing hidden
+        feet from the head's height would cost metres on the ground at these camera heights.)
         """
         if self.camera is None or not self.split:
             out = []
@@ -361,6 +364,7 @@ class Mog2Detector:
             return out
         hh, ww = m.shape
         rem = m.copy()
+        claimed = np.zeros_like(m)
         out = []
         for _ in range(2 * self.max_split):
             if int(rem.sum()) < max(8, self.min_area // 2):
@@ -405,7 +409,10 @@ class Mog2Detector:
                 rem[v1 - 1] = False
                 continue
             by0, by1 = y0 + cy0 + int(rr[0]), y0 + v1
-            if by1 - by0 >= self.min_visible_height * eh:
+            # resting on a nearer person's pixels: the feet may be hidden, so be strict
+            hidden = bool(claimed[v1:min(hh, v1 + 3), cx0:cx1].any())
+            need = self.hidden_visible_height if hidden else self.min_visible_height
+            if by1 - by0 >= need * eh:
                 # width from the lower body (arms and whatever stands behind are above it),
                 # centred on the feet
                 lower = claim[max(0, int(rr[-1] + 1 - 0.6 * (rr[-1] + 1 - rr[0]))):]
@@ -414,6 +421,7 @@ class Mog2Detector:
                 w = max(w, 0.6 * ew)
                 xc = x0 + u
                 out.append((xc - w / 2.0, by0, xc + w / 2.0, by1 - 0.5, area))
+            claimed[cy0:v1, cx0:cx1] |= claim
             rem[cy0:v1, cx0:cx1] = False
         return out
 

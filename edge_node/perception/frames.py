@@ -15,6 +15,8 @@ the camera when the node's config has no ``[camera]`` table.
 """
 from __future__ import annotations
 
+from abc import ABC, abstractmethod
+
 import json
 import re
 import time
@@ -37,7 +39,7 @@ class Frame:
     image: np.ndarray | None  # BGR uint8 (H, W, 3)
 
 
-class FrameSource:
+class FrameSource(ABC):
     """Base: ``read()`` the next frame (``None`` at the end), iterate, ``close()``.
 
     ``frames`` is the number of frames when known (``None`` for a live camera), ``fps`` the frame
@@ -49,8 +51,9 @@ class FrameSource:
     frames: int | None = None
     image_size: tuple[int, int] = (0, 0)
 
-    def read(self) -> Frame | None:  # pragma: no cover - abstract
-        raise NotImplementedError
+    @abstractmethod
+    def read(self) -> Frame | None:
+        """The next frame, or ``None`` at the end of the source."""
 
     def __iter__(self) -> Iterator[Frame]:
         while True:

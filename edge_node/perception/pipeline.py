@@ -12,7 +12,6 @@ from __future__ import annotations
 import logging
 import time
 from dataclasses import dataclass, field
-from pathlib import Path
 
 import numpy as np
 
@@ -233,13 +232,3 @@ def open_frame_source(cfg) -> FrameDetections:
             f" + {perception.reid.name if perception.reid else 'no re-id'}")
     return FrameDetections(camera, int(n), float(frames_in.fps), float(upm), frames_in,
                            perception, desc, log_every=settings.log_every)
-
-
-def describe_frames(path: str | Path) -> dict:
-    """Frame count, fps and size of a video or image folder (``edge_node check``)."""
-    p = Path(path)
-    src = open_frames("images" if p.is_dir() else "video", path=p)
-    try:
-        return {"frames": src.frames, "fps": src.fps, "image_size": list(src.image_size)}
-    finally:
-        src.close()

@@ -41,7 +41,6 @@ class ReidExtractor(Protocol):
         ``(n, dim)`` float32 unit rows (all-NaN for a box with no pixels in the image).
         ``mask``: the detector's foreground mask (``(H, W)`` uint8) when it has one; an
         extractor may use it to leave the background out."""
-        ...
 
 
 def _int_boxes(boxes: np.ndarray, shape: tuple[int, ...]) -> np.ndarray:

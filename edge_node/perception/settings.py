@@ -21,7 +21,7 @@ Schema (defaults in brackets)::
     log_every = 250                 # log perception timings every N frames (0 = only at the end)
 
     [perception.mog2]               # every key optional
-    background = "empty.png"        # an image of the empty scene to start the model from
+    background = "empty.avi"        # a video (or image) of the empty scene to start from
     history = 500                   # MOG2 history (frames)
     var_threshold = 16.0            # MOG2 variance threshold
     learning_rate = -1.0            # -1: MOG2's automatic 1/history; else in [0, 1]
@@ -134,7 +134,7 @@ def parse_perception(t, base: Path) -> PerceptionSettings:
     mog2: dict[str, Any] = {}
     if m is not None:
         mog2 = _drop_none({
-            "background": _file(m, "background", base, "an image of the empty scene"),
+            "background": _file(m, "background", base, "a video or image of the empty scene"),
             "history": m.integer("history", None, lo=1),
             "var_threshold": _number(m, "var_threshold", lo=0, lo_open=True),
             "learning_rate": _number(m, "learning_rate", lo=-1, hi=1),
