@@ -12,21 +12,16 @@ from pathlib import Path
 import numpy as np
 
 from edge_node.core.types import Track
+from edge_node.runtime.output import HEADER, ID_BASE, TrackWriter  # one format for both shells
 
-HEADER = ["frame", "id", "camera", "counter", "x", "y", "w", "h", "vx", "vy", "observed", "ell"]
-ID_BASE = 1_000_000
+__all__ = ["HEADER", "ID_BASE", "read_tracks", "write_tracks"]
 
 
 def write_tracks(path: Path, frames: list[list[Track]]) -> None:
-    path.parent.mkdir(parents=True, exist_ok=True)
-    with open(path, "w", newline="") as f:
-        w = csv.writer(f)
-        w.writerow(HEADER)
+    """The file a camera process writes (``edge_node.runtime.output.TrackWriter``), at once."""
+    with TrackWriter(Path(path)) as w:
         for tracks in frames:
-            for t in tracks:
-                cam, cnt = t.id
-                w.writerow([t.frame, cam * ID_BASE + cnt, cam, cnt,
-                            *(f"{v:.6f}" for v in t.x), int(t.observed), t.ell])
+            w.write(tracks)
 
 
 def read_tracks(path: Path, frames: int | None = None) -> list[list[Track]]:
