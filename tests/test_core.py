@@ -288,3 +288,14 @@ def test_a_cut_chain_keeps_tracking_on_both_sides():
     assert len(left) == 1 and len(right) == 1 and left != right
     assert abs(out[0][0].x[1] - (2.0 + 0.02 * 59)) < 0.3
     assert abs(out[3][0].x[1] - (7.0 - 0.02 * 59)) < 0.3
+
+
+def test_core_imports_no_heavy_dependency():
+    """The tracker core stays testable in microseconds: no Zenoh, Rerun, torch or OpenCV."""
+    import subprocess
+    import sys
+
+    code = ("import sys, edge_node.core.node, edge_node.core.trigger, protocol.codec; "
+            "print(sorted(m for m in ('zenoh', 'rerun', 'torch', 'cv2') if m in sys.modules))")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    assert out.stdout.strip() == "[]"
