@@ -116,23 +116,22 @@ def spawn(proc: NodeProc, join: bool = False) -> subprocess.Popen:
         log.close()
 
 
-def terminate(pids: list[int], grace: float = TERM_GRACE_S) -> None:
-    """SIGTERM (a node finishes its frame and flushes), then SIGKILL whatever is left."""
+def _signal(pids: list[int], sig: int) -> None:
     for pid in pids:
         if alive(pid):
             try:
-                os.kill(pid, signal.SIGTERM)
+                os.kill(pid, sig)
             except ProcessLookupError:
                 pass
+
+
+def terminate(pids: list[int], grace: float = TERM_GRACE_S) -> None:
+    """SIGTERM (a node finishes its frame and flushes), then SIGKILL whatever is left."""
+    _signal(pids, signal.SIGTERM)
     deadline = time.time() + grace
     while time.time() < deadline and any(alive(p) for p in pids):
         time.sleep(0.05)
-    for pid in pids:
-        if alive(pid):
-            try:
-                os.kill(pid, signal.SIGKILL)
-            except ProcessLookupError:
-                pass
+    _signal(pids, signal.SIGKILL)
 
 
 # -- configs -------------------------------------------------------------------------------------

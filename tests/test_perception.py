@@ -182,7 +182,7 @@ def test_hog_finds_rendered_people(close_world):
 
 def test_hog_missing_is_a_clear_error():
     if hog_available():
-        pytest.skip("this OpenCV has HOG")
+        pytest.skip("this OpenCV has HOG, so there is no missing-HOG error to check")
     with pytest.raises(PerceptionError, match="opencv-contrib"):
         HogDetector()
 

@@ -270,17 +270,16 @@ class FrameLoop:
         if self.transport.neighbours:
             out = self.trigger.filter(msg)
             links = len(self.transport.neighbours)
-            try:
-                full = len(codec.encode(msg))
-            except ProtocolError:
-                full = 0
+            sent = None if out is None else self._send(out)
             if out is None:
                 self.stats.frames_skipped += 1
-                self.stats.bytes_saved += full * links
-            else:
-                sent = self._send(out)
-                if sent is not None:
-                    self.stats.bytes_saved += max(full - sent, 0) * links
+            if out is None or (sent is not None and len(out.trackers) < len(msg.trackers)):
+                # bytes saved against the full message: encoded only when something was withheld
+                try:
+                    full = len(codec.encode(msg))
+                except ProtocolError:
+                    full = 0
+                self.stats.bytes_saved += max(full - (sent or 0), 0) * links
             inbox = self.transport.drain(k)
         t2 = time.perf_counter()
         tracks = self.node.update(inbox, stale_ok=True)
