@@ -105,7 +105,7 @@ def test_without_manager_duplicates_stay():
         x = 3.0 + 0.03 * k
         out = step(nodes, k, {0: [det(x, 5.0, 3, rng)], 1: [det(x, 5.0, 3, rng)] if k >= 15 else []})
         if k == 16:
-            assert len(out[1]) == 2  # a duplicate: the neighbour's tracker and its own
+            assert len(nodes[1].trackers) == 2  # a duplicate: the neighbour's tracker and its own
     # Later each camera keeps what it sees itself (local drop), so the two cameras end up
     # naming one person differently: the network does not agree on an id.
     ids = {i: sorted(t.id for t in out[i]) for i in out}
@@ -121,15 +121,49 @@ def test_unseen_target_dropped_everywhere_within_kappa_plus_diameter():
     alive_until = {i: None for i in adj}
     for k in range(60):
         dets = {0: [det(2.0, 2.0, 5, rng)]} if k <= last_seen else {}
-        out = step(nodes, k, dets)
+        step(nodes, k, dets)
         for i in adj:
-            if out[i]:
+            if nodes[i].trackers:  # held (reported or coasting), not yet dropped
                 alive_until[i] = k
     bound = last_seen + cfg.kappa + diameter(adj)
     for i in adj:
         assert alive_until[i] is not None  # the far end of the chain did hear of it
         assert alive_until[i] <= bound
     assert alive_until[0] >= last_seen + cfg.kappa  # not before kappa frames unseen
+
+
+def test_coasting_tracker_is_held_but_not_reported():
+    """A person unseen by every camera: the tracker is reported ``report_coast`` more frames,
+    then only held (predicted, kept for re-association) until ``ell`` passes ``kappa``; seen
+    again within that time it is reported again under the same id."""
+    cfg = TrackerConfig(report_coast=2)
+    nodes = make_nodes({0: ()}, cfg)
+    rng = np.random.default_rng(11)
+    reported, held = [], []
+    for k in range(30):
+        seen = k < 10 or k >= 18
+        out = step(nodes, k, {0: [det(3.0, 3.0, 4, rng)] if seen else []})
+        reported.append({t.id for t in out[0]})
+        held.append(set(nodes[0].trackers))
+        assert {t.id for t in nodes[0].tracks()} == reported[-1]
+    assert reported[9] == {(0, 0)}
+    assert reported[10] == reported[11] == {(0, 0)}  # coasting 1, 2 frames: still reported
+    assert reported[12] == set() and held[12] == {(0, 0)}  # coasting 3 frames: held only
+    assert reported[18] == {(0, 0)}  # seen again: the same tracker, reported at once
+    assert nodes[0].stats.births == 1
+
+
+def test_a_target_seen_far_away_in_the_network_is_reported_everywhere():
+    """Coasting is ``ell`` *growing*, not its value: the far end of a chain holds ell = hops - 1
+    for a target only node 0 sees, and reports it every frame."""
+    adj = build("chain", 4)
+    nodes = make_nodes(adj, TrackerConfig(report_coast=0))
+    rng = np.random.default_rng(12)
+    for k in range(40):
+        out = step(nodes, k, {0: [det(2.0 + 0.02 * k, 2.0, 5, rng)]})
+        if k >= 10:
+            assert all(len(out[i]) == 1 for i in adj), (k, out)
+    assert [out[i][0].ell for i in sorted(adj)] == [0, 0, 1, 2]
 
 
 def test_returning_person_gets_their_old_id():
@@ -224,21 +258,21 @@ def test_stale_messages_fused_once_and_aged():
     tr = n1.trackers[(0, 0)]
     x_bar, P = tr.x_bar.copy(), tr.P.copy()
     entry = late.trackers[0]
-    out = n1.update([late, late], stale_ok=True)  # one frame late, delivered twice
+    n1.update([late, late], stale_ok=True)  # one frame late, delivered twice
     A = transition(cfg.dt)
     expect, _ = dkf.correct(x_bar, P, entry.u, entry.U, [A @ entry.x_bar],
                             own_x_bar_sent=tr.x_bar_sent)
-    np.testing.assert_allclose(out[0].x, expect, atol=1e-9)  # fused once, x_bar predicted
-    assert out[0].ell == min(tr.ell_sent, entry.ell + 1)  # aged by one frame
+    np.testing.assert_allclose(tr.x_hat, expect, atol=1e-9)  # fused once, x_bar predicted
+    assert tr.ell == min(tr.ell_sent, entry.ell + 1)  # aged by one frame
 
     n1.prepare(4, [])
     tr = n1.trackers[(0, 0)]
     x_bar, P = tr.x_bar.copy(), tr.P.copy()
-    out = n1.update([late], stale_ok=True)  # the same message yet again: no u, U any more
+    n1.update([late], stale_ok=True)  # the same message yet again: no u, U any more
     expect, _ = dkf.correct(x_bar, P, np.zeros(6), np.zeros((6, 6)),
                             [transition(2 * cfg.dt) @ entry.x_bar],
                             own_x_bar_sent=tr.x_bar_sent)
-    np.testing.assert_allclose(out[0].x, expect, atol=1e-9)
+    np.testing.assert_allclose(tr.x_hat, expect, atol=1e-9)
 
     for k in range(5, 5 + cfg.kappa + 1):
         n1.prepare(k, [])
@@ -263,8 +297,8 @@ def test_targets_only_a_dead_node_saw_are_dropped_by_the_survivors():
         dets = {0: [det(2.0 + 0.02 * k, 2.0, 5, rng)]}
         msgs = {i: codec.encode(nodes[i].prepare(k, dets.get(i, []))) for i in alive}
         for i in alive:
-            out = nodes[i].update([codec.decode(msgs[j]) for j in nodes[i].neighbours if j in msgs])
-            if out:
+            nodes[i].update([codec.decode(msgs[j]) for j in nodes[i].neighbours if j in msgs])
+            if nodes[i].trackers:
                 last_held[i] = k
     for i in (1, 2, 3):
         assert 20 <= last_held[i] <= 20 + cfg.kappa + diameter(adj)

@@ -76,6 +76,7 @@ class TrackerConfig:
     kappa: int = 15  # drop a tracker when ell exceeds kappa (eq. 9)
     epsilon: float = 0.25  # re-identification threshold on s_a against old trackers
     max_old_trackers: int = 200  # bounded memory of dropped trackers
+    report_coast: int = 1  # frames a tracker nobody sees is still reported (kept until kappa)
 
     # --- asynchronous operation (event-triggered consensus) ----------------------------------
     staleness_frames: int = 2  # a neighbour's u, U older than this many frames is ignored
@@ -96,10 +97,10 @@ class TrackerConfig:
                 raise ConfigError(f"tracker.{name} must be a non-negative number, got {v!r}")
         ints = ("gallery_size", "gallery_every", "init_observations", "candidate_max_age",
                 "merge_frames", "merge_announce_frames", "kappa", "max_old_trackers")
-        if (not isinstance(self.staleness_frames, int) or isinstance(self.staleness_frames, bool)
-                or self.staleness_frames < 0):
-            raise ConfigError(f"tracker.staleness_frames must be an integer >= 0, "
-                              f"got {self.staleness_frames!r}")
+        for name in ("staleness_frames", "report_coast"):
+            v = getattr(self, name)
+            if not isinstance(v, int) or isinstance(v, bool) or v < 0:
+                raise ConfigError(f"tracker.{name} must be an integer >= 0, got {v!r}")
         for name in ints:
             v = getattr(self, name)
             if not isinstance(v, int) or isinstance(v, bool) or v < 1:

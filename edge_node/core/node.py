@@ -48,6 +48,7 @@ class Tracker:
     P: np.ndarray  # its covariance
     gallery: Gallery
     ell: int = 0  # eq. 9 after the last update
+    coast: int = 0  # consecutive frames ell grew: nobody in the network saw the target
     born: int = 0  # frame its originating camera created it (same on every node)
     since: int = 0  # frame it appeared on this node
     announced: bool = False  # appearance already sent by this node
@@ -275,10 +276,12 @@ class CameraNode:
             tr.x_hat, tr.M = dkf.correct(tr.x_bar, tr.P, y, S, [t.x_bar for t in got],
                                          own_x_bar_sent=tr.x_bar_sent,
                                          units_per_metre=self.cfg.units_per_metre)
+            ell_before = tr.ell
             if self.cfg.use_manager:
                 tr.ell = manager.ell_consensus(tr.ell_sent, [t.ell for t in got])
             else:
                 tr.ell = tr.ell_sent
+            tr.coast = tr.coast + 1 if tr.ell > ell_before else 0
 
         if self.cfg.use_manager:
             views = [manager.MergeView(t.id, t.x_hat[:2], t.gallery, t.since == k,
@@ -294,7 +297,9 @@ class CameraNode:
         tracks = []
         for tid in sorted(self.trackers):
             tr = self.trackers[tid]
-            tracks.append(Track(tid, k, tr.x_hat.copy(), tr.M.copy(), bool(tr.seen_by), tr.ell))
+            if self._reported(tr):
+                tracks.append(Track(tid, k, tr.x_hat.copy(), tr.M.copy(), bool(tr.seen_by),
+                                    tr.ell))
             tr.x_bar, tr.P = dkf.predict(tr.x_hat, tr.M, self.A, self.Q)
         self._prepared = False
         self._forget()
@@ -421,6 +426,7 @@ class CameraNode:
         w.seen_by |= l.seen_by
         w.gallery.extend(l.gallery)
         w.ell = min(w.ell, l.ell)
+        w.coast = min(w.coast, l.coast)
         w.ell_sent = min(w.ell_sent, l.ell_sent)
         w.since = min(w.since, l.since)
 
@@ -447,6 +453,17 @@ class CameraNode:
         return self._frame
 
     def tracks(self) -> list[Track]:
-        """The current estimates (after the last ``update``)."""
+        """The current estimates (after the last ``update``): the trackers it reports."""
         return [Track(t.id, self._frame, t.x_hat.copy(), t.M.copy(), bool(t.seen_by), t.ell)
-                for _, t in sorted(self.trackers.items()) if t.x_hat is not None]
+                for _, t in sorted(self.trackers.items())
+                if t.x_hat is not None and self._reported(t)]
+
+    def _reported(self, tr: Tracker) -> bool:
+        """A tracker is reported (returned by ``update``, written, drawn, evaluated) unless it
+        has coasted ``report_coast`` frames: its ``ell`` grew that many frames in a row, so no
+        camera of the network has seen the target since. It is still predicted, fused, merged
+        and kept for re-association until ``ell`` exceeds ``kappa`` (eq. 9); only the estimate
+        nobody observes, which drifts away at constant velocity, is not shown. The test is on
+        the *growth* of ``ell``, not its value: a node ``h`` hops from the cameras that see a
+        target holds ``ell = h - 1`` while they see it."""
+        return tr.coast <= self.cfg.report_coast
