@@ -460,8 +460,8 @@ class CameraNode:
 
     def _reported(self, tr: Tracker) -> bool:
         """A tracker is reported (returned by ``update``, written, drawn, evaluated) unless it
-        has coasted ``report_coast`` frames: its ``ell`` grew that many frames in a row, so no
-        camera of the network has seen the target since. It is still predicted, fused, merged
+        has coasted more than ``report_coast`` frames: its ``ell`` grew that many frames in a
+        row, so no camera of the network has seen the target since. It is still predicted, fused, merged
         and kept for re-association until ``ell`` exceeds ``kappa`` (eq. 9); only the estimate
         nobody observes, which drifts away at constant velocity, is not shown. The test is on
         the *growth* of ``ell``, not its value: a node ``h`` hops from the cameras that see a
