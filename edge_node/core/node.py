@@ -294,12 +294,8 @@ class CameraNode:
             if self.trackers[tid].ell > self.cfg.kappa:
                 self._drop(tid)
 
-        tracks = []
-        for tid in sorted(self.trackers):
-            tr = self.trackers[tid]
-            if self._reported(tr):
-                tracks.append(Track(tid, k, tr.x_hat.copy(), tr.M.copy(), bool(tr.seen_by),
-                                    tr.ell))
+        tracks = self.tracks()
+        for tr in self.trackers.values():
             tr.x_bar, tr.P = dkf.predict(tr.x_hat, tr.M, self.A, self.Q)
         self._prepared = False
         self._forget()
