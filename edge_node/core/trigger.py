@@ -24,20 +24,17 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from edge_node.core.model import transition
+from edge_node.core.params import check, integer, positive
 from protocol.messages import FrameMessage, TrackerId
 
 
 @dataclass(frozen=True)
 class TriggerConfig:
-    heartbeat_frames: int = 10
-    drift: float = 0.1  # metres
+    heartbeat_frames: int = integer(10, lo=1, doc="frames between two sends of one tracker")
+    drift: float = positive(0.1, "m, prediction drift that triggers a send")
 
     def __post_init__(self) -> None:
-        if (not isinstance(self.heartbeat_frames, int) or isinstance(self.heartbeat_frames, bool)
-                or self.heartbeat_frames < 1):
-            raise ValueError(f"heartbeat_frames must be an integer >= 1, got {self.heartbeat_frames!r}")
-        if not isinstance(self.drift, (int, float)) or not self.drift > 0:
-            raise ValueError(f"drift must be a positive number of metres, got {self.drift!r}")
+        check(self, "trigger")
 
 
 @dataclass
