@@ -26,7 +26,7 @@ class TrackerInfo:
     x_bar: predicted state ``A x_hat(k-1)``, shape (6,).
     u, U:  information vector and matrix of the local measurement (eq. 2); zeros when the
            sender has no measurement of this target this frame. ``U`` is symmetric (6, 6).
-    ell:   frames since the last association by any camera, as the sender knows it (eq. 9).
+    ell:   frames since the last association by any camera, as the sender knows it (eq. 8).
     appearance: ``(n, D)`` descriptors, only when the tracker is new to the sender.
     born:  the frame its originating camera created it. Every camera ranks trackers by
            ``(born, id)``, so when two trackers turn out to be one target, all keep the older.

@@ -3,9 +3,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from edge_node.core.config import TrackerConfig
-from edge_node.core.node import CameraNode
-from edge_node.core.types import Detection
+from edge_node.core import CameraNode, Detection, TrackerConfig
 from edge_node.geometry import Camera
 from protocol import codec
 
@@ -36,6 +34,36 @@ def det(x: float, y: float, pid: int, rng=None, noise: float = 0.05) -> Detectio
     if rng is not None:
         d = d + noise * rng.normal(size=d.shape) / np.sqrt(d.size)
     return Detection(box_at(x, y), d)
+
+
+def graph(kind: str, n: int) -> dict[int, tuple[int, ...]]:
+    """A small topology written out by hand (core tests do not import the simulator)."""
+    if kind == "complete":
+        return {i: tuple(j for j in range(n) if j != i) for i in range(n)}
+    if kind == "chain":
+        return {i: tuple(j for j in (i - 1, i + 1) if 0 <= j < n) for i in range(n)}
+    if kind == "ring":
+        return {i: tuple(sorted({(i - 1) % n, (i + 1) % n} - {i})) for i in range(n)}
+    if kind == "disconnected":
+        return {i: () for i in range(n)}
+    raise ValueError(kind)
+
+
+def diameter(adj: dict[int, tuple[int, ...]]) -> int:
+    """Longest shortest path (breadth-first search from every node)."""
+    worst = 0
+    for s in adj:
+        dist, frontier = {s: 0}, [s]
+        while frontier:
+            nxt = []
+            for i in frontier:
+                for j in adj[i]:
+                    if j not in dist:
+                        dist[j] = dist[i] + 1
+                        nxt.append(j)
+            frontier = nxt
+        worst = max(worst, max(dist.values()))
+    return worst
 
 
 def make_nodes(adj: dict[int, tuple[int, ...]], cfg: TrackerConfig | None = None,

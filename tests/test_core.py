@@ -2,13 +2,16 @@
 import numpy as np
 import pytest
 
-from edge_node.core.association import Candidate, Observation, associate
-from edge_node.core.config import TrackerConfig
+from edge_node.core import TrackerConfig
+from edge_node.core.association import Candidate, LocalDataAssociation, Observation
 from edge_node.core.gallery import Gallery
 from edge_node.core.manager import MergeView, find_merges
-from sim_cluster.topology import build, diameter
-from fakes import det, identity, make_nodes, step
+from fakes import det, diameter, graph as build, identity, make_nodes, step
 from protocol import codec
+
+
+def associate(trackers, obs, cfg):
+    return LocalDataAssociation(cfg, cfg.use_appearance)(trackers, obs)
 
 
 def _gallery(pid):
@@ -261,9 +264,9 @@ def test_stale_messages_fused_once_and_aged():
     n1.update([late, late], stale_ok=True)  # one frame late, delivered twice
     A = transition(cfg.dt)
     expect, _ = dkf.correct(x_bar, P, entry.u, entry.U, [A @ entry.x_bar],
-                            own_x_bar_sent=tr.x_bar_sent)
+                            own_x_bar_sent=tr.local.x_bar_sent)
     np.testing.assert_allclose(tr.x_hat, expect, atol=1e-9)  # fused once, x_bar predicted
-    assert tr.ell == min(tr.ell_sent, entry.ell + 1)  # aged by one frame
+    assert tr.ell == min(tr.local.ell_sent, entry.ell + 1)  # aged by one frame
 
     n1.prepare(4, [])
     tr = n1.trackers[(0, 0)]
@@ -271,13 +274,13 @@ def test_stale_messages_fused_once_and_aged():
     n1.update([late], stale_ok=True)  # the same message yet again: no u, U any more
     expect, _ = dkf.correct(x_bar, P, np.zeros(6), np.zeros((6, 6)),
                             [transition(2 * cfg.dt) @ entry.x_bar],
-                            own_x_bar_sent=tr.x_bar_sent)
+                            own_x_bar_sent=tr.local.x_bar_sent)
     np.testing.assert_allclose(tr.x_hat, expect, atol=1e-9)
 
     for k in range(5, 5 + cfg.kappa + 1):
         n1.prepare(k, [])
         n1.update([], stale_ok=True)
-    assert n1._memory[0] == {}  # forgotten after kappa frames
+    assert n1.memory.entries[0] == {}  # forgotten after kappa frames
     n1.prepare(5 + cfg.kappa + 1, [])
     before = n1.stats.ignored_messages
     n1.update([late], stale_ok=True)

@@ -71,15 +71,16 @@ def appearance_matrix(trackers: Sequence[Candidate], obs: Sequence[Observation],
 
 
 def cost_matrix(trackers: Sequence[Candidate], obs: Sequence[Observation],
-                cfg: TrackerConfig) -> np.ndarray:
-    """Eqs. 5-7: ``s_a * s_d`` inside the gate, ``FORBIDDEN`` outside (``s_d`` alone without LDA)."""
+                cfg: TrackerConfig, appearance: bool = True) -> np.ndarray:
+    """Eqs. 5-7: ``s_a * s_d`` inside the gate, ``FORBIDDEN`` outside (``s_d`` alone without
+    appearance, the paper's ``dkf`` configuration)."""
     if not trackers or not obs:
         return np.zeros((len(trackers), len(obs)))
     d = mahalanobis_matrix(trackers, obs)
     s_d = d / cfg.alpha_lda
     allowed = d < cfg.tau
     cost = s_d
-    if cfg.use_appearance:
+    if appearance:
         s_a = appearance_matrix(trackers, obs, cfg.unknown_appearance)
         cost = s_a * s_d
         # With s_d close to 0 the product ignores appearance; a pair that is clearly two
@@ -96,7 +97,19 @@ def assign(cost: np.ndarray) -> list[tuple[int, int]]:
     return sorted((int(r), int(c)) for r, c in zip(rows, cols) if cost[r, c] < FORBIDDEN)
 
 
-def associate(trackers: Sequence[Candidate], obs: Sequence[Observation],
-              cfg: TrackerConfig) -> list[tuple[int, int]]:
-    """LDA: the optimal tracker-measurement pairs of one camera's frame."""
-    return assign(cost_matrix(trackers, obs, cfg))
+class LocalDataAssociation:
+    """LDA of one camera's frame: the optimal tracker-measurement pairs under the cost of eqs.
+    5-7. ``appearance=False`` is the paper's ``dkf`` configuration: geometry only, and the node
+    keeps no descriptors (``descriptor`` drops them on intake)."""
+
+    def __init__(self, cfg: TrackerConfig, appearance: bool = True):
+        self.cfg = cfg
+        self.appearance = appearance
+
+    def descriptor(self, d: np.ndarray | None) -> np.ndarray | None:
+        """A detection's or a neighbour's descriptor as this node keeps it (float64), or None."""
+        return None if d is None or not self.appearance else np.asarray(d, float)
+
+    def __call__(self, trackers: Sequence[Candidate], obs: Sequence[Observation]
+                 ) -> list[tuple[int, int]]:
+        return assign(cost_matrix(trackers, obs, self.cfg, self.appearance))

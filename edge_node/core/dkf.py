@@ -87,12 +87,5 @@ def predict(x_hat: np.ndarray, M: np.ndarray, A: np.ndarray, Q: np.ndarray
     return A @ x_hat, symmetric(A @ M @ A.T + Q)
 
 
-def mahalanobis_xy(z: np.ndarray, R: np.ndarray, x_bar: np.ndarray, P: np.ndarray) -> float:
-    """Eq. 5 on the ground position: ``d = sqrt(e^T V^-1 e)``, ``V = P_xy + R_xy``."""
-    e = np.asarray(z, float)[:2] - x_bar[:2]
-    V = P[:2, :2] + R[:2, :2]
-    return float(np.sqrt(max(e @ np.linalg.solve(V, e), 0.0)))
-
-
 __all__ = ["information", "no_information", "fuse", "gain", "consensus_gamma", "correct",
-           "predict", "mahalanobis_xy", "symmetric", "MEAS_DIM"]
+           "predict", "symmetric", "MEAS_DIM"]

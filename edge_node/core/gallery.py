@@ -13,6 +13,11 @@ def _unit(a: np.ndarray) -> np.ndarray:
     return a / n if n > 0 else a
 
 
+def cosine_distance(a: np.ndarray, b: np.ndarray) -> float:
+    """``1 - cos(a, b)``: the appearance distance of eq. 7 between two descriptors."""
+    return float(1.0 - _unit(a) @ _unit(b))
+
+
 class Gallery:
     """At most ``capacity`` descriptors, oldest dropped first; a new one at most every ``every``
     frames (paper III-B: "saving a new patch every N frames, and discarding the oldest one")."""

@@ -13,6 +13,7 @@ import numpy as np
 
 from edge_node.core.association import FORBIDDEN, Observation, assign
 from edge_node.core.config import TrackerConfig
+from edge_node.core.gallery import cosine_distance
 
 
 @dataclass
@@ -30,8 +31,9 @@ class Pending:
 class Initiator:
     """Pending observations of one camera and the rule that turns them into births."""
 
-    def __init__(self, cfg: TrackerConfig):
+    def __init__(self, cfg: TrackerConfig, appearance: bool = True):
         self.cfg = cfg
+        self.appearance = appearance  # the two observations must look alike (LDA configurations)
         self.pending: list[Pending] = []
 
     def step(self, k: int, unassigned: list[Observation]) -> list[Pending]:
@@ -48,12 +50,11 @@ class Initiator:
                     d = float(np.linalg.norm(o.z[:2] - p.last.z[:2]))
                     if d >= gate:
                         continue
-                    if (cfg.use_appearance and o.descriptor is not None
-                            and p.last.descriptor is not None):
-                        a, b = o.descriptor, p.last.descriptor
-                        cos = float(a @ b / max(np.linalg.norm(a) * np.linalg.norm(b), 1e-12))
-                        if 1.0 - cos > cfg.candidate_appearance:
-                            continue
+                    if (self.appearance and o.descriptor is not None
+                            and p.last.descriptor is not None
+                            and cosine_distance(o.descriptor, p.last.descriptor)
+                            > cfg.candidate_appearance):
+                        continue
                     cost[i, j] = d
             kept: list[Pending] = []
             matched = dict(assign(cost))

@@ -1,6 +1,7 @@
-"""Distributed Tracker Manager rules (paper Section III-C) as pure functions.
+"""Distributed Tracker Manager (paper Section III-C): its rules as pure functions, and the two
+managers a node is assembled with.
 
-* eq. 9, the drop counter ``ell``: 0 when a camera associates a measurement, otherwise the
+* eq. 8, the drop counter ``ell``: 0 when a camera associates a measurement, otherwise the
   minimum over the inclusive neighbourhood plus one; a tracker is dropped once ``ell > kappa``.
 * the distributed global data association: trackers of the same target coming from different
   cameras are found by Euclidean ground distance (``V = I``) and gallery appearance, and merged
@@ -13,7 +14,7 @@
 """
 from __future__ import annotations
 
-from collections.abc import Iterable, Mapping, Sequence
+from collections.abc import Collection, Iterable, Mapping, Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -25,12 +26,12 @@ from protocol.messages import TrackerId
 
 def ell_sent(observed: bool, ell_prev: int) -> int:
     """The counter a camera reports for frame ``k``: 0 if its camera saw the target, else
-    its previous consensus value plus one (the two branches of eq. 9)."""
+    its previous consensus value plus one (the two branches of eq. 8)."""
     return 0 if observed else ell_prev + 1
 
 
 def ell_consensus(own: int, received: Iterable[int]) -> int:
-    """Eq. 9: the minimum over the inclusive neighbourhood of the reported counters.
+    """Eq. 8: the minimum over the inclusive neighbourhood of the reported counters.
 
     A neighbour that saw the target reports 0, so the information that *someone* saw it
     spreads one hop per frame; when nobody sees it every camera's counter grows by one per
@@ -52,6 +53,7 @@ class MergeView:
 
     @property
     def rank(self) -> tuple[int, TrackerId]:
+        """Merge order (``IdentityBook.rank``): the older survives, ties to the smaller id."""
         return (self.born, self.id)
 
 
@@ -129,10 +131,55 @@ def reidentify(gallery: Gallery, old: Mapping[TrackerId, Gallery], cfg: TrackerC
     return None if best is None else best[1]
 
 
-def resolve(tid: TrackerId, aliases: Mapping[TrackerId, TrackerId]) -> TrackerId:
-    """Follow merge announcements ``loser -> winner`` to the surviving id."""
-    seen = set()
-    while tid in aliases and tid not in seen:
-        seen.add(tid)
-        tid = aliases[tid]
-    return tid
+class DistributedTrackerManager:
+    """The DTM of the paper's complete configuration (``dkf+lda+dtm``): drop by the ``ell``
+    consensus (eq. 8), global association and merging of duplicate trackers, and
+    re-identification of dropped trackers by their galleries."""
+
+    keeps_galleries = True  # dropped trackers' galleries are kept for re-identification
+
+    def __init__(self, cfg: TrackerConfig):
+        self.cfg = cfg
+        self.streaks: dict[tuple[TrackerId, TrackerId], int] = {}
+
+    def ell(self, own: int, received: Sequence[int]) -> int:
+        return ell_consensus(own, received)
+
+    def merges(self, views: Sequence[MergeView]) -> list[tuple[TrackerId, TrackerId]]:
+        return find_merges(views, self.streaks, self.cfg)
+
+    def merged(self, loser: TrackerId) -> None:
+        """``loser`` is gone: forget the agreement streaks it was part of."""
+        for key in [key for key in self.streaks if loser in key]:
+            del self.streaks[key]
+
+    def may_adopt(self, tid: TrackerId, dropped: Collection[TrackerId]) -> bool:
+        return True
+
+    def reidentify(self, gallery: Gallery, old: Mapping[TrackerId, Gallery]) -> TrackerId | None:
+        return reidentify(gallery, old, self.cfg) if old and len(gallery) else None
+
+
+class IndependentTrackers:
+    """No DTM (the paper's ``dkf`` and ``dkf+lda``): every camera drops on its own counter, a
+    dropped id stays dropped, nothing is merged or re-identified."""
+
+    keeps_galleries = False
+
+    def __init__(self, cfg: TrackerConfig):
+        self.cfg = cfg
+
+    def ell(self, own: int, received: Sequence[int]) -> int:
+        return own
+
+    def merges(self, views: Sequence[MergeView]) -> list[tuple[TrackerId, TrackerId]]:
+        return []
+
+    def merged(self, loser: TrackerId) -> None:
+        pass
+
+    def may_adopt(self, tid: TrackerId, dropped: Collection[TrackerId]) -> bool:
+        return tid not in dropped  # a camera's drop decision is its own and final
+
+    def reidentify(self, gallery: Gallery, old: Mapping[TrackerId, Gallery]) -> TrackerId | None:
+        return None

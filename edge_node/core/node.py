@@ -1,68 +1,52 @@
 """``CameraNode``: one camera's complete tracker (paper Section III), pure and deterministic.
 
-One cycle per frame ``k`` (paper Fig. 1):
+One cycle per frame ``k`` (paper Fig. 1), each step a call to a component with one job:
 
 ``prepare(k, detections) -> FrameMessage``
-    predict every tracker; LDA between the frame's measurements and the trackers (eqs. 5-7);
-    local information ``u_i, U_i`` (eq. 2); local initialisation of new trackers; the message
-    ``(ID, x_bar, u, U, ell)`` per active tracker, appearance for trackers new to this sender,
-    and merge announcements.
+    predict every tracker to ``k``; per camera: measurements ``z, R`` from the boxes, LDA
+    between them and the trackers (eqs. 5-7, ``LocalDataAssociation``), local information
+    ``u, U`` (eq. 2), local initialisation of new trackers (``Initiator``); the message
+    ``(ID, x_bar, u, U, ell)`` per tracker, appearance for trackers new to this sender, and
+    merge announcements (``IdentityBook``).
 
 ``update(inbox) -> list[Track]``
-    merge announcements; adoption of neighbours' trackers; the DKF consensus update (eqs. 3-4);
-    the DTM: global association / merge, ``ell`` consensus (eq. 9) and drop, re-identification.
+    merge announcements; adoption of neighbours' trackers; the DKF consensus update (eqs. 3-4,
+    ``dkf``); the tracker manager (``DistributedTrackerManager``): ``ell`` (eq. 8), global
+    association and merges, drops, re-identification. In event-triggered operation the
+    neighbours' latest entries come from a ``NeighbourMemory``.
 
-A node may own several cameras (``cameras``): the centralized baseline is a node that owns all
-of them and has no neighbours. No I/O, no clock, no randomness: same inputs, same outputs.
+The paper's three configurations (Sec. IV-B) are three assemblies of these components
+(``assemble``); a test may pass its own. A node may own several cameras: the centralized
+baseline is a node that owns all of them and has no neighbours. No I/O, no clock, no
+randomness: same inputs, same outputs.
 """
 from __future__ import annotations
 
-from collections import OrderedDict
-from collections.abc import Iterable, Mapping, Sequence
-from dataclasses import dataclass, field, replace
+from collections.abc import Callable, Iterable, Mapping, Sequence
+from dataclasses import dataclass, replace
 
 import numpy as np
 
 from edge_node.core import dkf, manager
-from edge_node.core.association import Candidate, Observation, associate
+from edge_node.core.association import Candidate, LocalDataAssociation, Observation
 from edge_node.core.config import TrackerConfig
 from edge_node.core.gallery import Gallery
+from edge_node.core.identity import IdentityBook
 from edge_node.core.initiator import Initiator, Pending
+from edge_node.core.manager import DistributedTrackerManager, IndependentTrackers, MergeView
 from edge_node.core.measurement import measure
+from edge_node.core.memory import NeighbourMemory
 from edge_node.core.model import birth_covariance, birth_state, process_noise, quantize, transition
+from edge_node.core.tracker import LocalInfo, Tracker
 from edge_node.core.types import Detection, Track
 from edge_node.geometry import Camera
-from protocol.messages import MAX_DESCRIPTORS, FrameMessage, Merge, TrackerId, TrackerInfo
+from protocol.messages import MAX_DESCRIPTORS, FrameMessage, TrackerId, TrackerInfo
+
+Manager = DistributedTrackerManager | IndependentTrackers
 
 
 class NodeStateError(RuntimeError):
     """``prepare`` and ``update`` called out of order, or frames going backwards."""
-
-
-@dataclass
-class Tracker:
-    """A tracker as one node holds it."""
-
-    id: TrackerId
-    x_bar: np.ndarray  # prediction for the current frame
-    P: np.ndarray  # its covariance
-    gallery: Gallery
-    ell: int = 0  # eq. 9 after the last update
-    coast: int = 0  # consecutive frames ell grew: nobody in the network saw the target
-    born: int = 0  # frame its originating camera created it (same on every node)
-    since: int = 0  # frame it appeared on this node
-    announced: bool = False  # appearance already sent by this node
-    # per-frame working values
-    u: np.ndarray = field(default_factory=lambda: np.zeros(6))
-    U: np.ndarray = field(default_factory=lambda: np.zeros((6, 6)))
-    ell_sent: int = 0
-    x_bar_sent: np.ndarray | None = None
-    seen_by: set[int] = field(default_factory=set)
-    x_hat: np.ndarray | None = None
-    M: np.ndarray | None = None
-
-    def certainty(self) -> float:
-        return float(np.trace(self.P))
 
 
 @dataclass
@@ -76,12 +60,32 @@ class NodeStats:
     ignored_messages: int = 0
 
 
+@dataclass(frozen=True)
+class Components:
+    """What a node is assembled from."""
+
+    associate: LocalDataAssociation
+    manager: Manager
+    initiator: Callable[[], Initiator]  # one per camera
+
+
+def assemble(cfg: TrackerConfig) -> Components:
+    """The paper's configurations (Sec. IV-B): ``dkf`` (geometry only, no manager), ``dkf+lda``
+    (appearance in the association), ``dkf+lda+dtm`` (with the distributed tracker manager)."""
+    appearance = cfg.use_appearance
+    return Components(
+        associate=LocalDataAssociation(cfg, appearance),
+        manager=DistributedTrackerManager(cfg) if cfg.use_manager else IndependentTrackers(cfg),
+        initiator=lambda: Initiator(cfg, appearance))
+
+
 class CameraNode:
     """The per-camera tracker: ``prepare`` then ``update`` once per frame."""
 
     def __init__(self, cameras: Camera | Sequence[Camera], neighbours: Iterable[int] = (),
                  config: TrackerConfig | None = None, network: str = "dmtt",
-                 node_id: int | None = None, first_counter: int = 0):
+                 node_id: int | None = None, first_counter: int = 0,
+                 components: Components | None = None):
         self.cameras: list[Camera] = [cameras] if isinstance(cameras, Camera) else list(cameras)
         if not self.cameras:
             raise ValueError("a node needs at least one camera")
@@ -89,65 +93,53 @@ class CameraNode:
         self.neighbours = tuple(sorted(set(int(n) for n in neighbours) - {self.id}))
         self.cfg = config or TrackerConfig()
         self.network = network
+        parts = components or assemble(self.cfg)
+        self.associate = parts.associate
+        self.manager = parts.manager
+        self.initiators = {c.id: parts.initiator() for c in self.cameras}
+        self.book = IdentityBook(self.id, self.cfg, first_counter)
+        self.memory = NeighbourMemory(self.cfg, network)
         self.A = transition(self.cfg.dt)
         self.Q = process_noise(self.cfg)
         self.P_birth = birth_covariance(self.cfg)
         self.trackers: dict[TrackerId, Tracker] = {}
-        self.old: OrderedDict[TrackerId, Gallery] = OrderedDict()  # dropped, for re-id (DTM)
-        self.dropped: OrderedDict[TrackerId, None] = OrderedDict()  # dropped ids (no DTM)
-        self.aliases: dict[TrackerId, TrackerId] = {}
-        self._born: dict[TrackerId, int] = {}  # birth frame of every id this node has heard of
-        # event-triggered input: neighbour -> tracker -> (frame, entry, u/U already fused)
-        self._memory: dict[int, dict[TrackerId, tuple[int, TrackerInfo, bool]]] = {}
-        self._announce: dict[tuple[TrackerId, TrackerId], int] = {}
-        self._streaks: dict[tuple[TrackerId, TrackerId], int] = {}
-        self._initiators = {c.id: Initiator(self.cfg) for c in self.cameras}
-        self._counter = int(first_counter)  # a restarted process continues, never reuses
+        self.stats = NodeStats()
         self._frame: int | None = None
         self._prepared = False
-        self.stats = NodeStats()
 
     # ------------------------------------------------------------------------------------
     # prepare: prediction, LDA, local information, local initialisation, the message
     # ------------------------------------------------------------------------------------
     def prepare(self, k: int,
                 detections: Sequence[Detection] | Mapping[int, Sequence[Detection]]) -> FrameMessage:
+        self._begin(k)
+        per_camera = self._split(detections)
+        for cam in self.cameras:
+            obs = [self._observe(cam, d) for d in per_camera.get(cam.id, ())]
+            unassigned = self._associate(k, cam.id, obs)
+            for chain in self.initiators[cam.id].step(k, unassigned):
+                self._birth(k, cam.id, chain)
+        for tr in self.trackers.values():
+            tr.local.ell_sent = manager.ell_sent(bool(tr.local.seen_by), tr.ell)
+            tr.local.x_bar_sent = quantize(tr.x_bar)
+        self._prepared = True
+        return self._message(k)
+
+    def _begin(self, k: int) -> None:
+        """Check the frame order; predict every tracker from its last estimate to frame ``k``
+        (through any frames this node skipped); clear the frame's local information."""
         if self._prepared:
             raise NodeStateError(f"node {self.id}: prepare({k}) called twice without update")
         if self._frame is not None and k <= self._frame:
             raise NodeStateError(f"node {self.id}: frame {k} does not follow frame {self._frame}")
-        gap = 0 if self._frame is None else k - self._frame - 1
+        steps = 0 if self._frame is None else k - self._frame
         for tr in self.trackers.values():
-            for _ in range(gap):  # frames this node skipped: predict through them
-                tr.x_bar, tr.P = dkf.predict(tr.x_bar, tr.P, self.A, self.Q)
-            tr.u, tr.U = dkf.no_information()
-            tr.seen_by = set()
-        per_camera = self._split(detections)
-
-        for cam in self.cameras:
-            obs = [self._observe(cam, d) for d in per_camera.get(cam.id, ())]
-            ids = sorted(self.trackers)
-            cands = [Candidate(self.trackers[t].x_bar, self.trackers[t].P,
-                               self.trackers[t].gallery) for t in ids]
-            pairs = associate(cands, obs, self.cfg)
-            assigned = set()
-            for i, j in pairs:
-                tr = self.trackers[ids[i]]
-                u, U = dkf.information(obs[j].z, obs[j].R)
-                tr.u, tr.U = tr.u + u, tr.U + U  # several cameras of one node add up (eq. 3)
-                tr.seen_by.add(cam.id)
-                tr.gallery.offer(obs[j].descriptor, k, self.cfg.gallery_admit)
-                assigned.add(j)
-            unassigned = [o for j, o in enumerate(obs) if j not in assigned]
-            for chain in self._initiators[cam.id].step(k, unassigned):
-                self._birth(k, cam.id, chain)
-
-        for tr in self.trackers.values():
-            tr.ell_sent = manager.ell_sent(bool(tr.seen_by), tr.ell)
-            tr.x_bar_sent = quantize(tr.x_bar)
+            if steps:
+                tr.x_bar, tr.P = dkf.predict(tr.x_hat, tr.M, self.A, self.Q)
+                for _ in range(steps - 1):
+                    tr.x_bar, tr.P = dkf.predict(tr.x_bar, tr.P, self.A, self.Q)
+            tr.local = LocalInfo()
         self._frame = k
-        self._prepared = True
-        return self._message(k)
 
     def _split(self, detections) -> dict[int, Sequence[Detection]]:
         if isinstance(detections, Mapping):
@@ -162,36 +154,45 @@ class CameraNode:
 
     def _observe(self, cam: Camera, det: Detection) -> Observation:
         z, R = measure(cam, det.box, self.cfg)
-        desc = det.descriptor if self.cfg.use_appearance else None
-        return Observation(z, R, None if desc is None else np.asarray(desc, float))
+        return Observation(z, R, self.associate.descriptor(det.descriptor))
+
+    def _associate(self, k: int, cam_id: int, obs: list[Observation]) -> list[Observation]:
+        """LDA of one camera's measurements; each pair adds its information (eq. 2) and may
+        teach the gallery. Returns the unassigned measurements."""
+        ids = sorted(self.trackers)
+        cands = [Candidate(self.trackers[t].x_bar, self.trackers[t].P, self.trackers[t].gallery)
+                 for t in ids]
+        assigned = set()
+        for i, j in self.associate(cands, obs):
+            tr = self.trackers[ids[i]]
+            tr.local.add(cam_id, *dkf.information(obs[j].z, obs[j].R))
+            tr.gallery.offer(obs[j].descriptor, k, self.cfg.gallery_admit)
+            assigned.add(j)
+        return [o for j, o in enumerate(obs) if j not in assigned]
 
     def _birth(self, k: int, cam_id: int, chain: Pending) -> None:
         """Local initialisation from two observations: prior from the first, measurement from
-        the last; re-identification against old trackers first (DTM)."""
+        the last; re-identification against dropped trackers first (DTM)."""
         cfg = self.cfg
         gallery = Gallery(cfg.gallery_size, cfg.gallery_every,
                           [o.descriptor for o in chain.observations if o.descriptor is not None])
         gallery.mark(k)
-        tid: TrackerId | None = None
         born = k
-        if cfg.use_manager and self.old and len(gallery):
-            tid = manager.reidentify(gallery, self.old, cfg)
-            if tid is not None:
-                old_gallery = self.old.pop(tid)
-                old_gallery.extend(gallery)
-                gallery = old_gallery
-                born = self._born.get(tid, k)
-                self.stats.reidentified += 1
-        if tid is None:
-            tid = (self.id, self._counter)
-            self._counter += 1
+        tid = self.manager.reidentify(gallery, self.book.old)
+        if tid is not None:
+            old_gallery = self.book.old.pop(tid)
+            old_gallery.extend(gallery)
+            gallery = old_gallery
+            born = self.book.born.get(tid, k)
+            self.stats.reidentified += 1
+        else:
+            tid = self.book.new_id()
             self.stats.births += 1
         first, last = chain.observations[0], chain.observations[-1]
         tr = Tracker(tid, quantize(birth_state(first.z)), self.P_birth.copy(), gallery,
                      born=born, since=k)
-        self._born[tid] = born
-        tr.u, tr.U = dkf.information(last.z, last.R)
-        tr.seen_by = {cam_id}
+        self.book.born[tid] = born
+        tr.local.add(cam_id, *dkf.information(last.z, last.R))
         self.trackers[tid] = tr
 
     def _message(self, k: int) -> FrameMessage:
@@ -202,11 +203,9 @@ class CameraNode:
             if not tr.announced and len(tr.gallery):
                 app = tr.gallery.newest(MAX_DESCRIPTORS)
                 tr.announced = True
-            infos.append(TrackerInfo(tid, tr.x_bar_sent, tr.u.copy(), tr.U.copy(), tr.ell_sent, app,
-                                     tr.born))
-        merges = tuple(Merge(l, w, self._born.get(w, 0)) for (l, w) in sorted(self._announce))
-        self._announce = {key: n - 1 for key, n in self._announce.items() if n > 1}
-        return FrameMessage(self.network, self.id, k, tuple(infos), merges)
+            infos.append(TrackerInfo(tid, tr.local.x_bar_sent, tr.local.u.copy(),
+                                     tr.local.U.copy(), tr.local.ell_sent, app, tr.born))
+        return FrameMessage(self.network, self.id, k, tuple(infos), self.book.announcements())
 
     def resync_message(self, msg: FrameMessage) -> FrameMessage:
         """``msg`` with every tracker's appearance attached: what this node sends a neighbour that
@@ -227,19 +226,40 @@ class CameraNode:
         """Consensus update of frame ``k`` with the neighbours' messages.
 
         Synchronous operation (``stale_ok=False``) uses only messages of frame ``k``.
-
-        Event-triggered operation (``stale_ok=True``): neighbours send a tracker only when they
-        have something new about it (``trigger.EventTrigger``), and messages may come late, twice
-        or out of order. The node remembers each neighbour's newest entry per tracker; every
-        frame it uses those entries brought to frame ``k``: ``x_bar`` predicted forward, ``ell``
-        aged by the frames since, and ``u, U`` only once and only within ``staleness_frames``
-        (older measurement information would pull the estimate to where the target was).
-        Entries older than ``kappa`` frames are forgotten (a neighbour that died or dropped the
-        tracker). Messages from other networks, non-neighbours and future frames are ignored.
+        Event-triggered operation (``stale_ok=True``) also takes late, repeated and reordered
+        messages up to ``kappa`` frames old and uses every neighbour's newest entry per tracker
+        brought to ``k`` (``NeighbourMemory``). Messages from other networks, non-neighbours
+        and future frames are ignored (counted in ``stats.ignored_messages``).
         """
         if not self._prepared:
             raise NodeStateError(f"node {self.id}: update() without prepare()")
         k = self._frame
+        msgs = self._accept(inbox, k, stale_ok)
+        for m in msgs:
+            for mg in m.merges:
+                self._merge(mg.loser, mg.winner, mg.winner_born)
+        if stale_ok:
+            self.memory.remember(msgs)
+            msgs = self.memory.at(k)
+        received = self._received(msgs)
+        for tid in sorted(received):
+            if tid not in self.trackers:
+                self._adopt(k, tid, received[tid])
+        for tid in sorted(self.trackers):
+            self._correct(self.trackers[tid], received.get(tid, []))
+        views = [MergeView(t.id, t.x_hat[:2], t.gallery, t.since == k, frozenset(t.local.seen_by),
+                           t.born) for t in self.trackers.values()]
+        for loser, winner in self.manager.merges(views):
+            self._merge(loser, winner)
+        for tid in sorted(self.trackers):
+            if self.trackers[tid].ell > self.cfg.kappa:
+                self._drop(tid)
+        self._prepared = False
+        self.book.forget(set(self.trackers))
+        return self.tracks()
+
+    def _accept(self, inbox: Iterable[FrameMessage], k: int, stale_ok: bool) -> list[FrameMessage]:
+        """The messages this frame may use, in a deterministic order (sender, frame)."""
         msgs: list[FrameMessage] = []
         for m in inbox:
             ok = (m.sender in self.neighbours and m.network == self.network
@@ -248,201 +268,95 @@ class CameraNode:
                 self.stats.ignored_messages += 1
                 continue
             msgs.append(m)
-        msgs.sort(key=lambda m: (m.sender, m.frame))
-        for m in msgs:
-            for mg in m.merges:
-                self._merge(mg.loser, mg.winner, mg.winner_born)
-        if stale_ok:
-            msgs = self._remembered(msgs, k)
+        return sorted(msgs, key=lambda m: (m.sender, m.frame))
 
+    def _received(self, msgs: list[FrameMessage]) -> dict[TrackerId, list[TrackerInfo]]:
+        """Neighbours' entries per surviving id (merge aliases followed); one entry per sender,
+        the one under the surviving id itself when a sender still names both."""
         received: dict[TrackerId, list[TrackerInfo]] = {}
         for m in msgs:
             mine: dict[TrackerId, TrackerInfo] = {}
             for t in m.trackers:
-                rid = manager.resolve(t.id, self.aliases)
+                rid = self.book.resolve(t.id)
                 if rid not in mine or t.id == rid:
                     mine[rid] = t
             for rid, t in mine.items():
                 received.setdefault(rid, []).append(t)
+        return received
 
-        for rid in sorted(received):
-            if rid not in self.trackers:
-                self._adopt(k, rid, received[rid])
-
-        for tid in sorted(self.trackers):
-            tr = self.trackers[tid]
-            got = received.get(tid, [])
-            y, S = dkf.fuse([(tr.u, tr.U)] + [(t.u, t.U) for t in got])
-            tr.x_hat, tr.M = dkf.correct(tr.x_bar, tr.P, y, S, [t.x_bar for t in got],
-                                         own_x_bar_sent=tr.x_bar_sent,
-                                         units_per_metre=self.cfg.units_per_metre)
-            ell_before = tr.ell
-            if self.cfg.use_manager:
-                tr.ell = manager.ell_consensus(tr.ell_sent, [t.ell for t in got])
-            else:
-                tr.ell = tr.ell_sent
-            tr.coast = tr.coast + 1 if tr.ell > ell_before else 0
-
-        if self.cfg.use_manager:
-            views = [manager.MergeView(t.id, t.x_hat[:2], t.gallery, t.since == k,
-                                       frozenset(t.seen_by), t.born)
-                     for t in self.trackers.values()]
-            for loser, winner in manager.find_merges(views, self._streaks, self.cfg):
-                self._merge(loser, winner)
-
-        for tid in sorted(self.trackers):
-            if self.trackers[tid].ell > self.cfg.kappa:
-                self._drop(tid)
-
-        tracks = self.tracks()
-        for tr in self.trackers.values():
-            tr.x_bar, tr.P = dkf.predict(tr.x_hat, tr.M, self.A, self.Q)
-        self._prepared = False
-        self._forget()
-        return tracks
-
-    def _forget(self) -> None:
-        """Bound the memory of a long-running node: the oldest merge aliases and the birth
-        frames of ids no longer referenced go once the tables outgrow their limits."""
-        limit = 10 * self.cfg.max_old_trackers
-        while len(self.aliases) > limit:
-            del self.aliases[next(iter(self.aliases))]
-        if len(self._born) > 2 * limit:
-            keep = set(self.trackers) | set(self.old) | set(self.aliases) \
-                | set(self.aliases.values())
-            self._born = {t: b for t, b in self._born.items() if t in keep}
-
-    def _remembered(self, arrived: list[FrameMessage], k: int) -> list[FrameMessage]:
-        """Event-triggered input: store what arrived, return every neighbour's newest entry per
-        tracker brought to frame ``k`` (one message per neighbour)."""
-        for m in arrived:
-            mem = self._memory.setdefault(m.sender, {})
-            for t in m.trackers:
-                old = mem.get(t.id)
-                if old is None or m.frame > old[0]:
-                    mem[t.id] = (m.frame, t, False)
-        out = []
-        for sender in sorted(self._memory):
-            mem = self._memory[sender]
-            aged = []
-            for tid in sorted(mem):
-                frame, t, consumed = mem[tid]
-                age = k - frame
-                if age > self.cfg.kappa:
-                    del mem[tid]
-                    continue
-                keep_info = not consumed and age <= self.cfg.staleness_frames
-                mem[tid] = (frame, t, True)  # its u, U are fused at most once
-                if age == 0 and keep_info:
-                    aged.append(t)
-                    continue
-                A = transition(age * self.cfg.dt)
-                aged.append(replace(t, x_bar=A @ t.x_bar, ell=t.ell + age,
-                                    u=t.u if keep_info else np.zeros(6),
-                                    U=t.U if keep_info else np.zeros((6, 6))))
-            out.append(FrameMessage(self.network, sender, k, tuple(aged)))
-        return out
+    def _correct(self, tr: Tracker, got: list[TrackerInfo]) -> None:
+        """Eqs. 3-4 for one tracker with its neighbours' entries, then ``ell`` (eq. 8)."""
+        y, S = dkf.fuse([(tr.local.u, tr.local.U)] + [(t.u, t.U) for t in got])
+        tr.x_hat, tr.M = dkf.correct(tr.x_bar, tr.P, y, S, [t.x_bar for t in got],
+                                     own_x_bar_sent=tr.local.x_bar_sent,
+                                     units_per_metre=self.cfg.units_per_metre)
+        ell_before = tr.ell
+        tr.ell = self.manager.ell(tr.local.ell_sent, [t.ell for t in got])
+        tr.coast = tr.coast + 1 if tr.ell > ell_before else 0
 
     def _adopt(self, k: int, tid: TrackerId, infos: list[TrackerInfo]) -> None:
         """A tracker heard of from neighbours but not held here (paper III-C, case 1)."""
         ell = min(t.ell for t in infos)
-        if ell > self.cfg.kappa:
+        if ell > self.cfg.kappa or not self.manager.may_adopt(tid, self.book.dropped):
             return
-        if not self.cfg.use_manager and tid in self.dropped:
-            return  # without the DTM a camera's drop decision is its own and final
         src = infos[0]  # messages are sorted by sender: deterministic choice
         gallery = Gallery(self.cfg.gallery_size, self.cfg.gallery_every)
-        if tid in self.old:
-            gallery = self.old.pop(tid)
+        if tid in self.book.old:
+            gallery = self.book.old.pop(tid)
             self.stats.reactivated += 1
         else:
             self.stats.adopted += 1
         for t in infos:
-            if t.appearance is not None and self.cfg.use_appearance:
-                for d in t.appearance:
+            for d in (t.appearance if t.appearance is not None else ()):
+                d = self.associate.descriptor(d)
+                if d is not None:
                     gallery.add(d)
-        born = self._born.setdefault(tid, src.born)
+        born = self.book.note_born(tid, src.born)
         tr = Tracker(tid, np.array(src.x_bar, float), self.P_birth.copy(), gallery, born=born,
                      since=k)
-        tr.ell_sent = ell
-        tr.x_bar_sent = tr.x_bar
+        tr.local.ell_sent = ell
+        tr.local.x_bar_sent = tr.x_bar
         self.trackers[tid] = tr
-
-    def rank(self, tid: TrackerId) -> tuple[int, TrackerId]:
-        """Merge order ``(born, id)``: the older tracker survives, ties to the smaller id."""
-        return (self._born.get(tid, 2**62), tid)
 
     def _merge(self, loser: TrackerId, winner: TrackerId, winner_born: int | None = None) -> None:
         """Apply ``loser -> winner`` here and announce it (so it propagates hop by hop)."""
-        if winner_born is not None:
-            self._born.setdefault(winner, winner_born)
-        loser = manager.resolve(loser, self.aliases)
-        winner = manager.resolve(winner, self.aliases)
-        if loser == winner:
+        pair = self.book.alias(loser, winner, winner_born)
+        if pair is None:
             return
-        if self.rank(winner) > self.rank(loser):  # the older always survives, whoever announced
-            loser, winner = winner, loser
-        self.aliases[loser] = winner
-        key = (loser, winner)
-        if key not in self._announce:
-            self._announce[key] = self.cfg.merge_announce_frames
+        loser, winner = pair
         lt = self.trackers.pop(loser, None)
         wt = self.trackers.get(winner)
+        old = self.book.old
         if lt is not None and wt is not None:
-            self._absorb(wt, lt)
+            wt.absorb(lt)
             self.stats.merged += 1
-        elif lt is not None:
+        elif lt is not None:  # only the loser is held here: it takes the winner's id and rank
             lt.id = winner
-            lt.born = self._born.get(winner, lt.born)
+            lt.born = self.book.born.get(winner, lt.born)
             lt.announced = False  # neighbours may not know the winner's appearance
-            if winner in self.old:
-                lt.gallery.extend(self.old.pop(winner))
+            if winner in old:
+                lt.gallery.extend(old.pop(winner))
             self.trackers[winner] = lt
-        elif loser in self.old:
-            g = self.old.pop(loser)
+        elif loser in old:  # a dropped tracker's gallery follows its id
+            g = old.pop(loser)
             if wt is not None:
                 wt.gallery.extend(g)
-            elif winner in self.old:
-                self.old[winner].extend(g)
+            elif winner in old:
+                old[winner].extend(g)
             else:
-                self.old[winner] = g
-        for key in [key for key in self._streaks if loser in key]:
-            del self._streaks[key]
-
-    @staticmethod
-    def _absorb(w: Tracker, l: Tracker) -> None:
-        """Merge tracker ``l`` into ``w``: the more certain estimate, both cameras' measurement
-        information, the union of galleries, the smaller ``ell``."""
-        if l.certainty() < w.certainty():
-            w.x_bar, w.P, w.x_bar_sent = l.x_bar, l.P, l.x_bar_sent
-            if l.x_hat is not None:
-                w.x_hat, w.M = l.x_hat, l.M
-        if l.seen_by and not w.seen_by:
-            w.u, w.U = l.u, l.U
-        w.seen_by |= l.seen_by
-        w.gallery.extend(l.gallery)
-        w.ell = min(w.ell, l.ell)
-        w.coast = min(w.coast, l.coast)
-        w.ell_sent = min(w.ell_sent, l.ell_sent)
-        w.since = min(w.since, l.since)
+                old[winner] = g
+        self.manager.merged(loser)
 
     def _drop(self, tid: TrackerId) -> None:
         tr = self.trackers.pop(tid)
         self.stats.dropped += 1
-        if self.cfg.use_manager:
-            self.old[tid] = tr.gallery
-            while len(self.old) > self.cfg.max_old_trackers:
-                self.old.popitem(last=False)
-        else:
-            self.dropped[tid] = None
-            while len(self.dropped) > 10 * self.cfg.max_old_trackers:
-                self.dropped.popitem(last=False)
+        self.book.retire(tid, tr.gallery, self.manager.keeps_galleries)
 
     # ------------------------------------------------------------------------------------
     @property
     def next_counter(self) -> int:
         """The counter the next new tracker of this node will get (persist it across restarts)."""
-        return self._counter
+        return self.book.counter
 
     @property
     def frame(self) -> int | None:
@@ -450,16 +364,16 @@ class CameraNode:
 
     def tracks(self) -> list[Track]:
         """The current estimates (after the last ``update``): the trackers it reports."""
-        return [Track(t.id, self._frame, t.x_hat.copy(), t.M.copy(), bool(t.seen_by), t.ell)
+        return [Track(t.id, self._frame, t.x_hat.copy(), t.M.copy(), bool(t.local.seen_by), t.ell)
                 for _, t in sorted(self.trackers.items())
                 if t.x_hat is not None and self._reported(t)]
 
     def _reported(self, tr: Tracker) -> bool:
         """A tracker is reported (returned by ``update``, written, drawn, evaluated) unless it
         has coasted more than ``report_coast`` frames: its ``ell`` grew that many frames in a
-        row, so no camera of the network has seen the target since. It is still predicted, fused, merged
-        and kept for re-association until ``ell`` exceeds ``kappa`` (eq. 9); only the estimate
-        nobody observes, which drifts away at constant velocity, is not shown. The test is on
-        the *growth* of ``ell``, not its value: a node ``h`` hops from the cameras that see a
-        target holds ``ell = h - 1`` while they see it."""
+        row, so no camera of the network has seen the target since. It is still predicted,
+        fused, merged and kept for re-association until ``ell`` exceeds ``kappa`` (eq. 8); only
+        the estimate nobody observes, which drifts away at constant velocity, is not shown.
+        The test is on the *growth* of ``ell``, not its value: a node ``h`` hops from the
+        cameras that see a target holds ``ell = h - 1`` while they see it."""
         return tr.coast <= self.cfg.report_coast

@@ -9,7 +9,7 @@ ell)`` is sent only when the neighbours would learn something from it:
 * drift: ``x_bar`` moved more than ``drift`` (metres) from what the neighbours extrapolate from
   the entry they last got (its ``x_bar`` predicted forward with the constant-velocity model);
 * ``ell`` fell below what the neighbours infer (last sent ``ell`` plus the frames since): someone
-  saw the target, and the drop consensus (eq. 9) must hear of it;
+  saw the target, and the drop consensus (eq. 8) must hear of it;
 * a per-tracker heartbeat: ``heartbeat_frames`` since the entry was last sent.
 
 A message goes out when it holds at least one entry or a merge announcement, or, as a liveness

@@ -24,7 +24,7 @@ class Track:
 
     ``x`` is the corrected state ``x_hat = (x, y, w, h, vx, vy)``; ``P`` its covariance (the
     information-form ``M`` of eq. 4); ``observed`` is whether this node's own camera associated
-    a detection to it this frame; ``ell`` the drop counter of eq. 9.
+    a detection to it this frame; ``ell`` the drop counter of eq. 8.
     """
 
     id: TrackerId

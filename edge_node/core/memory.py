@@ -1,0 +1,62 @@
+"""What a node remembers of its neighbours in event-triggered operation (DESIGN.md, "Runtime
+modes"; the paper's asynchronous remark at the end of Sec. III-A, after He et al. 2017).
+
+Neighbours send a tracker only when they have something new about it, and messages may come
+late, twice or out of order. The memory keeps each neighbour's newest entry per tracker and,
+every frame ``k``, hands back those entries brought to ``k``: ``x_bar`` predicted forward with
+the constant-velocity model, ``ell`` aged by the frames since (eq. 8), and ``u, U`` only once
+and only within ``staleness_frames`` (older measurement information would pull the estimate to
+where the target was). Entries older than ``kappa`` frames are forgotten: a neighbour that died
+or dropped the tracker.
+"""
+from __future__ import annotations
+
+from collections.abc import Iterable
+from dataclasses import replace
+
+import numpy as np
+
+from edge_node.core.config import TrackerConfig
+from edge_node.core.model import STATE_DIM, transition
+from protocol.messages import FrameMessage, TrackerId, TrackerInfo
+
+
+class NeighbourMemory:
+    def __init__(self, cfg: TrackerConfig, network: str):
+        self.cfg = cfg
+        self.network = network
+        # neighbour -> tracker -> (frame, entry, u/U already fused)
+        self.entries: dict[int, dict[TrackerId, tuple[int, TrackerInfo, bool]]] = {}
+
+    def remember(self, arrived: Iterable[FrameMessage]) -> None:
+        for m in arrived:
+            mem = self.entries.setdefault(m.sender, {})
+            for t in m.trackers:
+                old = mem.get(t.id)
+                if old is None or m.frame > old[0]:
+                    mem[t.id] = (m.frame, t, False)
+
+    def at(self, k: int) -> list[FrameMessage]:
+        """Every neighbour's newest entry per tracker brought to frame ``k``, one message per
+        neighbour (senders and trackers in order: deterministic)."""
+        out = []
+        for sender in sorted(self.entries):
+            mem = self.entries[sender]
+            aged = []
+            for tid in sorted(mem):
+                frame, t, consumed = mem[tid]
+                age = k - frame
+                if age > self.cfg.kappa:
+                    del mem[tid]
+                    continue
+                keep_info = not consumed and age <= self.cfg.staleness_frames
+                mem[tid] = (frame, t, True)  # its u, U are fused at most once
+                if age == 0 and keep_info:
+                    aged.append(t)
+                    continue
+                A = transition(age * self.cfg.dt)
+                aged.append(replace(t, x_bar=A @ t.x_bar, ell=t.ell + age,
+                                    u=t.u if keep_info else np.zeros(STATE_DIM),
+                                    U=t.U if keep_info else np.zeros((STATE_DIM, STATE_DIM))))
+            out.append(FrameMessage(self.network, sender, k, tuple(aged)))
+        return out

@@ -1,0 +1,80 @@
+"""A tracker as one node holds it: lasting state, and this frame's local information.
+
+Lasting state (``Tracker``): the prediction ``x_bar, P`` for the current frame, the last
+estimate ``x_hat, M`` (eq. 4), the gallery, the drop counter ``ell`` (eq. 8), and who and when
+(``born`` at the originating camera, ``since`` on this node).
+
+This frame's working values (``LocalInfo``, rebuilt by every ``prepare``): the local
+measurement information ``u, U`` (eq. 2), which of the node's cameras saw the target, and what
+the node's message says about it (``ell`` and ``x_bar`` as sent, rounded to the wire).
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from edge_node.core.gallery import Gallery
+from edge_node.core.model import STATE_DIM
+from protocol.messages import TrackerId
+
+
+def _zeros() -> np.ndarray:
+    return np.zeros(STATE_DIM)
+
+
+def _zeros2() -> np.ndarray:
+    return np.zeros((STATE_DIM, STATE_DIM))
+
+
+@dataclass
+class LocalInfo:
+    """One tracker's part of this node's frame: filled by ``prepare``, used by ``update``."""
+
+    u: np.ndarray = field(default_factory=_zeros)  # eq. 2, sum over this node's cameras
+    U: np.ndarray = field(default_factory=_zeros2)
+    seen_by: set[int] = field(default_factory=set)  # this node's cameras that associated it
+    ell_sent: int = 0  # eq. 8 as this node reports it
+    x_bar_sent: np.ndarray | None = None  # x_bar as the neighbours receive it (wire precision)
+
+    def add(self, camera: int, u: np.ndarray, U: np.ndarray) -> None:
+        """Several cameras of one node add up (eq. 3)."""
+        self.u, self.U = self.u + u, self.U + U
+        self.seen_by.add(camera)
+
+
+@dataclass
+class Tracker:
+    id: TrackerId
+    x_bar: np.ndarray  # prediction for the current frame
+    P: np.ndarray  # its covariance
+    gallery: Gallery
+    ell: int = 0  # eq. 8 after the last update
+    coast: int = 0  # consecutive frames ell grew: nobody in the network saw the target
+    born: int = 0  # frame its originating camera created it (same on every node)
+    since: int = 0  # frame it appeared on this node
+    announced: bool = False  # appearance already sent by this node
+    x_hat: np.ndarray | None = None  # estimate of the last update (eq. 4)
+    M: np.ndarray | None = None  # its covariance
+    local: LocalInfo = field(default_factory=LocalInfo)
+
+    def certainty(self) -> float:
+        return float(np.trace(self.P))
+
+    def absorb(self, other: "Tracker") -> None:
+        """Merge ``other`` (the same target under another id) into this tracker: the more
+        certain estimate, both cameras' measurement information, the union of galleries, the
+        smaller ``ell``."""
+        if other.certainty() < self.certainty():
+            self.x_bar, self.P = other.x_bar, other.P
+            self.local.x_bar_sent = other.local.x_bar_sent
+            if other.x_hat is not None:
+                self.x_hat, self.M = other.x_hat, other.M
+        if other.local.seen_by and not self.local.seen_by:
+            self.local.u, self.local.U = other.local.u, other.local.U
+        self.local.seen_by |= other.local.seen_by
+        self.gallery.extend(other.gallery)
+        self.ell = min(self.ell, other.ell)
+        self.coast = min(self.coast, other.coast)
+        self.local.ell_sent = min(self.local.ell_sent, other.local.ell_sent)
+        self.since = min(self.since, other.since)

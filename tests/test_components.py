@@ -1,0 +1,218 @@
+"""Unit tests of the core's components, each on its own with tiny hand-made inputs: the gallery
+(eq. 7), the initiator (local births, paper III-C), the measurement model (``z, R_i``), the
+identity book, and a node assembled with fake components."""
+import numpy as np
+import pytest
+
+from edge_node.core import CameraNode, Components, TrackerConfig, assemble
+from edge_node.core.association import LocalDataAssociation, Observation
+from edge_node.core.gallery import Gallery, cosine_distance
+from edge_node.core.identity import IdentityBook
+from edge_node.core.initiator import Initiator
+from edge_node.core.manager import DistributedTrackerManager, IndependentTrackers
+from edge_node.core.measurement import measure
+from edge_node.geometry import Camera
+from fakes import box_at, det, identity, topdown_camera
+
+
+def unit(*v):
+    v = np.asarray(v, float)
+    return v / np.linalg.norm(v)
+
+
+# -- gallery ----------------------------------------------------------------------------------
+def test_gallery_distance_is_the_minimum_cosine_distance():
+    g = Gallery(5, 1, [unit(1, 0, 0), unit(0, 1, 0)])
+    q = np.array([3.0, 4.0, 0.0])  # cos to the two: 0.6 and 0.8
+    assert g.distance(q) == pytest.approx(1 - 0.8)
+    np.testing.assert_allclose(g.distances(np.array([q, [0, 0, 2.0]])), [0.2, 1.0])
+    assert cosine_distance(q, np.array([1.0, 0, 0])) == pytest.approx(0.4)
+    other = Gallery(5, 1, [unit(1, 1, 0)])
+    assert g.distance_to(other) == pytest.approx(1 - np.sqrt(0.5))
+    assert np.isnan(Gallery().distance(q)) and np.isnan(g.distance_to(Gallery()))
+
+
+def test_gallery_keeps_one_descriptor_every_n_frames_and_drops_the_oldest():
+    g = Gallery(capacity=3, every=10)
+    stored = [k for k in range(0, 60) if g.offer(identity(1), k)]
+    assert stored == [0, 10, 20, 30, 40, 50]  # one every 10 frames
+    assert len(g) == 3  # bounded: the oldest went first
+    g2 = Gallery(capacity=2, every=1)
+    for i in range(3):
+        g2.add(unit(*np.eye(3)[i]))
+    np.testing.assert_allclose(g2.newest(2), [[0, 1, 0], [0, 0, 1]])
+    np.testing.assert_allclose(g2.newest(1), [[0, 0, 1]])
+
+
+def test_gallery_admits_only_descriptors_that_look_like_it():
+    g = Gallery(5, 1, [identity(1)])
+    assert not g.offer(identity(2), 5, admit=0.35)  # another person: not learned
+    assert g.offer(identity(1) + 0.01, 6, admit=0.35)
+    assert len(g) == 2
+    assert not g.offer(None, 7)
+
+
+def test_gallery_copy_is_independent():
+    g = Gallery(5, 1, [identity(1)])
+    c = g.copy()
+    c.add(identity(2))
+    assert len(g) == 1 and len(c) == 2
+
+
+# -- initiator ----------------------------------------------------------------------------------
+def obs(x, y, pid=None):
+    return Observation(np.array([x, y, 0.5, 1.7]), np.eye(4) * 0.01,
+                       None if pid is None else identity(pid))
+
+
+def test_two_close_observations_make_a_birth():
+    ini = Initiator(TrackerConfig())
+    assert ini.step(0, [obs(1.0, 1.0, 1)]) == []
+    births = ini.step(1, [obs(1.3, 1.0, 1)])  # 0.3 m away, within candidate_gate 0.8
+    assert len(births) == 1 and births[0].frames == [0, 1]
+    assert ini.pending == []
+
+
+def test_far_or_unlike_second_observations_start_their_own_chain():
+    cfg = TrackerConfig()
+    ini = Initiator(cfg)
+    ini.step(0, [obs(1.0, 1.0, 1)])
+    assert ini.step(1, [obs(1.0 + 0.81, 1.0, 1)]) == []  # beyond candidate_gate
+    assert len(ini.pending) == 2
+    ini = Initiator(cfg)
+    ini.step(0, [obs(1.0, 1.0, 1)])
+    assert ini.step(1, [obs(1.1, 1.0, 2)]) == []  # close, but another person's look
+    # without appearance (the dkf configuration) the same pair is a birth
+    ini = Initiator(cfg, appearance=False)
+    ini.step(0, [obs(1.0, 1.0, 1)])
+    assert len(ini.step(1, [obs(1.1, 1.0, 2)])) == 1
+
+
+def test_a_lone_observation_waits_candidate_max_age_frames():
+    cfg = TrackerConfig(candidate_max_age=3)
+    ini = Initiator(cfg)
+    ini.step(0, [obs(1.0, 1.0)])
+    assert len(ini.step(3, [obs(1.1, 1.0)])) == 1  # 3 frames later: still waiting
+    ini = Initiator(cfg)
+    ini.step(0, [obs(1.0, 1.0)])
+    assert ini.step(4, [obs(1.1, 1.0)]) == []  # 4 frames: forgotten, a new chain starts
+
+
+def test_chains_are_extended_by_the_optimal_assignment():
+    """Two pending chains and two new observations where the greedy nearest pick for the first
+    chain would steal the second chain's only option."""
+    ini = Initiator(TrackerConfig(candidate_gate=1.0))
+    ini.step(0, [obs(1.0, 0.0), obs(0.0, 0.0)])  # the chain at 1.0 comes first
+    births = ini.step(1, [obs(0.45, 0.0), obs(1.6, 0.0)])
+    # chain at 1.0: nearest is 0.45 (0.55 m) but the chain at 0.0 can only take 0.45
+    assert sorted((b.observations[0].z[0], b.observations[1].z[0]) for b in births) == \
+        [(0.0, 0.45), (1.0, 1.6)]
+
+
+def test_one_observation_is_enough_when_configured():
+    assert len(Initiator(TrackerConfig(init_observations=1)).step(0, [obs(1.0, 1.0)])) == 1
+
+
+# -- measurement ----------------------------------------------------------------------------------
+def test_measurement_of_a_top_down_camera_by_hand():
+    """``topdown_camera``: 100 px per metre, linear. Foot point (3, 4) m, box 50 x 170 px:
+    z = (3, 4, 0.5, 1.7); R_xy = J diag(s^2/2, s^2) J^T + calib^2 I with J = I / 100."""
+    cfg = TrackerConfig(pixel_sigma=2.0, calib_sigma=0.4, size_meas_floor=0.05)
+    z, R = measure(topdown_camera(0), box_at(3.0, 4.0), cfg)
+    np.testing.assert_allclose(z, [3.0, 4.0, 0.5, 1.7], atol=1e-12)
+    s2 = 2.0**2 / 100.0**2
+    np.testing.assert_allclose(R[:2, :2], np.diag([s2 / 2 + 0.16, s2 + 0.16]), atol=1e-15)
+    # w, h: difference of two edges, sigma sqrt(2) px scaled by metres per pixel, plus the floor
+    sw2 = (0.5 / 50 * 2 * np.sqrt(2)) ** 2 + 0.05**2
+    sh2 = (1.7 / 170 * 2 * np.sqrt(2)) ** 2 + 0.05**2
+    np.testing.assert_allclose(np.diag(R)[2:], [sw2, sh2], rtol=1e-12)
+    assert np.count_nonzero(R - np.diag(np.diag(R))) == 0
+
+
+def test_fixed_R_is_the_papers_constant_covariance():
+    z, R = measure(topdown_camera(0), box_at(3.0, 4.0), TrackerConfig(fixed_R=(0.3, 0.1)))
+    np.testing.assert_allclose(R, np.diag([0.09, 0.09, 0.01, 0.01]))
+
+
+def test_far_targets_are_less_certain_through_a_perspective_homography():
+    # ground y grows with 1 / (image row distance from the horizon): farther = more metres per px
+    G = np.array([[0.01, 0, -5.0], [0, 0, 1.0], [0, 0.002, 0]])
+    cam = Camera(0, (1000, 1000), G)
+    cfg = TrackerConfig(calib_sigma=0.0)
+    near = measure(cam, np.array([480, 700, 40, 200]), cfg)[1]
+    far = measure(cam, np.array([490, 300, 20, 100]), cfg)[1]
+    assert far[1, 1] > 10 * near[1, 1]
+
+
+# -- identity book ------------------------------------------------------------------------------
+def test_identity_book_ranks_merges_and_announces():
+    cfg = TrackerConfig(merge_announce_frames=2)
+    book = IdentityBook(3, cfg, first_counter=7)
+    assert book.new_id() == (3, 7) and book.new_id() == (3, 8)
+    book.note_born((3, 7), 10)
+    book.note_born((1, 0), 12)
+    # whoever announces it, the older (born 10) survives
+    assert book.alias((3, 7), (1, 0)) == ((1, 0), (3, 7))
+    assert book.resolve((1, 0)) == (3, 7)
+    assert book.alias((1, 0), (3, 7)) is None  # already one id
+    first, second, third = book.announcements(), book.announcements(), book.announcements()
+    assert [(m.loser, m.winner, m.winner_born) for m in first] == [((1, 0), (3, 7), 10)]
+    assert second == first and third == ()
+
+
+def test_identity_book_memory_is_bounded():
+    cfg = TrackerConfig(max_old_trackers=3)
+    book = IdentityBook(0, cfg)
+    for c in range(10):
+        book.retire((1, c), Gallery(), keep_gallery=True)
+        book.retire((2, c), Gallery(), keep_gallery=False)
+    assert list(book.old) == [(1, 7), (1, 8), (1, 9)]
+    assert len(book.dropped) == 10
+    for c in range(100):
+        book.alias((5, c), (6, c))
+    book.forget(set())
+    assert len(book.aliases) <= 10 * cfg.max_old_trackers
+
+
+# -- assembly ---------------------------------------------------------------------------------------
+def test_the_papers_three_configurations_are_three_assemblies():
+    for name, appearance, mgr in (("dkf", False, IndependentTrackers),
+                                  ("dkf+lda", True, IndependentTrackers),
+                                  ("dkf+lda+dtm", True, DistributedTrackerManager)):
+        parts = assemble(TrackerConfig.for_ablation(name))
+        assert parts.associate.appearance is appearance
+        assert isinstance(parts.manager, mgr)
+        assert parts.initiator().appearance is appearance
+
+
+class RecordingAssociation(LocalDataAssociation):
+    """A fake LDA that records what it was asked and assigns nothing."""
+
+    def __init__(self, cfg):
+        super().__init__(cfg, appearance=True)
+        self.calls = []
+
+    def __call__(self, trackers, obs):
+        self.calls.append((len(trackers), len(obs)))
+        return []
+
+
+def test_a_node_runs_with_a_fake_association():
+    """Injected components replace the defaults: with an association that never assigns, every
+    detection is unassigned, so a person standing still is born again every second frame."""
+    cfg = TrackerConfig()
+    fake = RecordingAssociation(cfg)
+    parts = assemble(cfg)
+    node = CameraNode(topdown_camera(0), (), cfg, "t",
+                      components=Components(fake, parts.manager, parts.initiator))
+    for k in range(6):
+        node.prepare(k, [det(3.0, 3.0, 1)])
+        node.update([])
+    assert fake.calls[0] == (0, 1) and fake.calls[-1][1] == 1
+    assert node.stats.births == 3  # frames 1, 3, 5: a birth from every two observations
+    # the default assembly tracks the same person with one tracker
+    real = CameraNode(topdown_camera(0), (), cfg, "t")
+    for k in range(6):
+        real.prepare(k, [det(3.0, 3.0, 1)])
+        real.update([])
+    assert real.stats.births == 1
