@@ -1,8 +1,9 @@
 """The in-process network: N ``CameraNode`` cores driven frame by frame in one process.
 
-Every message really goes through the wire codec: each node's message is encoded once per frame,
-its bytes are counted on every outgoing link and decoded (and validated) by every receiver. This
-is the reference run that the multi-process deployment must reproduce.
+Every message really goes through the wire codec and the same sending path as a camera process
+(``edge_node.outbox.Outbox``: event trigger, resync, fault plan, byte counting); each receiver
+decodes (and validates) what arrives. This is the reference run that the multi-process
+deployment must reproduce.
 """
 from __future__ import annotations
 
@@ -16,6 +17,7 @@ from edge_node.core.config import TrackerConfig
 from edge_node.core.node import CameraNode, NodeStats
 from edge_node.core.trigger import EventTrigger, TriggerConfig
 from edge_node.faults import NO_FAULTS, FaultPlan
+from edge_node.outbox import Outbox, OutboxCounters
 from edge_node.core.types import Track
 from protocol import codec
 from protocol.messages import FrameMessage
@@ -27,7 +29,8 @@ CENTRALIZED = "centralized"
 
 @dataclass
 class WireCounters:
-    """Bytes actually encoded, per directed link, and what they carried."""
+    """Bytes actually encoded, per directed link, and what they carried: the network-wide sum
+    of every node's ``OutboxCounters``."""
 
     bytes_per_link: dict[tuple[int, int], int] = field(default_factory=dict)
     messages: int = 0
@@ -35,12 +38,17 @@ class WireCounters:
     appearance_entries: int = 0  # trackers sent with their appearance, per link
     appearance_bytes: int = 0  # bytes of those appearance fields, per link
 
-    def add(self, src: int, dst: int, payload: bytes, msg: FrameMessage, app_bytes: int) -> None:
-        self.bytes_per_link[(src, dst)] = self.bytes_per_link.get((src, dst), 0) + len(payload)
-        self.messages += 1
-        self.tracker_entries += len(msg.trackers)
-        self.appearance_entries += sum(t.appearance is not None for t in msg.trackers)
-        self.appearance_bytes += app_bytes
+    @classmethod
+    def of(cls, outboxes: dict[int, OutboxCounters]) -> "WireCounters":
+        w = cls()
+        for src, c in sorted(outboxes.items()):
+            for dst, b in sorted(c.bytes_per_link.items()):
+                w.bytes_per_link[(src, dst)] = b
+            w.messages += c.messages
+            w.tracker_entries += c.tracker_entries
+            w.appearance_entries += c.appearance_entries
+            w.appearance_bytes += c.appearance_bytes
+        return w
 
     @property
     def total_bytes(self) -> int:
@@ -127,53 +135,47 @@ def run_network(data: ScenarioData, adjacency: Adjacency | str, cfg: TrackerConf
     def fresh(i: int, first_counter: int = 0) -> CameraNode:
         return CameraNode(data.cameras[i], adjacency[i], cfg, network, first_counter=first_counter)
 
+    def outbox(i: int) -> Outbox:
+        trig = EventTrigger(trigger, cfg.dt, cfg.units_per_metre) if mode == "async" else None
+        return Outbox(i, adjacency[i], faults, trig)
+
     nodes: dict[int, CameraNode | None] = {i: fresh(i) for i in range(n)}
-    triggers = {i: EventTrigger(trigger, cfg.dt, cfg.units_per_metre) for i in range(n)}
+    outboxes = {i: outbox(i) for i in range(n)}
     retired: dict[int, NodeStats] = {}  # counters of a node's earlier lives (before a crash)
+    retired_wire: dict[int, OutboxCounters] = {}
+    retired_sends: dict[int, tuple[int, int]] = {}
     next_counter: dict[int, int] = {}  # a restarted node never reuses an id
     resync: dict[int, set[int]] = {i: set() for i in range(n)}  # sender -> rejoined neighbours
     tracks: dict[int, list[list[Track]]] = {i: [] for i in range(n)}
-    wire = WireCounters()
-    in_flight: dict[int, list[tuple[int, int, bytes]]] = {}  # arrival frame -> (src, dst, bytes)
     for k in range(frames):
         for i in range(n):  # crashes and restarts
             node = nodes[i]
             if not faults.alive(i, k) and node is not None:
                 next_counter[i] = node.next_counter
                 retired[i] = _add_stats(retired.get(i), node.stats)
+                retired_wire[i] = retired_wire.get(i, OutboxCounters()).add(outboxes[i].counters)
+                retired_sends[i] = _sends(outboxes[i], retired_sends.get(i))
                 nodes[i] = None
-                triggers[i] = EventTrigger(trigger, cfg.dt, cfg.units_per_metre)
+                outboxes[i] = outbox(i)  # what the dead process held (late messages) is gone
             elif faults.alive(i, k) and node is None:  # a fresh process with an empty state
                 nodes[i] = fresh(i, next_counter.get(i, 0))
                 for j in adjacency[i]:  # its neighbours see it come back and resync it
                     resync[j].add(i)
+        arrived: dict[int, list[FrameMessage]] = {i: [] for i in range(n)}
         for i, node in nodes.items():
             if node is None:
                 continue
+            ob = outboxes[i]
+            deliveries = ob.due(k)
             msg = node.prepare(k, data.detections[k][i])
-            if mode == "async":
-                msg = triggers[i].filter(msg)
-                if msg is None:
-                    continue
-            payload = codec.encode(msg)
-            app = codec.appearance_bytes(msg, payload) if adjacency[i] else 0
-            for dst in adjacency[i]:
-                m, p, a = msg, payload, app
-                if dst in resync[i] and nodes[dst] is not None:
-                    m = node.resync_message(msg)
-                    p = codec.encode(m)
-                    a = codec.appearance_bytes(m, p)
-                wire.add(i, dst, p, m, a)
-                for delay in faults.deliveries(i, dst, k):
-                    in_flight.setdefault(k + delay, []).append((i, dst, p))
+            deliveries += ob.send(msg, resync={j for j in resync[i] if nodes[j] is not None},
+                                  resync_message=node.resync_message)
             resync[i].clear()
-        arrived: dict[int, list[FrameMessage]] = {i: [] for i in range(n)}
-        for src, dst, payload in in_flight.pop(k, []):
-            if nodes[dst] is None:
-                continue  # a dead process receives nothing
-            msg = codec.decode(payload, expect_network=network, expect_sender=src,
-                               allowed_senders=adjacency[dst])
-            arrived[dst].append(msg)
+            for dst, payload in deliveries:
+                if nodes[dst] is not None:  # a dead process receives nothing
+                    arrived[dst].append(codec.decode(payload, expect_network=network,
+                                                     expect_sender=i,
+                                                     allowed_senders=adjacency[dst]))
         for i, node in nodes.items():
             if node is None:
                 tracks[i].append([])
@@ -185,10 +187,19 @@ def run_network(data: ScenarioData, adjacency: Adjacency | str, cfg: TrackerConf
         if progress:
             progress(k + 1, frames)
     stats = {i: _add_stats(retired.get(i), nodes[i].stats if nodes[i] else None) for i in range(n)}
+    wire = WireCounters.of({i: retired_wire.get(i, OutboxCounters()).add(outboxes[i].counters)
+                            for i in range(n)})
     result = RunResult(data.name, topology_name or "custom", cfg.ablation, data.seed, frames,
                        adjacency, tracks, wire, stats, data, mode=mode,
-                       sends={i: (t.entries_sent, t.entries_skipped) for i, t in triggers.items()})
+                       sends={i: _sends(outboxes[i], retired_sends.get(i)) for i in range(n)})
     return result
+
+
+def _sends(ob: Outbox, before: tuple[int, int] | None) -> tuple[int, int]:
+    """Event-triggered: tracker entries (sent, withheld) over every life of a node."""
+    a = (ob.trigger.entries_sent, ob.trigger.entries_skipped) if ob.trigger else (0, 0)
+    b = before or (0, 0)
+    return (a[0] + b[0], a[1] + b[1])
 
 
 def _add_stats(a: NodeStats | None, b: NodeStats | None) -> NodeStats:

@@ -10,12 +10,12 @@
     neighbour alive and in time this is exactly sim_cluster's in-process reference run.
 
 ``async`` (event-triggered)
-    never waits. Each frame: ``prepare``; ``edge_node.core.trigger.EventTrigger.filter`` keeps
-    the tracker entries the neighbours need (new measurement information, appearance, a tracker
-    whose ``x_bar`` drifted more than ``drift_m`` from what they extrapolate, ``ell`` news, a
+    never waits. Each frame: ``prepare``; the outbox's ``EventTrigger`` keeps the tracker
+    entries the neighbours need (new measurement information, appearance, a tracker whose
+    ``x_bar`` drifted more than ``drift_m`` from what they extrapolate, ``ell`` news, a
     per-tracker heartbeat) plus merges, or says to stay silent; a message is sent at least every
-    ``heartbeat_frames`` -- the same trigger as sim_cluster's in-process async run. Bytes saved
-    against sending the full message every frame are counted. Then ``node.update(arrived,
+    ``heartbeat_frames``. Bytes saved against sending the full message every frame are counted.
+    Then ``node.update(arrived,
     stale_ok=True)`` with every message received since the last frame with frame ``<= k`` (a
     neighbour's later frames wait until we get there). The core remembers each neighbour's newest
     entry per tracker, predicts it forward, uses its ``u, U`` once and only within
@@ -41,7 +41,7 @@ import os
 import signal
 import threading
 import time
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Callable
 
@@ -50,13 +50,12 @@ from edge_node.core.config import TrackerConfig
 from edge_node.core.node import CameraNode
 from edge_node.core.trigger import EventTrigger, TriggerConfig
 from edge_node.faults import NO_FAULTS, FaultPlan
+from edge_node.outbox import Delivery, Outbox, OutboxCounters
 from edge_node.runtime.config import NodeConfig, NodeConfigError
 from edge_node.runtime.output import (StatusWriter, TrackWriter, counters_path, latency_summary,
                                       state_path, status_path, tracks_path, write_json_atomic)
 from edge_node.runtime.sources import Source, open_source
 from edge_node.viz import NullSink, ground_points, open_node_sink
-from protocol import codec
-from protocol.errors import ProtocolError
 from protocol.messages import FrameMessage
 
 log = logging.getLogger("edge_node.loop")
@@ -106,16 +105,22 @@ class LoopStats:
     trackers: int = 0
     stopped: bool = False
     startup_s: float | None = None
-    frames_sent: int = 0  # frames whose message was published
-    tracker_entries: int = 0  # (tracker, link) entries sent
-    appearance_entries: int = 0  # (tracker, link) entries sent with appearance
-    appearance_bytes: int = 0  # bytes those appearance fields took, all links
-    frames_skipped: int = 0  # async: frames whose message was not sent
-    bytes_saved: int = 0  # async: bytes not sent against full messages every frame (all links)
-    encode_errors: int = 0
+    wire: OutboxCounters = field(default_factory=OutboxCounters)  # what the outbox sent
     prepare_s: float = 0.0
     wait_s: float = 0.0
     update_s: float = 0.0
+
+    @property
+    def frames_sent(self) -> int:  # frames whose message was published
+        return self.wire.frames_sent
+
+    @property
+    def frames_skipped(self) -> int:  # async: frames whose message was not sent
+        return self.wire.frames_skipped
+
+    @property
+    def bytes_saved(self) -> int:  # async: bytes not sent against full messages (all links)
+        return self.wire.bytes_saved
 
 
 def supports_stale(node: CameraNode) -> bool:
@@ -180,49 +185,45 @@ class FrameLoop:
         self.faults = faults
         self.state_file = state_file  # persists the tracker counter: a restart reuses no id
         self._saved_counter = node.next_counter
-        self._delayed: dict[int, list[tuple[int, bytes]]] = {}  # fault delays: frame -> sends
         self._prev_alive: set[int] | None = None
         self._resync: set[int] = set()  # neighbours that (re)appeared: send them everything
-        self.trigger = EventTrigger(TriggerConfig(self.rt.heartbeat_frames, self.rt.drift_m),
-                                    node.cfg.dt, node.cfg.units_per_metre)
+        trigger = None
+        if mode == "async":
+            trigger = EventTrigger(TriggerConfig(self.rt.heartbeat_frames, self.rt.drift_m),
+                                   node.cfg.dt, node.cfg.units_per_metre)
+        self.outbox = Outbox(node.id, transport.neighbours, faults, trigger)
+        self.stats.wire = self.outbox.counters
 
     # -- one frame -----------------------------------------------------------------------------
-    def _send(self, msg: FrameMessage) -> int | None:
-        msg = replace(msg, sent_at=time.time())
-        try:
-            payload = codec.encode(msg)
-        except ProtocolError as e:  # our own message breaks the wire rules: never send it
-            self.stats.encode_errors += 1
-            log.error("node %d: frame %d: cannot encode our message (%s): not sent",
-                      self.node.id, msg.frame, e)
-            return None
-        links = len(self.transport.neighbours)
+    def _send(self, msg: FrameMessage) -> None:
+        """The frame's message through the outbox (trigger, resync, faults, counting)."""
+        errors = self.outbox.counters.encode_errors
         resync = self._resync & set(self.transport.neighbours)
-        if not resync and self.faults.empty:
-            self.transport.publish(payload)
-        else:
-            full = codec.encode(self.node.resync_message(msg)) if resync else payload
-            if resync:
-                log.info("node %d: frame %d: resync for rejoined neighbour(s) %s",
-                         self.node.id, msg.frame, sorted(resync))
-            for dst in self.transport.neighbours:
-                p = full if dst in resync else payload
-                for delay in self.faults.deliveries(self.node.id, dst, msg.frame):
-                    if delay == 0:
-                        self.transport.publish_to(dst, p)
-                    else:
-                        self._delayed.setdefault(msg.frame + delay, []).append((dst, p))
-            self._resync -= resync
-        self.stats.frames_sent += 1
-        self.stats.tracker_entries += links * len(msg.trackers)
-        self.stats.appearance_entries += links * sum(t.appearance is not None for t in msg.trackers)
-        self.stats.appearance_bytes += links * codec.appearance_bytes(msg, payload)
-        return len(payload)
+        if resync:
+            log.info("node %d: frame %d: resync for rejoined neighbour(s) %s",
+                     self.node.id, msg.frame, sorted(resync))
+        self._publish(self.outbox.send(msg, resync=resync,
+                                       resync_message=self.node.resync_message,
+                                       sent_at=time.time()))
+        self._resync -= resync
+        if self.outbox.counters.encode_errors > errors:
+            log.error("node %d: cannot encode our message (%s): not sent", self.node.id,
+                      self.outbox.last_error)
+
+    def _publish(self, deliveries: list[Delivery]) -> None:
+        """Hand deliveries to the transport: one call for all links when every neighbour gets
+        the same bytes, else one put per link."""
+        links = sorted(self.transport.neighbours)
+        if deliveries and len({p for _, p in deliveries}) == 1 \
+                and sorted(d for d, _ in deliveries) == links:
+            self.transport.publish(deliveries[0][1])
+            return
+        for dst, p in deliveries:
+            self.transport.publish_to(dst, p)
 
     def _before_frame(self, k: int) -> None:
         """Delayed (fault-injected) messages now due; neighbours that came back get a resync."""
-        for dst, p in self._delayed.pop(k, []):
-            self.transport.publish_to(dst, p)
+        self._publish(self.outbox.due(k))
         alive_now = getattr(self.transport, "alive_neighbours", None)
         if alive_now is None:
             return
@@ -268,18 +269,7 @@ class FrameLoop:
         t1 = time.perf_counter()
         inbox: list = []
         if self.transport.neighbours:
-            out = self.trigger.filter(msg)
-            links = len(self.transport.neighbours)
-            sent = None if out is None else self._send(out)
-            if out is None:
-                self.stats.frames_skipped += 1
-            if out is None or (sent is not None and len(out.trackers) < len(msg.trackers)):
-                # bytes saved against the full message: encoded only when something was withheld
-                try:
-                    full = len(codec.encode(msg))
-                except ProtocolError:
-                    full = 0
-                self.stats.bytes_saved += max(full - (sent or 0), 0) * links
+            self._send(msg)
             inbox = self.transport.drain(k)
         t2 = time.perf_counter()
         tracks = self.node.update(inbox, stale_ok=True)
@@ -367,6 +357,17 @@ class FrameLoop:
             self.status.write(self.status_dict(phase))
         except OSError as e:
             log.warning("cannot write status: %s", e)
+
+
+def wire_counters(outbox: Outbox) -> dict:
+    """The outbox's counters as the node's counters file names them."""
+    w, trig = outbox.counters, outbox.trigger
+    return {"frames_sent": w.frames_sent, "frames_skipped": w.frames_skipped,
+            "tracker_entries": w.tracker_entries, "appearance_entries": w.appearance_entries,
+            "appearance_bytes": w.appearance_bytes, "bytes_saved": w.bytes_saved,
+            "encode_errors": w.encode_errors,
+            "tracker_entries_sent": trig.entries_sent if trig else None,
+            "tracker_entries_skipped": trig.entries_skipped if trig else None}
 
 
 @dataclass
@@ -500,15 +501,7 @@ def run_node(cfg: NodeConfig, *, frames: int | None = None, mode: str | None = N
                             "exit_code": code, "frames_done": st.frames_done,
                             "frames_total": st.frames_total, "stopped": st.stopped,
                             "startup_s": st.startup_s, "latency": lat, **counters,
-                            "frames_sent": st.frames_sent, "frames_skipped": st.frames_skipped,
-                            "tracker_entries": st.tracker_entries,
-                            "appearance_entries": st.appearance_entries,
-                            "appearance_bytes": st.appearance_bytes,
-                            "bytes_saved": st.bytes_saved, "encode_errors": st.encode_errors,
-                            "tracker_entries_sent": getattr(loop.trigger, "entries_sent", None)
-                            if mode == "async" else None,
-                            "tracker_entries_skipped": getattr(loop.trigger, "entries_skipped", None)
-                            if mode == "async" else None,
+                            **wire_counters(loop.outbox),
                             "timing_s": {"prepare": st.prepare_s, "wait": st.wait_s,
                                          "update": st.update_s},
                             "node_stats": dict(vars(node.stats)),

@@ -1,0 +1,141 @@
+"""The one sending path of a camera node, shared by the in-process network and the Zenoh runtime.
+
+Every frame the node's message goes through the same steps, in one process or in many:
+
+1. event-triggered operation only: ``EventTrigger.filter`` keeps the tracker entries the
+   neighbours need, or says to stay silent this frame;
+2. the message is encoded once; a neighbour that came back (restart, late join) gets the
+   resync message instead: every tracker with its appearance;
+3. the fault plan (``edge_node.faults``) decides per link whether the message is lost, late by
+   some frames or duplicated; late ones wait here until their frame;
+4. what was handed to each link is counted: bytes, tracker entries, appearance.
+
+Pure: no clock, no I/O. ``send`` and ``due`` return ``(destination, payload)`` pairs; the shell
+hands them to its transport. A message that would break the wire rules is never sent: it is
+counted under ``encode_errors`` and ``last_error`` says why.
+"""
+from __future__ import annotations
+
+from collections.abc import Callable, Iterable
+from dataclasses import dataclass, field, replace
+
+from edge_node.core.trigger import EventTrigger
+from edge_node.faults import NO_FAULTS, FaultPlan
+from protocol import codec
+from protocol.errors import ProtocolError
+from protocol.messages import FrameMessage
+
+Delivery = tuple[int, bytes]  # (destination node, encoded message)
+
+
+@dataclass
+class OutboxCounters:
+    """What a node handed to its links (before the fault plan loses or delays anything)."""
+
+    bytes_per_link: dict[int, int] = field(default_factory=dict)  # destination -> bytes
+    messages: int = 0  # (message, link) pairs
+    frames_sent: int = 0  # frames with a message
+    frames_skipped: int = 0  # event-triggered: frames the trigger kept silent
+    tracker_entries: int = 0  # (tracker, link) entries
+    appearance_entries: int = 0  # (tracker, link) entries that carried appearance
+    appearance_bytes: int = 0  # bytes of those appearance fields
+    bytes_saved: int = 0  # event-triggered: bytes not sent against the full message, all links
+    encode_errors: int = 0
+
+    @property
+    def total_bytes(self) -> int:
+        return sum(self.bytes_per_link.values())
+
+    def add(self, other: "OutboxCounters") -> "OutboxCounters":
+        """The sum of two lives of a node (before and after a restart)."""
+        out = OutboxCounters(dict(self.bytes_per_link))
+        for dst, b in other.bytes_per_link.items():
+            out.bytes_per_link[dst] = out.bytes_per_link.get(dst, 0) + b
+        for name in ("messages", "frames_sent", "frames_skipped", "tracker_entries",
+                     "appearance_entries", "appearance_bytes", "bytes_saved", "encode_errors"):
+            setattr(out, name, getattr(self, name) + getattr(other, name))
+        return out
+
+
+class Outbox:
+    """Sends one node's frame messages to its neighbours."""
+
+    def __init__(self, node: int, neighbours: Iterable[int], faults: FaultPlan = NO_FAULTS,
+                 trigger: EventTrigger | None = None):
+        self.node = int(node)
+        self.neighbours = tuple(sorted(int(n) for n in neighbours))
+        self.faults = faults
+        self.trigger = trigger  # None: synchronous operation, every frame's message is sent
+        self.counters = OutboxCounters()
+        self.last_error: str | None = None
+        self._delayed: dict[int, list[Delivery]] = {}  # frame due -> deliveries
+
+    def send(self, msg: FrameMessage, *, resync: Iterable[int] = (),
+             resync_message: Callable[[FrameMessage], FrameMessage] | None = None,
+             sent_at: float | None = None) -> list[Delivery]:
+        """The deliveries of ``msg`` due now (late ones are kept for ``due``).
+
+        ``resync``: neighbours that came back; they get ``resync_message(msg)``.
+        ``sent_at``: the wall-clock stamp a real process puts on the message.
+        """
+        if not self.neighbours:
+            return []
+        c = self.counters
+        full = msg
+        if self.trigger is not None:
+            msg = self.trigger.filter(full)
+            if msg is None:
+                c.frames_skipped += 1
+                self._count_saved(full, 0)
+                return []
+        if sent_at is not None:
+            msg = replace(msg, sent_at=sent_at)
+        payload = self._encode(msg)
+        if payload is None:
+            return []
+        if self.trigger is not None and len(msg.trackers) < len(full.trackers):
+            self._count_saved(full, len(payload))
+        resync = set(resync) & set(self.neighbours)
+        special = None
+        if resync and resync_message is not None:
+            special_msg = resync_message(msg)
+            special_payload = self._encode(special_msg)
+            special = (special_msg, special_payload) if special_payload is not None else None
+        now: list[Delivery] = []
+        k = msg.frame
+        c.frames_sent += 1
+        for dst in self.neighbours:
+            m, p = (special if (dst in resync and special is not None) else (msg, payload))
+            c.bytes_per_link[dst] = c.bytes_per_link.get(dst, 0) + len(p)
+            c.messages += 1
+            c.tracker_entries += len(m.trackers)
+            c.appearance_entries += sum(t.appearance is not None for t in m.trackers)
+            c.appearance_bytes += codec.appearance_bytes(m, p)
+            for delay in self.faults.deliveries(self.node, dst, k):
+                if delay == 0:
+                    now.append((dst, p))
+                else:
+                    self._delayed.setdefault(k + delay, []).append((dst, p))
+        return now
+
+    def due(self, k: int) -> list[Delivery]:
+        """Late (fault-delayed) deliveries whose frame ``k`` has come."""
+        out = []
+        for frame in sorted(f for f in self._delayed if f <= k):
+            out.extend(self._delayed.pop(frame))
+        return out
+
+    def _encode(self, msg: FrameMessage) -> bytes | None:
+        try:
+            return codec.encode(msg)
+        except ProtocolError as e:  # our own message breaks the wire rules: never send it
+            self.counters.encode_errors += 1
+            self.last_error = f"frame {msg.frame}: {e}"
+            return None
+
+    def _count_saved(self, full: FrameMessage, sent: int) -> None:
+        try:
+            n = len(codec.encode(full))
+        except ProtocolError:
+            n = 0
+        self.counters.bytes_saved += max(n - sent, 0) * len(self.neighbours)
