@@ -79,7 +79,7 @@ def run_once(data, topology: str, cfg: TrackerConfig, *, order=None, show_progre
 
 def cmd_run(args) -> int:
     from sim_cluster.report import run_table
-    from sim_cluster.tracks_io import write_tracks
+    from edge_node.formats.tracks import write_tracks
 
     rerun = _rerun_spec(args)
     data = _scenario(args)

@@ -231,7 +231,7 @@ def gather(state: ClusterState, data, frames: int, config: str = "") -> dict:
     """Every node's tracks and counters, evaluated like an in-process run: ``summary.json``."""
     from edge_node.runtime.output import tracks_path
     from sim_cluster.evaluation import evaluate
-    from sim_cluster.tracks_io import read_tracks
+    from edge_node.formats.tracks import read_tracks
 
     out = Path(state.out)
     tracks = {p.node: read_tracks(tracks_path(out / "nodes", p.node), frames)

@@ -210,7 +210,7 @@ class ClusterViz:
         if self.sink is None:
             return
         from edge_node.runtime.output import tracks_path
-        from sim_cluster.tracks_io import read_tracks
+        from edge_node.formats.tracks import read_tracks
 
         tracks = {}
         for i in range(self.n):

@@ -21,7 +21,7 @@ from sim_cluster.evaluation import evaluate
 from sim_cluster.network import run_network
 from sim_cluster.scenario import load_scenario
 from sim_cluster.topology import build
-from sim_cluster.tracks_io import read_tracks
+from edge_node.formats.tracks import read_tracks
 
 EXE = str(Path(sys.executable).parent / "sim_cluster")
 FRAMES = 80

@@ -17,7 +17,8 @@ from edge_node.core.config import TrackerConfig
 from edge_node.core.node import CameraNode
 from edge_node.runtime.config import NodeConfigError, load_node_config
 from edge_node.runtime.loop import FrameLoop
-from edge_node.runtime.output import TrackWriter, tracks_path
+from edge_node.formats.tracks import TrackWriter
+from edge_node.runtime.output import tracks_path
 from edge_node.runtime.sources import open_source
 from protocol import codec
 from protocol.keys import link_key
@@ -207,7 +208,7 @@ def test_det_file_source_equals_sim_cluster_loader(tmp_path, export_dir):
 def test_track_writer_matches_sim_cluster(tmp_path, export_dir):
     from sim_cluster.detfiles import load_det_files
     from sim_cluster.network import run_network
-    from sim_cluster.tracks_io import write_tracks
+    from edge_node.formats.tracks import write_tracks
 
     r = run_network(load_det_files(export_dir), {0: (1,), 1: (0,), 2: (), 3: ()}, TrackerConfig(),
                     frames=10)
@@ -398,7 +399,7 @@ def test_sync_loop_with_fake_transport_uses_frame_k_only(tmp_path, export_dir):
 def test_two_processes_equal_the_in_process_run(tmp_path, export_dir, procs):
     from sim_cluster.detfiles import load_det_files
     from sim_cluster.network import run_network
-    from sim_cluster.tracks_io import read_tracks
+    from edge_node.formats.tracks import read_tracks
 
     out = tmp_path / "out"
     p0, p1 = free_port(), free_port()

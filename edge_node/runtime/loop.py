@@ -50,9 +50,10 @@ from edge_node.core.config import TrackerConfig
 from edge_node.core.node import CameraNode
 from edge_node.core.trigger import EventTrigger, TriggerConfig
 from edge_node.faults import NO_FAULTS, FaultPlan
+from edge_node.formats.tracks import TrackWriter
 from edge_node.runtime.config import NodeConfig, NodeConfigError
-from edge_node.runtime.output import (StatusWriter, TrackWriter, counters_path, latency_summary,
-                                      state_path, status_path, tracks_path, write_json_atomic)
+from edge_node.runtime.output import (StatusWriter, counters_path, latency_summary, state_path,
+                                      status_path, tracks_path, write_json_atomic)
 from edge_node.runtime.sources import Source, open_source
 from edge_node.viz import NullSink, ground_points, open_node_sink
 from protocol import codec

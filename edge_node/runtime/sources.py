@@ -1,20 +1,19 @@
 """Where a camera process gets its detections: one camera of a det-files directory, or (for
 developers) one camera of a sim_cluster scenario played back.
 
-The det-files reader is a small, independent re-implementation of the per-camera part of
-``sim_cluster/detfiles.py`` (edge_node must not import sim_cluster): it yields the very same
-``Detection`` objects (boxes float64 as parsed from det.txt, descriptors float32 from the
+Det-files are read with :mod:`edge_node.formats`, the reader the simulator uses too: the very
+same ``Detection`` objects (boxes float64 as parsed from det.txt, descriptors float32 from the
 ``.npy``, all-NaN rows = no descriptor, NaN confidence = 1.0), so a multi-process run equals the
 in-process reference run on the same files.
 """
 from __future__ import annotations
 
-import json
 from dataclasses import dataclass, replace
 from pathlib import Path
 
 from edge_node.core.types import Detection
-from edge_node.detfile import DetFilesError, camera_from_entry, last_frame, read_det
+from edge_node.formats.calibration import read_calibration
+from edge_node.formats.detfile import DetFilesError, read_det
 from edge_node.geometry import Camera
 from edge_node.runtime.config import NodeConfig, NodeConfigError
 
@@ -39,49 +38,25 @@ class Source:
 
 
 # -- det-files --------------------------------------------------------------------------------------
-def read_camera_detections(det: Path, frames: int, npy: Path | None, require_npy: bool
-                           ) -> list[list[Detection]]:
-    """One camera's detections per frame ``0..frames-1`` (the shared det-file reader)."""
-    try:
-        dets, _ = read_det(det, frames, npy, require_npy)
-    except DetFilesError as e:
-        raise SourceError(str(e)) from None
-    return dets
-
-
 def load_det_file_camera(calibration: Path, index: int, node: int,
                          frames: int | None = None) -> Source:
-    """Camera ``index`` of a det-files directory, as node ``node`` (its camera id)."""
+    """Camera ``index`` of a det-files directory, as node ``node`` (its camera id): the same
+    ``Detection`` objects the simulator's det-files loader builds (edge_node.formats)."""
     try:
-        doc = json.loads(calibration.read_text(encoding="utf-8"))
-    except (OSError, json.JSONDecodeError) as e:
-        raise SourceError(f"{calibration}: cannot read ({e})") from None
-    entries = doc.get("cameras")
-    if not isinstance(entries, list) or not entries:
-        raise SourceError(f"{calibration}: 'cameras' must be a non-empty list")
-    if index >= len(entries):
-        raise SourceError(f"{calibration}: has {len(entries)} cameras, no camera index {index}")
-    e = entries[index]
-    fps = float(doc.get("fps", 25.0))
-    try:
-        cam = replace(camera_from_entry(index, e, calibration, fps), id=node)
-    except DetFilesError as ex:
-        raise SourceError(str(ex)) from None
-    base = calibration.parent
-    det_rel = e.get("det", f"c{index}/det.txt")
-    npy_rel = e.get("descriptors", str(Path(det_rel).with_suffix(".npy")))
-    det = base / det_rel
-    n = doc.get("frames")
-    if n is None:  # as load_det_files: the last frame in any camera's det.txt / gt.txt / gt_ground
-        n = max([last_frame(base / x.get("det", f"c{c}/det.txt")) for c, x in enumerate(entries)]
-                + [last_frame(base / x.get("gt", f"c{c}/gt.txt")) for c, x in enumerate(entries)]
-                + [last_frame(base / doc.get("gt_ground", "gt_ground.csv"))])
-    n = int(n) if frames is None else min(int(n), frames)
-    if n <= 0:
-        raise SourceError(f"{calibration}: no frames")
-    upm = float(doc.get("units_per_metre", 1.0))
-    dets = read_camera_detections(det, n, base / npy_rel, "descriptors" in e)
-    return Source(cam, n, fps, upm, dets, f"det-file {calibration} camera {index}")
+        cal = read_calibration(calibration)
+        if index >= len(cal.cameras):
+            raise SourceError(f"{cal.path}: has {len(cal.cameras)} cameras, no camera index {index}")
+        n = cal.frame_count()
+        n = n if frames is None else min(n, frames)
+        if n <= 0:
+            raise SourceError(f"{cal.path}: no frames")
+        f = cal.files[index]
+        dets, _ = read_det(f.det, n, f.descriptors, f.descriptors_required)
+    except DetFilesError as e:
+        raise SourceError(str(e)) from None
+    cam = replace(cal.cameras[index], id=node)
+    return Source(cam, n, cal.fps, cal.units_per_metre, dets,
+                  f"det-file {calibration} camera {index}")
 
 
 # -- scenario (developer convenience) -------------------------------------------------------------
