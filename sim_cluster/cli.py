@@ -15,6 +15,7 @@ import sys
 from pathlib import Path
 
 from edge_node.core.config import ABLATIONS, ConfigError, TrackerConfig
+from edge_node.settings import SettingsError, Table, read_toml
 
 
 class CliError(Exception):
@@ -32,21 +33,18 @@ def _scenario(args):
 
 
 def _tracker_config(args) -> TrackerConfig:
+    """``--config`` (an ablation) with ``--tracker-config FILE`` (a ``[tracker]`` table, or a
+    file holding only tracker parameters) over it."""
     try:
-        cfg = TrackerConfig.for_ablation(args.config)
-        if getattr(args, "tracker_config", None):
-            import tomllib
-
-            path = Path(args.tracker_config)
-            try:
-                table = tomllib.loads(path.read_text())
-            except (OSError, tomllib.TOMLDecodeError) as e:
-                raise CliError(f"{path}: {e}") from None
-            cfg = TrackerConfig.from_dict({**cfg.to_dict(), **table.get("tracker", table)},
-                                          where=str(path))
-        return cfg
+        base = TrackerConfig.for_ablation(args.config)
     except ConfigError as e:
         raise CliError(str(e)) from None
+    if not getattr(args, "tracker_config", None):
+        return base
+    path = Path(args.tracker_config)
+    raw = read_toml(path, file=str(path), what="tracker config")
+    t = Table(raw.get("tracker", raw), str(path), "tracker")
+    return t.built(lambda: TrackerConfig.from_dict({**base.to_dict(), **t.data}))
 
 
 def run_once(data, topology: str, cfg: TrackerConfig, *, order=None, show_progress: bool = False,
@@ -358,7 +356,7 @@ def _input_errors() -> tuple[type[BaseException], ...]:
     from sim_cluster.world import WorldError
     from sim_cluster.render import RenderError
 
-    return (CliError, ConfigError, FaultPlanError, GeometryError, AppearanceError,
+    return (CliError, SettingsError, ConfigError, FaultPlanError, GeometryError, AppearanceError,
             DetectorParamsError, DetFilesError, EpflFormatError, ScenarioError, TopologyError,
             WorldError, RenderError, OSError)
 

@@ -65,10 +65,10 @@ def scenario_from_table(raw: dict[str, Any], path: Path, seed: int,
     it). ``[source]``: ``kind`` and ``path``, a det-files directory or its ``calibration.json``,
     relative to the scenario file. Errors are ``ScenarioError`` naming the file and field.
     """
-    from sim_cluster.scenario import ScenarioError, Table  # lazy: no import cycle
+    from sim_cluster.scenario import ScenarioError, scenario_table  # lazy: no import cycle
 
     file = Path(path).name
-    top = Table(raw, file)
+    top = scenario_table(raw, file)
     name = top.string("name", None)
     top.string("description", "")
     top.integer("seed", 0, lo=0)

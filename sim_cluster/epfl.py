@@ -489,25 +489,6 @@ def load_epfl_gt(sequence: str, *, seed: int = 0, frames: int | None = None,
         seed=seed)
 
 
-def detector_from_table(t: Any) -> Any:
-    """``DetectorParams`` from a scenario ``[detector]`` table (a ``scenario.Table``); the
-    dataclass validates the values, unknown keys are errors naming the field."""
-    from dataclasses import fields
-
-    from sim_cluster.detector_model import DetectorParams, DetectorParamsError
-
-    kwargs: dict[str, Any] = {}
-    for f in fields(DetectorParams):
-        if t.has(f.name):
-            v = t.raw(f.name)
-            kwargs[f.name] = tuple(v) if isinstance(v, list) else v
-    t.finish()
-    try:
-        return DetectorParams(**kwargs)
-    except (DetectorParamsError, TypeError) as exc:
-        raise t.error(None, str(exc)) from None
-
-
 def scenario_from_table(raw: dict[str, Any], path: Path, seed: int, frames: int | None,
                         data_root: str | os.PathLike[str] | None = None) -> ScenarioData:
     """Registry entry for ``[source] kind = "epfl-gt"`` (``SCENARIO_KINDS["epfl-gt"]``).
@@ -520,10 +501,11 @@ def scenario_from_table(raw: dict[str, Any], path: Path, seed: int, frames: int 
     overrides ``[source] data_root``. Errors are ``ScenarioError`` naming file and field;
     missing data raises ``DataNotFoundError`` (an ``OSError``).
     """
-    from sim_cluster.scenario import ScenarioError, Table, _appearance  # lazy: no import cycle
+    from sim_cluster.scenario import (ScenarioError, appearance_params_from_table,  # lazy: no
+                                      detector_params_from_table, scenario_table)  # import cycle
 
     file = Path(path).name
-    top = Table(raw, file)
+    top = scenario_table(raw, file)
     name = top.string("name", Path(path).stem)
     top.string("description", "")
     top.integer("seed", 0, lo=0)  # validated; the resolved seed is passed in
@@ -544,8 +526,8 @@ def scenario_from_table(raw: dict[str, Any], path: Path, seed: int, frames: int 
     if fmt not in ("auto", "mot-csv", "vatic"):
         raise src.error("format", f"must be one of auto, mot-csv, vatic, got {fmt!r}")
     src.finish()
-    detector = detector_from_table(top.table("detector"))
-    appearance = _appearance(top.table("appearance"))
+    detector = detector_params_from_table(top.table("detector"))
+    appearance = appearance_params_from_table(top.table("appearance"))
     top.finish()
     if data_root is None and root:
         data_root = Path(root).expanduser()

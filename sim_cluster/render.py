@@ -416,7 +416,8 @@ def world_trajectories(config: WorldConfig) -> Trajectories:
 def load_world(scenario: str | Path, seed: int | None = None,
                frames: int | None = None) -> WorldConfig:
     """The :class:`WorldConfig` of a synthetic scenario preset or file."""
-    from sim_cluster.scenario import Table, parse_synthetic, read_scenario_toml, resolve_scenario_path
+    from sim_cluster.scenario import (parse_synthetic, read_scenario_toml, resolve_scenario_path,
+                                      scenario_table)
 
     path = resolve_scenario_path(scenario)
     raw = read_scenario_toml(path)
@@ -424,7 +425,7 @@ def load_world(scenario: str | Path, seed: int | None = None,
     if kind != "synthetic":
         raise RenderError(f"{path.name}: only synthetic scenarios can be rendered (kind {kind!r})")
     if seed is None:
-        seed = Table(raw, path.name).integer("seed", 0, lo=0)
+        seed = scenario_table(raw, path.name).integer("seed", 0, lo=0)
     return parse_synthetic(raw, path, int(seed), frames)
 
 

@@ -45,173 +45,34 @@ Every error is a :class:`ScenarioError` naming the file and the field, e.g.
 """
 from __future__ import annotations
 
-from dataclasses import fields
+from dataclasses import MISSING, fields
 import importlib
 import math
 from pathlib import Path
-import tomllib
 from typing import Any, Callable
 
 import numpy as np
 
 from edge_node.geometry import Camera, GeometryError
+from edge_node.settings import SettingsError, Table, read_toml
 from sim_cluster.appearance import AppearanceError, AppearanceParams
 from sim_cluster.data import ScenarioData
 from sim_cluster.detector_model import DetectorParams, DetectorParamsError
 from sim_cluster.world import PeopleParams, WorldConfig, WorldError, generate
 
 PRESET_DIR = Path(__file__).resolve().parent / "presets"
+CAMERA_KEYS = ("image_size", "homography", "pixel_scale", "projection", "position", "look_at",
+               "yaw_deg", "pitch_deg", "roll_deg", "fov_deg", "focal_px", "principal_point")
 
-_REQUIRED = object()
 
-
-class ScenarioError(ValueError):
+class ScenarioError(SettingsError):
     """A scenario that cannot be loaded; the message names the file and the field."""
 
-    def __init__(self, file: str, field: str | None, message: str):
-        self.file = file
-        self.field = field
-        super().__init__(f"{file}: {field} {message}" if field else f"{file}: {message}")
 
-
-# -- a small validating reader for TOML tables ------------------------------------------------
-
-
-class Table:
-    """Typed, range-checked access to one TOML table; errors name ``file`` and ``where.key``.
-
-    Call :meth:`finish` after reading to reject unknown keys. Reusable by other scenario kinds.
-    """
-
-    def __init__(self, data: Any, file: str, where: str = ""):
-        if not isinstance(data, dict):
-            raise ScenarioError(file, where or None, f"must be a table, got {type(data).__name__}")
-        self.data = data
-        self.file = file
-        self.where = where
-        self._used: set[str] = set()
-
-    def name(self, key: str) -> str:
-        return f"{self.where}.{key}" if self.where else key
-
-    def error(self, key: str | None, message: str) -> ScenarioError:
-        """An error about ``key`` of this table, or about the whole table when ``key`` is None."""
-        if key:
-            return ScenarioError(self.file, self.name(key), message)
-        return ScenarioError(self.file, None, f"{self.where}: {message}" if self.where else message)
-
-    def has(self, key: str) -> bool:
-        return key in self.data
-
-    def raw(self, key: str, default: Any = _REQUIRED) -> Any:
-        self._used.add(key)
-        if key not in self.data:
-            if default is _REQUIRED:
-                raise self.error(key, "is required")
-            return default
-        return self.data[key]
-
-    def number(self, key: str, default: Any = _REQUIRED, *, lo: float | None = None,
-               hi: float | None = None, lo_open: bool = False, hi_open: bool = False) -> float:
-        if not self.has(key) and default is not _REQUIRED:
-            self._used.add(key)
-            return default
-        v = self.raw(key)
-        return self._check_number(key, v, lo, hi, lo_open, hi_open)
-
-    def _check_number(self, key: str, v: Any, lo: float | None, hi: float | None,
-                      lo_open: bool, hi_open: bool, label: str | None = None) -> float:
-        label = label or key
-        if isinstance(v, bool) or not isinstance(v, (int, float)):
-            raise self.error(label, f"must be a number, got {v!r}")
-        if not math.isfinite(v):
-            raise self.error(label, f"must be finite, got {v!r}")
-        bad = (lo is not None and (v <= lo if lo_open else v < lo)) or (
-            hi is not None and (v >= hi if hi_open else v > hi))
-        if bad:
-            if lo is not None and hi is not None:
-                rng = f"{'(' if lo_open else '['}{lo:g}, {hi:g}{')' if hi_open else ']'}"
-                raise self.error(label, f"must be in {rng}, got {v!r}")
-            if lo is not None:
-                raise self.error(label, f"must be {'>' if lo_open else '>='} {lo:g}, got {v!r}")
-            raise self.error(label, f"must be {'<' if hi_open else '<='} {hi:g}, got {v!r}")
-        return float(v)
-
-    def integer(self, key: str, default: Any = _REQUIRED, *, lo: int | None = None,
-                hi: int | None = None) -> int:
-        if not self.has(key) and default is not _REQUIRED:
-            self._used.add(key)
-            return default
-        v = self.raw(key)
-        if isinstance(v, bool) or not isinstance(v, int):
-            raise self.error(key, f"must be an integer, got {v!r}")
-        if (lo is not None and v < lo) or (hi is not None and v > hi):
-            if hi is None:
-                raise self.error(key, f"must be >= {lo}, got {v!r}")
-            raise self.error(key, f"must be in [{lo}, {hi}], got {v!r}")
-        return v
-
-    def string(self, key: str, default: Any = _REQUIRED) -> str:
-        if not self.has(key) and default is not _REQUIRED:
-            self._used.add(key)
-            return default
-        v = self.raw(key)
-        if not isinstance(v, str):
-            raise self.error(key, f"must be a string, got {v!r}")
-        return v
-
-    def vector(self, key: str, n: int, default: Any = _REQUIRED, *, lo: float | None = None,
-               lo_open: bool = False) -> np.ndarray:
-        if not self.has(key) and default is not _REQUIRED:
-            self._used.add(key)
-            return default
-        v = self.raw(key)
-        if not isinstance(v, list) or len(v) != n:
-            raise self.error(key, f"must be a list of {n} numbers, got {v!r}")
-        return np.array([self._check_number(key, x, lo, None, lo_open, False, f"{key}[{i}]")
-                         for i, x in enumerate(v)])
-
-    def span(self, key: str, default: Any = _REQUIRED, *, lo: float = 0.0, lo_open: bool = False,
-             hi: float | None = None) -> tuple[float, float]:
-        """A range ``[lo, hi]`` (or a single number meaning ``[x, x]``), ``lo <= hi``."""
-        if not self.has(key) and default is not _REQUIRED:
-            self._used.add(key)
-            return default
-        v = self.raw(key)
-        if not isinstance(v, list):
-            x = self._check_number(key, v, lo, hi, lo_open, False)
-            return (x, x)
-        if len(v) != 2:
-            raise self.error(key, f"must be a number or a range [lo, hi], got {v!r}")
-        a = self._check_number(key, v[0], lo, hi, lo_open, False, f"{key}[0]")
-        b = self._check_number(key, v[1], lo, hi, lo_open, False, f"{key}[1]")
-        if a > b:
-            raise self.error(key, f"must have lo <= hi, got {v!r}")
-        return (a, b)
-
-    def matrix(self, key: str, rows: int, cols: int) -> np.ndarray:
-        v = self.raw(key)
-        ok = isinstance(v, list) and len(v) == rows and all(
-            isinstance(r, list) and len(r) == cols for r in v)
-        if not ok:
-            raise self.error(key, f"must be a {rows}x{cols} list of lists, got {v!r}")
-        return np.array([[self._check_number(key, x, None, None, False, False, f"{key}[{i}][{j}]")
-                          for j, x in enumerate(r)] for i, r in enumerate(v)])
-
-    def table(self, key: str) -> "Table":
-        """A sub-table (an empty one when absent)."""
-        return Table(self.raw(key, {}), self.file, self.name(key))
-
-    def tables(self, key: str) -> list["Table"]:
-        v = self.raw(key)
-        if not isinstance(v, list) or not v:
-            raise self.error(key, "must be a non-empty array of tables ([[...]])")
-        return [Table(t, self.file, f"{self.name(key)}[{i}]") for i, t in enumerate(v)]
-
-    def finish(self) -> None:
-        unknown = sorted(set(self.data) - self._used)
-        if unknown:
-            raise self.error(unknown[0], f"is not a known field (known: {', '.join(sorted(self._used))})")
+def scenario_table(raw: Any, file: str) -> Table:
+    """The top table of a scenario file: the shared reader (``edge_node/settings.py``) raising
+    :class:`ScenarioError`."""
+    return Table(raw, file, error=ScenarioError)
 
 
 # -- cameras ----------------------------------------------------------------------------------
@@ -269,6 +130,7 @@ def camera_from_pose(
 
 
 def _camera(t: Table, cid: int, fps: float) -> Camera:
+    t.declare(*CAMERA_KEYS)  # a homography and a pose exclude each other; both are known
     size = t.raw("image_size")
     if (not isinstance(size, list) or len(size) != 2
             or not all(isinstance(v, int) and not isinstance(v, bool) and v > 0 for v in size)):
@@ -321,15 +183,14 @@ def _camera(t: Table, cid: int, fps: float) -> Camera:
 def _dataclass_from(t: Table, cls: type, spans: dict[str, dict], numbers: dict[str, dict],
                     ints: dict[str, dict]) -> Any:
     kwargs: dict[str, Any] = {}
-    for f in fields(cls):
-        if not t.has(f.name):
-            continue
+    for f in fields(cls):  # every field read (its default when absent): all known to finish()
+        default = f.default if f.default is not MISSING else f.default_factory()
         if f.name in spans:
-            kwargs[f.name] = t.span(f.name, **spans[f.name])
+            kwargs[f.name] = t.span(f.name, default, **spans[f.name])
         elif f.name in ints:
-            kwargs[f.name] = t.integer(f.name, **ints[f.name])
+            kwargs[f.name] = t.integer(f.name, default, **ints[f.name])
         elif f.name in numbers:
-            kwargs[f.name] = t.number(f.name, **numbers[f.name])
+            kwargs[f.name] = t.number(f.name, default, **numbers[f.name])
     t.finish()
     return cls(**kwargs)
 
@@ -337,7 +198,7 @@ def _dataclass_from(t: Table, cls: type, spans: dict[str, dict], numbers: dict[s
 def parse_synthetic(raw: dict, path: Path, seed: int, frames: int | None = None) -> WorldConfig:
     """Validate a synthetic scenario's TOML (already parsed) into a :class:`WorldConfig`."""
     file = path.name
-    top = Table(raw, file)
+    top = scenario_table(raw, file)
     src = top.table("source")
     src.string("kind", "synthetic")
     src.finish()
@@ -399,6 +260,7 @@ def appearance_params_from_table(t: Table) -> AppearanceParams:
     dim = t.integer("dim", 512, lo=2, hi=65536)
     weights = ("identity", "view", "noise", "shared")
     dists = ("same_camera_distance", "cross_camera_distance", "different_person_distance")
+    t.declare(*weights, *dists)  # one set or the other; both are known
     has_w = [k for k in weights if t.has(k)]
     has_d = [k for k in dists if t.has(k)]
     try:
@@ -419,9 +281,6 @@ def appearance_params_from_table(t: Table) -> AppearanceParams:
         raise t.error(None, str(e)) from None
     t.finish()
     return params
-
-
-_appearance = appearance_params_from_table  # older private name, used by sibling loaders
 
 
 def detector_params_from_table(t: Table) -> DetectorParams:
@@ -462,7 +321,7 @@ def lazy_loader(module: str, attr: str) -> ScenarioLoader:
 
 
 #: ``[source] kind`` -> loader ``(raw toml dict, file path, resolved seed, frames override or
-#: None) -> ScenarioData``. A loader validates its own fields (see :class:`Table`) and raises
+#: None) -> ScenarioData``. A loader validates its own fields (:func:`scenario_table`) and raises
 #: :class:`ScenarioError`.
 SCENARIO_KINDS: dict[str, ScenarioLoader] = {
     "synthetic": _load_synthetic,
@@ -492,13 +351,7 @@ def resolve_scenario_path(name_or_path: str | Path) -> Path:
 
 def read_scenario_toml(path: Path) -> dict:
     """Parse a scenario file, turning I/O and syntax errors into :class:`ScenarioError`."""
-    try:
-        with open(path, "rb") as fh:
-            return tomllib.load(fh)
-    except tomllib.TOMLDecodeError as e:
-        raise ScenarioError(path.name, None, f"invalid TOML: {e}") from None
-    except OSError as e:
-        raise ScenarioError(path.name, None, f"cannot read: {e.strerror or e}") from None
+    return read_toml(path, ScenarioError, what="scenario file", invalid="invalid TOML")
 
 
 def load_scenario(name_or_path: str | Path, seed: int | None = None,
@@ -516,7 +369,7 @@ def load_scenario(name_or_path: str | Path, seed: int | None = None,
     path = resolve_scenario_path(name_or_path)
     raw = read_scenario_toml(path)
     file = path.name
-    top = Table(raw, file)
+    top = scenario_table(raw, file)
     if seed is None:
         seed = top.integer("seed", 0, lo=0)
     elif isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or seed < 0:
