@@ -88,7 +88,7 @@ def person_look(seed: int, pid: int) -> Look:
 
 def _cv2():
     try:
-        import cv2  # noqa: PLC0415
+        import cv2  # noqa: PLC0415 - OpenCV is optional (the vision extra): only to render
     except ImportError as e:  # pragma: no cover
         raise RenderError(f"rendering needs OpenCV: pip install 'dmtt[vision]' ({e})") from None
     return cv2

@@ -26,6 +26,7 @@ from typing import Iterator
 
 import numpy as np
 
+from edge_node.geometry import Camera, GeometryError
 from edge_node.perception import PerceptionError, require_cv2
 
 IMAGE_EXTENSIONS = (".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff", ".webp", ".ppm", ".pgm")
@@ -267,8 +268,6 @@ class EpflLayout(FrameSource):
         """This camera's calibration from ``homographies.json`` (``None`` without the file)."""
         if self.calibration_file is None:
             return None
-        from edge_node.geometry import Camera, GeometryError
-
         path = self.calibration_file
         try:
             doc = json.loads(path.read_text(encoding="utf-8"))

@@ -32,11 +32,11 @@ Schema (defaults in brackets)::
                                     #        (sets TrackerConfig.staleness_frames)     [tracker's]
 
     [source]                        # where detections (and by default the camera) come from
-    kind = "det-file"               # a det-files directory (sim_cluster/detfiles.py format)
+    kind = "det-file"               # a det-files directory (edge_node/formats/calibration.py)
     path = "export/calibration.json"#   its calibration.json (or the directory)
     camera = 0                      #   camera index in calibration.json                 [node]
-    # kind = "scenario"             # developer convenience: play back a sim_cluster scenario
-    # scenario = "terrace-sim"      #   preset name or path
+    # kind = "scenario"             # a plug-in kind (edge_node/runtime/sources.py): sim_cluster's
+    # scenario = "terrace-sim"      #   replay of a scenario, preset name or path
     # seed = 0  frames = 200  data_root = "..."  camera = 0
     # kind = "video"                # frames: "video" | "images" | "epfl" | "camera", run through
     # path = "cam0.avi"             #   [perception] (detector, re-id); needs [camera] (except
@@ -87,15 +87,16 @@ from edge_node.core.params import build
 from edge_node.core.trigger import TriggerConfig
 from edge_node.faults import FaultPlan, FaultPlanError
 from edge_node.geometry import Camera
+from edge_node.perception.frames import FRAME_KINDS
 from edge_node.perception.settings import PerceptionSettings, parse_frame_source, parse_perception
+from edge_node.runtime.sources import PLUGIN_GROUP, SourceError, plugin_kinds, source_plugin
 from edge_node.settings import SettingsError, Table, read_toml
 from edge_node.viz import VizSpecError, parse_spec
 from protocol.keys import is_valid_network, is_valid_node
 
 MODES = ("sync", "async")
 _TRIGGER = TriggerConfig()
-SOURCE_KINDS = ("det-file", "scenario", "video", "images", "epfl", "camera")
-FRAME_SOURCE_KINDS = ("video", "images", "epfl", "camera")  # edge_node/perception
+SOURCE_KINDS = ("det-file", *FRAME_KINDS)  # built in; others are plug-ins (runtime/sources.py)
 _ENDPOINT_RE = re.compile(r"(?P<proto>[a-z][a-z0-9-]*)/(?P<addr>[^?#]+)(?:\?[^#]*)?(?:#.*)?")
 _IP_PROTOS = frozenset({"tcp", "udp", "tls", "quic", "ws"})
 _OTHER_PROTOS = frozenset({"unixsock-stream", "unixpipe", "serial", "vsock"})
@@ -170,10 +171,7 @@ class SourceSettings:
     kind: str
     camera: int  # index of this node's camera in the source
     path: Path | None = None  # det-file: calibration.json or its directory
-    scenario: str | None = None  # scenario: preset name or path
-    seed: int | None = None
-    frames: int | None = None
-    data_root: Path | None = None
+    options: dict = field(default_factory=dict)  # a plug-in kind's own fields (its parse())
     sequence: str | None = None  # epfl: the files' prefix (terrace1)
     pattern: str | None = None  # images: a glob
     device: int | str | None = None  # camera: device index or stream URL
@@ -238,6 +236,8 @@ class NodeConfig:
                 return [conv(x) for x in v]
             if isinstance(v, frozenset):
                 return sorted(v)
+            if isinstance(v, dict):
+                return {k: conv(x) for k, x in v.items()}
             return v
 
         def table(obj) -> dict:
@@ -354,9 +354,9 @@ def _runtime(t: Table | None) -> RuntimeSettings:
 
 
 def _source(t: Table, base: Path, node: int) -> SourceSettings:
-    kind = t.string("kind", choices=SOURCE_KINDS)
+    kind = t.string("kind")
     camera = t.integer("camera", node, lo=0)
-    if kind in FRAME_SOURCE_KINDS:
+    if kind in FRAME_KINDS:
         fields_ = parse_frame_source(t, kind, base)
         t.finish()
         return SourceSettings(kind, camera, **fields_)
@@ -369,18 +369,17 @@ def _source(t: Table, base: Path, node: int) -> SourceSettings:
             raise t.error("path", f"has no calibration.json: {p}")
         t.finish()
         return SourceSettings(kind, camera, path=cal)
-    name = t.string("scenario")
-    if not name:
-        raise t.error("scenario", "must be a preset name or a path")
-    if "/" in name or name.endswith(".toml"):
-        p = Path(name).expanduser()
-        name = str(p if p.is_absolute() else base / p)
-    seed = t.integer("seed", None, lo=0)
-    frames = t.integer("frames", None, lo=1)
-    data_root = t.path("data_root", base, None)
+    if kind not in plugin_kinds():
+        kinds = ", ".join(repr(k) for k in (*SOURCE_KINDS, *plugin_kinds()))
+        raise t.error("kind", f"must be one of {kinds}, got {kind!r} (other kinds are plug-ins: "
+                      f"none is installed for it in the entry-point group {PLUGIN_GROUP!r})")
+    try:
+        plugin = source_plugin(kind)
+    except SourceError as e:  # installed but broken
+        raise t.error("kind", str(e)) from None
+    options = plugin.parse(t, base)
     t.finish()
-    return SourceSettings(kind, camera, scenario=name, seed=seed, frames=frames,
-                          data_root=data_root)
+    return SourceSettings(kind, camera, options=options)
 
 
 def _camera(t: Table | None) -> CameraSettings | None:
@@ -457,9 +456,9 @@ def _viz(t: Table | None, base: Path) -> VizSettings:
 def _perception(t: Table | None, base: Path, source: SourceSettings,
                 camera: CameraSettings | None, file: str):
     """``[perception]`` (frame sources only; edge_node/perception/settings.py)."""
-    if source.kind not in FRAME_SOURCE_KINDS:
+    if source.kind not in FRAME_KINDS:
         if t is not None:
-            raise t.error(None, f"applies to frame sources ({', '.join(FRAME_SOURCE_KINDS)}), "
+            raise t.error(None, f"applies to frame sources ({', '.join(FRAME_KINDS)}), "
                           f"not to source kind {source.kind!r}")
         return None
     if camera is None and source.kind != "epfl":
