@@ -1,5 +1,5 @@
 """``sim_cluster ablation``: a tiny grid run twice (one process, two processes); the aggregates are
-recomputed here from results.csv, independently of ``sim_cluster.ablation.aggregate``."""
+recomputed here from results.csv, independently of ``sim_cluster.experiments.ablation.aggregate``."""
 from __future__ import annotations
 
 import csv
@@ -9,7 +9,8 @@ from collections import defaultdict
 
 import pytest
 
-from sim_cluster import ablation, cli
+from sim_cluster import cli
+from sim_cluster.experiments import ablation
 
 GRID = ["--scenarios", "terrace-sim", "--seeds", "0-1", "--frames", "15",
         "--configs", "dkf+lda,dkf+lda+dtm", "--topologies", "ring,centralized", "--orderings", "2",

@@ -15,8 +15,8 @@ counts equal the counters exactly.
 import json
 import math
 
-from sim_cluster.bench_cluster import RESULT, main, run_cluster, table
-from sim_cluster.cluster import alive
+from sim_cluster.experiments.bench_cluster import RESULT, main, run_cluster, table
+from sim_cluster.cluster.processes import alive
 
 FRAMES = 40
 
@@ -82,7 +82,8 @@ def test_command_writes_summary_and_table(tmp_path, capsys):
 
 
 def test_ring8_preset_loads():
-    from sim_cluster.scenario import list_presets, load_scenario
+    from sim_cluster.scenarios.files import list_presets
+    from sim_cluster.scenarios.loader import load_scenario
 
     assert "ring8-sim" in list_presets()
     s = load_scenario("ring8-sim", frames=100)

@@ -6,7 +6,7 @@ from edge_node.core.association import Candidate, Observation, associate
 from edge_node.core.config import TrackerConfig
 from edge_node.core.gallery import Gallery
 from edge_node.core.manager import MergeView, find_merges
-from sim_cluster.topology import build, diameter
+from sim_cluster.network.topology import build, diameter
 from fakes import det, identity, make_nodes, step
 from protocol import codec
 

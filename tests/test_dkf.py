@@ -5,7 +5,7 @@ import pytest
 from edge_node.core import dkf
 from edge_node.core.config import TrackerConfig
 from edge_node.core.model import H, process_noise, transition
-from sim_cluster.topology import build
+from sim_cluster.network.topology import build
 
 CFG = TrackerConfig()
 A = transition(CFG.dt)

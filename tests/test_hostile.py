@@ -232,9 +232,9 @@ def test_fuzzed_inbox_rejects_everything_and_tracks_equal_reference(tmp_path, ex
     import zenoh
 
     from edge_node.runtime.transport import ZenohTransport, zenoh_config
-    from sim_cluster.cluster import ClusterState, NodeProc, status_table
-    from sim_cluster.detfiles import load_det_files
-    from sim_cluster.network import run_network
+    from sim_cluster.cluster.state import ClusterState, NodeProc, status_table
+    from sim_cluster.scenarios.detfiles import load_det_files
+    from sim_cluster.network.inprocess import run_network
 
     t_start = time.monotonic()
     p0, p1 = free_port(), free_port()
@@ -388,7 +388,7 @@ def _async_pair(data, frames: int, replay: bool, seed: int = 5):
 
 
 def test_async_replayed_old_frames_change_nothing(export_dir):
-    from sim_cluster.detfiles import load_det_files
+    from sim_cluster.scenarios.detfiles import load_det_files
 
     data = load_det_files(export_dir)
     clean, _ = _async_pair(data, FRAMES, replay=False)

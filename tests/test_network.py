@@ -12,10 +12,10 @@ from edge_node.core.config import TrackerConfig
 from edge_node.core.trigger import EventTrigger, TriggerConfig
 from edge_node.faults import FaultPlan, FaultPlanError
 from protocol.messages import FrameMessage, TrackerInfo
-from sim_cluster.evaluation import evaluate
-from sim_cluster.network import run_network
-from sim_cluster.scenario import load_scenario
-from sim_cluster.topology import build
+from sim_cluster.evaluation.metrics import evaluate
+from sim_cluster.network.inprocess import run_network
+from sim_cluster.scenarios.loader import load_scenario
+from sim_cluster.network.topology import build
 
 FRAMES = 300
 
@@ -64,8 +64,9 @@ def _digest(result) -> str:
 def test_core_is_deterministic_in_any_shell(terrace, sync_ring):
     again = run_network(terrace, build("ring", 4), TrackerConfig())
     assert _digest(again) == _digest(sync_ring)
-    code = ("from sim_cluster.scenario import load_scenario; from sim_cluster.network import "
-            "run_network; from sim_cluster.topology import build; from edge_node.core.config import "
+    code = ("from sim_cluster.scenarios.loader import load_scenario; from "
+            "sim_cluster.network.inprocess import run_network; from sim_cluster.network.topology "
+            "import build; from edge_node.core.config import "
             "TrackerConfig; import tests.test_network as t; "
             f"d = load_scenario('terrace-sim', seed=0, frames={FRAMES}); "
             "print(t._digest(run_network(d, build('ring', 4), TrackerConfig())))")

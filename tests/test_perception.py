@@ -48,8 +48,8 @@ stay_s = [30.0, 40.0]
 
 @pytest.fixture(scope="module")
 def close_world(tmp_path_factory):
-    from sim_cluster.render import Renderer, load_world, world_trajectories
-    from sim_cluster.world import generate
+    from sim_cluster.scenarios.synthetic.render import Renderer, load_world, world_trajectories
+    from sim_cluster.scenarios.synthetic.world import generate
 
     path = tmp_path_factory.mktemp("scene") / "close.toml"
     path.write_text(CLOSE_SCENE)
@@ -189,7 +189,7 @@ def test_hog_missing_is_a_clear_error():
 
 def test_mog2_splits_people_side_by_side():
     """Two people touching in the image: one blob, two boxes (the camera says how wide one is)."""
-    from sim_cluster.scenario import camera_from_pose
+    from sim_cluster.scenarios.synthetic.schema import camera_from_pose
 
     cam = camera_from_pose(0, (320, 240), np.array([0.0, -6.0, 2.5]), 90.0, 15.0, fov_deg=60.0)
     bg = np.full((240, 320, 3), 90, np.uint8)
@@ -261,7 +261,7 @@ def test_histogram_reid_separates_rendered_identities(close_world):
 # -- calibration -------------------------------------------------------------------------------------
 def test_calibrate_recovers_a_known_homography(tmp_path):
     from edge_node.perception.calibrate import fit_homography, read_pairs
-    from sim_cluster.scenario import camera_from_pose
+    from sim_cluster.scenarios.synthetic.schema import camera_from_pose
 
     cam = camera_from_pose(0, (360, 288), np.array([-1.0, -1.0, 3.0]), 45.0, 20.0, fov_deg=62.0)
     ground = np.array([[2, 2], [6, 2], [6, 6], [2, 6], [4, 3], [3, 5]], float)

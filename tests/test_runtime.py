@@ -183,7 +183,7 @@ def test_cli_check(tmp_path, export_dir, capsys):
 
 # -- sources and output ------------------------------------------------------------------------------------
 def test_det_file_source_equals_sim_cluster_loader(tmp_path, export_dir):
-    from sim_cluster.detfiles import load_det_files
+    from sim_cluster.scenarios.detfiles import load_det_files
 
     ref = load_det_files(export_dir)
     for c in range(ref.num_cameras):
@@ -206,8 +206,8 @@ def test_det_file_source_equals_sim_cluster_loader(tmp_path, export_dir):
 
 
 def test_track_writer_matches_sim_cluster(tmp_path, export_dir):
-    from sim_cluster.detfiles import load_det_files
-    from sim_cluster.network import run_network
+    from sim_cluster.scenarios.detfiles import load_det_files
+    from sim_cluster.network.inprocess import run_network
     from edge_node.formats.tracks import write_tracks
 
     r = run_network(load_det_files(export_dir), {0: (1,), 1: (0,), 2: (), 3: ()}, TrackerConfig(),
@@ -397,8 +397,8 @@ def test_sync_loop_with_fake_transport_uses_frame_k_only(tmp_path, export_dir):
 
 # -- processes --------------------------------------------------------------------------------------------
 def test_two_processes_equal_the_in_process_run(tmp_path, export_dir, procs):
-    from sim_cluster.detfiles import load_det_files
-    from sim_cluster.network import run_network
+    from sim_cluster.scenarios.detfiles import load_det_files
+    from sim_cluster.network.inprocess import run_network
     from edge_node.formats.tracks import read_tracks
 
     out = tmp_path / "out"
@@ -479,7 +479,7 @@ def test_sigterm_during_startup_exits_0(tmp_path, export_dir, procs):
 
 
 def test_scenario_source_plays_back_one_camera(tmp_path):
-    from sim_cluster.scenario import load_scenario
+    from sim_cluster.scenarios.loader import load_scenario
 
     p = tmp_path / "cam2.toml"
     p.write_text('node = 2\nnetwork = "n"\n[source]\nkind = "scenario"\nscenario = "terrace-sim"\n'

@@ -220,8 +220,8 @@ def test_acl_lets_only_the_networks_boxes_publish(tmp_path, certs, closing):
 
 
 def test_two_processes_run_under_mtls_and_acl(tmp_path, certs):
-    from sim_cluster.detfiles import export_detections
-    from sim_cluster.scenario import load_scenario
+    from sim_cluster.scenarios.detfiles import export_detections
+    from sim_cluster.scenarios.loader import load_scenario
 
     frames = 8
     good, _ = certs

@@ -95,7 +95,7 @@ def test_disagreement_is_max_pairwise_spread():
 
 
 def test_fov_polygon_is_clipped_to_the_area():
-    from sim_cluster.scenario import load_scenario
+    from sim_cluster.scenarios.loader import load_scenario
 
     data = load_scenario("terrace-sim", seed=0, frames=2)
     for cam in data.cameras:

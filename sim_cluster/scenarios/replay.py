@@ -22,7 +22,7 @@ from typing import Any
 
 from edge_node.runtime.sources import Source, SourceError
 from edge_node.settings import Table
-from sim_cluster.scenario import load_scenario
+from sim_cluster.scenarios.loader import load_scenario
 
 
 def parse(t: Table, base: Path) -> dict[str, Any]:

@@ -51,7 +51,12 @@ import numpy as np
 
 from edge_node.core.types import Detection
 from edge_node.geometry import Camera, GeometryError
-from sim_cluster.data import GroundTruth, ScenarioData
+from sim_cluster.scenarios.data import GroundTruth, ScenarioData
+from sim_cluster.scenarios.files import ScenarioError, scenario_table
+from sim_cluster.scenarios.synthetic.appearance import AppearanceModel, AppearanceParams
+from sim_cluster.scenarios.synthetic.detector_model import DetectorParams, detect_frames
+from sim_cluster.scenarios.synthetic.schema import (appearance_params_from_table,
+                                                    detector_params_from_table)
 
 ENV_DATA_ROOT = "DMTT_DATA"
 EPFL_DIR = "epfl_pom"
@@ -429,8 +434,6 @@ def replay_detections(seq_truth: GroundTruth, cameras: list[Camera], detector: A
     One random stream per camera (``default_rng([seed, c])``), so a camera's detections do not
     depend on the other cameras. Returns ``(detections[k][c], true_ids[k][c])``.
     """
-    from sim_cluster.detector_model import detect_frames  # lazy: a sibling module
-
     frames = len(seq_truth.ids)
     dets: list[list[list[Detection]]] = [[[] for _ in cameras] for _ in range(frames)]
     truth: list[list[np.ndarray]] = [[np.zeros(0, np.int64) for _ in cameras] for _ in range(frames)]
@@ -460,9 +463,6 @@ def load_epfl_gt(sequence: str, *, seed: int = 0, frames: int | None = None,
     (clipped to the last annotated frame). ``detector``/``appearance`` are ``DetectorParams`` and
     ``AppearanceParams`` (defaults when None).
     """
-    from sim_cluster.appearance import AppearanceModel, AppearanceParams
-    from sim_cluster.detector_model import DetectorParams
-
     if units_per_metre <= 0:
         raise EpflFormatError(f"units_per_metre must be positive, got {units_per_metre}")
     seq = load_sequence(sequence, data_root, annotations, calibration, fmt, fps)
@@ -491,7 +491,7 @@ def load_epfl_gt(sequence: str, *, seed: int = 0, frames: int | None = None,
 
 def scenario_from_table(raw: dict[str, Any], path: Path, seed: int, frames: int | None,
                         data_root: str | os.PathLike[str] | None = None) -> ScenarioData:
-    """Registry entry for ``[source] kind = "epfl-gt"`` (``SCENARIO_KINDS["epfl-gt"]``).
+    """The scenario loader of kind ``epfl-gt`` (``loader.SCENARIO_KINDS``).
 
     Top level: ``name``, ``description``, ``seed``, ``frames`` (the ``frames`` argument overrides
     it), ``fps``. ``[source]``: ``kind``, ``sequence`` (required; a key of the calibration file),
@@ -501,9 +501,6 @@ def scenario_from_table(raw: dict[str, Any], path: Path, seed: int, frames: int 
     overrides ``[source] data_root``. Errors are ``ScenarioError`` naming file and field;
     missing data raises ``DataNotFoundError`` (an ``OSError``).
     """
-    from sim_cluster.scenario import (ScenarioError, appearance_params_from_table,  # lazy: no
-                                      detector_params_from_table, scenario_table)  # import cycle
-
     file = Path(path).name
     top = scenario_table(raw, file)
     name = top.string("name", Path(path).stem)

@@ -20,7 +20,8 @@ from edge_node.formats.calibration import (GT_GROUND, camera_entry, read_calibra
                                            write_calibration)
 from edge_node.formats.detfile import (DetFilesError, read_det, read_gt, read_gt_ground,
                                        write_det, write_gt, write_gt_ground)
-from sim_cluster.data import GroundTruth, ScenarioData
+from sim_cluster.scenarios.data import GroundTruth, ScenarioData
+from sim_cluster.scenarios.files import ScenarioError, scenario_table
 
 
 def load_det_files(directory: str | os.PathLike[str], frames: int | None = None,
@@ -59,14 +60,12 @@ def load_det_files(directory: str | os.PathLike[str], frames: int | None = None,
 
 def scenario_from_table(raw: dict[str, Any], path: Path, seed: int,
                         frames: int | None) -> ScenarioData:
-    """Registry entry for ``[source] kind = "det-files"`` (``SCENARIO_KINDS["det-files"]``).
+    """The scenario loader of kind ``det-files`` (``loader.SCENARIO_KINDS``).
 
     Top level: ``name``, ``description``, ``seed``, ``frames`` (the ``frames`` argument overrides
     it). ``[source]``: ``kind`` and ``path``, a det-files directory or its ``calibration.json``,
     relative to the scenario file. Errors are ``ScenarioError`` naming the file and field.
     """
-    from sim_cluster.scenario import ScenarioError, scenario_table  # lazy: no import cycle
-
     file = Path(path).name
     top = scenario_table(raw, file)
     name = top.string("name", None)

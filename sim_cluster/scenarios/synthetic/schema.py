@@ -1,9 +1,4 @@
-"""Scenario files: TOML schema, validation and loading.
-
-A scenario is a TOML file. Presets ship in ``sim_cluster/presets/`` (``list_presets()``); a user
-can pass the path of their own file. ``[source] kind`` selects how the file becomes a
-:class:`~sim_cluster.data.ScenarioData`; it defaults to ``"synthetic"`` (the seeded world of
-:mod:`sim_cluster.world`). Other kinds register a loader in :data:`SCENARIO_KINDS`.
+"""The synthetic scenario kind: its TOML schema, read into a :class:`WorldConfig`.
 
 Synthetic schema (metres, degrees, pixels; see the presets for commented examples)::
 
@@ -39,40 +34,30 @@ Synthetic schema (metres, degrees, pixels; see the presets for commented example
                  distances same_camera_distance, cross_camera_distance, different_person_distance
     [truth]      min_visible                         (world module docstring)
 
-Every error is a :class:`ScenarioError` naming the file and the field, e.g.
-``terrace-sim.toml: cameras[2].fov_deg must be in (0, 180), got 200``. Unknown fields are errors
-(a typo must not silently fall back to a default).
+Every error is a :class:`~sim_cluster.scenarios.files.ScenarioError` naming the file and the
+field, e.g. ``terrace-sim.toml: cameras[2].fov_deg must be in (0, 180), got 200``. Unknown
+fields are errors (a typo must not silently fall back to a default). ``[detector]`` and
+``[appearance]`` are read the same way by the other kinds that simulate detections (EPFL).
 """
 from __future__ import annotations
 
 from dataclasses import MISSING, fields
-import importlib
 import math
 from pathlib import Path
-from typing import Any, Callable
+from typing import Any
 
 import numpy as np
 
 from edge_node.geometry import Camera, GeometryError
-from edge_node.settings import SettingsError, Table, read_toml
-from sim_cluster.appearance import AppearanceError, AppearanceParams
-from sim_cluster.data import ScenarioData
-from sim_cluster.detector_model import DetectorParams, DetectorParamsError
-from sim_cluster.world import PeopleParams, WorldConfig, WorldError, generate
+from edge_node.settings import Table
+from sim_cluster.scenarios.data import ScenarioData
+from sim_cluster.scenarios.files import ScenarioError, scenario_table
+from sim_cluster.scenarios.synthetic.appearance import AppearanceError, AppearanceParams
+from sim_cluster.scenarios.synthetic.detector_model import DetectorParams, DetectorParamsError
+from sim_cluster.scenarios.synthetic.world import PeopleParams, WorldConfig, WorldError, generate
 
-PRESET_DIR = Path(__file__).resolve().parent / "presets"
 CAMERA_KEYS = ("image_size", "homography", "pixel_scale", "projection", "position", "look_at",
                "yaw_deg", "pitch_deg", "roll_deg", "fov_deg", "focal_px", "principal_point")
-
-
-class ScenarioError(SettingsError):
-    """A scenario that cannot be loaded; the message names the file and the field."""
-
-
-def scenario_table(raw: Any, file: str) -> Table:
-    """The top table of a scenario file: the shared reader (``edge_node/settings.py``) raising
-    :class:`ScenarioError`."""
-    return Table(raw, file, error=ScenarioError)
 
 
 # -- cameras ----------------------------------------------------------------------------------
@@ -300,87 +285,6 @@ def detector_params_from_table(t: Table) -> DetectorParams:
         raise t.error(None, str(e)) from None
 
 
-def _load_synthetic(raw: dict, path: Path, seed: int, frames: int | None) -> ScenarioData:
+def load_synthetic(raw: dict, path: Path, seed: int, frames: int | None) -> ScenarioData:
+    """The scenario loader of kind ``synthetic`` (``SCENARIO_KINDS["synthetic"]``)."""
     return generate(parse_synthetic(raw, path, seed, frames))
-
-
-# -- registry and entry points ----------------------------------------------------------------
-
-ScenarioLoader = Callable[[dict, Path, int, "int | None"], ScenarioData]
-
-
-def lazy_loader(module: str, attr: str) -> ScenarioLoader:
-    """A loader imported on first use (``SCENARIO_KINDS["x"] = lazy_loader("pkg.mod", "fn")``),
-    so optional kinds cost nothing and cannot create import cycles."""
-
-    def load(raw: dict, path: Path, seed: int, frames: int | None) -> ScenarioData:
-        return getattr(importlib.import_module(module), attr)(raw, path, seed, frames)
-
-    load.__qualname__ = f"lazy_loader({module}.{attr})"
-    return load
-
-
-#: ``[source] kind`` -> loader ``(raw toml dict, file path, resolved seed, frames override or
-#: None) -> ScenarioData``. A loader validates its own fields (:func:`scenario_table`) and raises
-#: :class:`ScenarioError`.
-SCENARIO_KINDS: dict[str, ScenarioLoader] = {
-    "synthetic": _load_synthetic,
-    "epfl-gt": lazy_loader("sim_cluster.epfl", "scenario_from_table"),
-    "det-files": lazy_loader("sim_cluster.detfiles", "scenario_from_table"),
-}
-
-
-def list_presets() -> list[str]:
-    """Names of the scenario presets shipped with the package."""
-    return sorted(p.stem for p in PRESET_DIR.glob("*.toml"))
-
-
-def resolve_scenario_path(name_or_path: str | Path) -> Path:
-    """A preset name -> ``presets/<name>.toml``; anything path-like -> that file."""
-    s = str(name_or_path)
-    p = Path(s)
-    if p.suffix == ".toml" or "/" in s or "\\" in s or p.exists():
-        if not p.is_file():
-            raise ScenarioError(p.name or s, None, f"no such scenario file: {s}")
-        return p
-    preset = PRESET_DIR / f"{s}.toml"
-    if not preset.is_file():
-        raise ScenarioError(s, None, f"unknown scenario preset (presets: {', '.join(list_presets())})")
-    return preset
-
-
-def read_scenario_toml(path: Path) -> dict:
-    """Parse a scenario file, turning I/O and syntax errors into :class:`ScenarioError`."""
-    return read_toml(path, ScenarioError, what="scenario file", invalid="invalid TOML")
-
-
-def load_scenario(name_or_path: str | Path, seed: int | None = None,
-                  frames: int | None = None, data_root: str | Path | None = None) -> ScenarioData:
-    """Load a scenario by preset name or file path. ``seed`` / ``frames`` override the file's.
-
-    Same file + same seed gives identical detections. A folder written by
-    ``sim_cluster export-detections`` (or its ``calibration.json``) is a scenario too.
-    """
-    candidate = Path(str(name_or_path))
-    if candidate.is_dir() or candidate.suffix == ".json":
-        from sim_cluster.detfiles import load_det_files
-
-        return load_det_files(candidate, frames=frames, seed=seed)
-    path = resolve_scenario_path(name_or_path)
-    raw = read_scenario_toml(path)
-    file = path.name
-    top = scenario_table(raw, file)
-    if seed is None:
-        seed = top.integer("seed", 0, lo=0)
-    elif isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or seed < 0:
-        raise ScenarioError(file, "seed", f"must be an integer >= 0, got {seed!r}")
-    if frames is not None and (isinstance(frames, bool) or not isinstance(frames, (int, np.integer))
-                               or frames < 1):
-        raise ScenarioError(file, "frames", f"must be an integer >= 1, got {frames!r}")
-    src = top.table("source")
-    kind = src.raw("kind", "synthetic")
-    if kind not in SCENARIO_KINDS:
-        raise src.error("kind", f"must be one of {sorted(SCENARIO_KINDS)}, got {kind!r}")
-    if data_root is not None and kind == "epfl-gt":  # --data-root beats the file and $DMTT_DATA
-        raw.setdefault("source", {})["data_root"] = str(Path(data_root).expanduser().resolve())
-    return SCENARIO_KINDS[kind](raw, path, int(seed), None if frames is None else int(frames))
