@@ -228,6 +228,7 @@ def fuzz_batch(rng: np.random.Generator, genuine: list[bytes], k: int, n: int):
 
 
 # -- the test ---------------------------------------------------------------------------------------
+@pytest.mark.integration
 def test_fuzzed_inbox_rejects_everything_and_tracks_equal_reference(tmp_path, export_dir):
     import zenoh
 
@@ -404,6 +405,7 @@ def test_async_replayed_old_frames_change_nothing(export_dir):
 
 
 # -- a flood of future frames cannot push out the message a node waits for ---------------------------
+@pytest.mark.integration
 def test_future_frame_flood_keeps_the_awaited_message():
     """Valid-looking messages of frames far ahead, on a neighbour's key (what an unauthenticated
     spoofer can send; tests/test_security.py shows how mTLS + access control stop it), fill the

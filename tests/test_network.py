@@ -61,6 +61,7 @@ def _digest(result) -> str:
     return h.hexdigest()
 
 
+@pytest.mark.integration
 def test_core_is_deterministic_in_any_shell(terrace, sync_ring):
     again = run_network(terrace, build("ring", 4), TrackerConfig())
     assert _digest(again) == _digest(sync_ring)
@@ -161,6 +162,7 @@ def test_fault_plan_is_seeded_and_validated(tmp_path):
         FaultPlan.load(bad)
 
 
+@pytest.mark.integration
 def test_cli_run_and_export_round_trip(tmp_path):
     env = {**os.environ}
     exe = os.path.join(os.path.dirname(sys.executable), "sim_cluster")

@@ -259,6 +259,7 @@ def test_histogram_reid_separates_rendered_identities(close_world):
 
 
 # -- calibration -------------------------------------------------------------------------------------
+@pytest.mark.integration
 def test_calibrate_recovers_a_known_homography(tmp_path):
     from edge_node.perception.calibrate import fit_homography, read_pairs
     from sim_cluster.scenarios.synthetic.schema import camera_from_pose
@@ -357,6 +358,7 @@ def test_video_config_is_validated(tmp_path):
         load_node_config(f)
 
 
+@pytest.mark.integration
 def test_perception_modules_do_not_import_torch():
     code = ("import sys; import edge_node.perception.pipeline, edge_node.perception.settings, "
             "edge_node.runtime.sources, edge_node.core.node; "
@@ -366,6 +368,7 @@ def test_perception_modules_do_not_import_torch():
 
 
 # -- end to end: rendered video -> detector -> re-id -> tracker, one process per camera --------------
+@pytest.mark.integration
 def test_cluster_from_rendered_video_tracks_at_least_0_8_of_simulated(tmp_path):
     """Issue 7's bar: one process per camera from rendered frames (MOG2 + histogram re-id) reaches
     at least 0.8 x the ground MOTA of the same scenario from simulated detections (the in-process
@@ -393,6 +396,7 @@ def test_cluster_from_rendered_video_tracks_at_least_0_8_of_simulated(tmp_path):
     assert video["mota"] >= 0.8 * simulated["mota"], (video, simulated)
 
 
+@pytest.mark.integration
 def test_cluster_runs_osnet_from_a_torchreid_checkpoint(tmp_path):
     """The OSNet path end to end: random weights saved as a torchreid checkpoint, loaded by each
     node at start-up (the features carry no identity; this checks the plumbing, not accuracy)."""

@@ -35,10 +35,10 @@ from tests.loopback import ep, free_port, wait_for  # noqa: E402
 
 NET = "terrace"  # the network deploy/zenoh/peer-acl.json5 is written for (boxes cam0..cam3)
 
-pytestmark = pytest.mark.skipif(
+pytestmark = [pytest.mark.integration, pytest.mark.skipif(
     shutil.which("openssl") is None,
     reason="the openssl command is not installed: deploy/tls/make-certs.sh needs it to make the "
-           "test CA and certificates")
+           "test CA and certificates")]
 
 
 
