@@ -5,7 +5,7 @@
 * ``edge_node/core`` imports neither Zenoh, Rerun, torch nor OpenCV, and nothing of ``edge_node``
   outside the core but ``edge_node.geometry`` (``protocol`` it may): the tracker is pure.
 * No import circles among module-level imports (importing ``a.b.c`` also runs the package
-  ``a.b``'s ``__init__``, so that counts as an edge too).
+  ``a.b``'s ``__init__``, and ``from a.b import c`` names ``a.b``: both count as edges).
 * Nobody imports a ``cli`` module: the command lines are argparse over library modules.
 * Imports inside functions are for heavy optional dependencies only (torch, OpenCV, Rerun,
   matplotlib, or one of our modules that imports them at module level), each with a comment on
@@ -42,7 +42,7 @@ class Import:
     line: int
     end_line: int
     names: tuple[str, ...]  # every dotted name the statement may import
-    imported: tuple[str, ...]  # what it imports: modules, or the module holding a name
+    imported: tuple[str, ...]  # what it binds: modules, or the module holding a name
     text: str  # the statement as written
     inner: bool  # inside a function (runs when called, not at import)
 
@@ -132,7 +132,9 @@ def check(root: Path) -> dict[str, list[str]]:
         for imp in imps:
             if imp.inner:
                 continue
-            targets = {t for t in (ours(n) for n in imp.imported) if t and t != m}
+            # ``from a.b import c`` depends on a.b itself too: from inside a.b's own package, a
+            # name a.b's __init__ has not defined yet (the __init__ importing this module) fails
+            targets = {t for t in (ours(n) for n in imp.names) if t and t != m}
             for t in list(targets):  # importing a.b.c runs a.b's __init__ first
                 targets.update(a for a in _ancestors(t) if a in files and a not in _ancestors(m))
             for t in targets - {m}:
@@ -268,6 +270,9 @@ FAKE = {
     "sim_cluster/pkg/mod.py": "def h():\n    pass\n",
     "sim_cluster/pkg/user.py": "from sim_cluster.pkg.mod import h\n",
     "sim_cluster/pkg/back.py": "from sim_cluster.pkg import mod\n",
+    "sim_cluster/pkg2/__init__.py": "from sim_cluster.pkg2.node import Node\n",
+    "sim_cluster/pkg2/node.py": "from sim_cluster.pkg2 import helper\n\n\nclass Node:\n    pass\n",
+    "sim_cluster/pkg2/helper.py": "X = 1\n",
 }
 
 
@@ -301,16 +306,19 @@ def test_checker_finds_core_importing_zenoh_and_the_runtime(fake):
 
 def test_checker_finds_circles_with_their_lines(fake):
     got = fake["circle"]
-    # a <-> b; the core <-> runtime through loop; sim_cluster's __init__ importing cli, which
-    # imports a, whose package init is sim_cluster itself: not a circle (a parent package is
-    # initialised before its modules). A package __init__ importing its own module is not one
-    # either (pkg -> pkg.mod, and pkg.mod does not import pkg).
+    # a <-> b; the core <-> runtime through loop; pkg2's __init__ importing its node, which
+    # imports from pkg2. Not circles: sim_cluster's __init__ importing cli, which imports a,
+    # whose package is sim_cluster itself (a parent package is initialised before its modules),
+    # and pkg's __init__ importing pkg.mod, which imports nothing back.
     assert any(c.startswith("import circle sim_cluster.a <-> sim_cluster.b: ") and
                "sim_cluster/a.py:1: sim_cluster.a -> sim_cluster.b" in c and
                "sim_cluster/b.py:1: sim_cluster.b -> sim_cluster.a" in c for c in got), got
     assert any("edge_node.core.node" in c and "edge_node.runtime.loop" in c for c in got), got
-    assert not any("sim_cluster.pkg" in c for c in got), got
-    assert len(got) == 2, got
+    assert any(c.startswith("import circle sim_cluster.pkg2 <-> sim_cluster.pkg2.node: ") and
+               "sim_cluster/pkg2/node.py:1: sim_cluster.pkg2.node -> sim_cluster.pkg2" in c
+               for c in got), got
+    assert not any("sim_cluster.pkg " in c or "sim_cluster.pkg." in c for c in got), got
+    assert len(got) == 3, got
 
 
 def test_checker_finds_imports_of_a_cli(fake):
