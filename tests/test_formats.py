@@ -1,5 +1,5 @@
 """File formats (``edge_node/formats``), shared by camera processes and the simulator: the track
-file, det-files and ``calibration.json``."""
+file, det-files, ``calibration.json`` and EPFL's ``homographies.json``."""
 from __future__ import annotations
 
 import json
@@ -13,6 +13,8 @@ from edge_node.core.types import Track
 from edge_node.formats.calibration import (CALIBRATION, camera_entry, read_calibration,
                                            write_calibration)
 from edge_node.formats.detfile import DetFilesError, write_gt_ground
+from edge_node.formats.homographies import (HomographiesError, read_homographies,
+                                            sequence_cameras, sequence_entry)
 from edge_node.formats.tracks import HEADER, TrackWriter, read_tracks, write_tracks
 from edge_node.geometry import Camera
 from sim_cluster.network.inprocess import run_network
@@ -94,3 +96,22 @@ def test_calibration_errors_name_the_file_and_field(tmp_path, doc, message):
     assert str(tmp_path / CALIBRATION) in str(e.value) and message in str(e.value)
     with pytest.raises(DetFilesError, match="calibration file not found"):
         read_calibration(tmp_path / "elsewhere")
+
+
+# -- EPFL homographies.json ------------------------------------------------------------------------
+def test_homographies_cameras_of_a_sequence_and_errors(tmp_path):
+    path = tmp_path / "homographies.json"
+    path.write_text(json.dumps({"_doc": "x", "terrace": {
+        "sequence": "terrace1", "image_scale": 2.0, "image_size_annotations": [64, 48],
+        "H": [np.eye(3).tolist(), [[1, 0, 0], [0, 2, 0], [0, 0, 1]]]}}))
+    doc = read_homographies(path)
+    cams = sequence_cameras(sequence_entry(doc, "terrace", path), "terrace", path, fps=10.0)
+    assert [c.id for c in cams] == [0, 1] and cams[1].G[1, 1] == 2.0
+    assert cams[0].pixel_scale == 2.0 and cams[0].image_size == (64, 48) and cams[0].fps == 10.0
+    assert sequence_entry(doc, "terrace1", path, loose=True) is doc["terrace"]  # a video's name
+    with pytest.raises(HomographiesError, match=r"no sequence 'terrace1' \(has \['terrace'\]\)"):
+        sequence_entry(doc, "terrace1", path)
+    with pytest.raises(HomographiesError, match=r"campus.H \(per-camera homographies\) is missing"):
+        sequence_cameras({}, "campus", path, fps=25.0)
+    with pytest.raises(HomographiesError, match=r"terrace.H\[0\]"):
+        sequence_cameras({"H": [[[1, 0], [0, 1]]]}, "terrace", path, fps=25.0)

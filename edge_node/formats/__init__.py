@@ -8,4 +8,5 @@ file one of them writes is read by the other with the same code:
 ``calibration``  ``calibration.json`` of a det-files directory: its cameras, frame count, units
                  and each camera's files; reading and writing
 ``tracks``       a node's track file ``tracks_node<id>.csv``: reading and writing
+``homographies`` EPFL's ``homographies.json``: the cameras of a sequence
 """

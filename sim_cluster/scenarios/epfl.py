@@ -9,9 +9,10 @@ Two annotation formats are read, one file per camera, with identities consistent
     ``track_id xmin ymin xmax ymax frame lost occluded generated label`` separated by spaces
     (``label`` may be quoted); ``w = xmax - xmin``, ``h = ymax - ymin``; ``lost = 1`` rows skipped.
 
-Calibration is a JSON file (``epfl_pom/homographies.json``) holding per sequence the image-to-ground
-homographies ``H`` (camera order = list order), the ``image_scale`` they expect
-(``g = H [u s, v s, 1]``, taken from the file, never assumed) and the annotation image size.
+Calibration is a JSON file (``epfl_pom/homographies.json``, ``edge_node/formats/homographies.py``)
+holding per sequence the image-to-ground homographies ``H`` (camera order = list order), the
+``image_scale`` they expect (``g = H [u s, v s, 1]``, taken from the file, never assumed) and the
+annotation image size.
 
 Ground truth built from the annotations (``GroundTruth``):
 
@@ -41,7 +42,6 @@ Data root resolution (first that applies): an explicit ``data_root`` argument (t
 """
 from __future__ import annotations
 
-import json
 import os
 from dataclasses import dataclass
 from pathlib import Path
@@ -50,7 +50,9 @@ from typing import Any
 import numpy as np
 
 from edge_node.core.types import Detection
-from edge_node.geometry import Camera, GeometryError
+from edge_node.formats.homographies import (FILE, HomographiesError, read_homographies,
+                                            sequence_cameras, sequence_entry)
+from edge_node.geometry import Camera
 from sim_cluster.scenarios.data import GroundTruth, ScenarioData
 from sim_cluster.scenarios.files import ScenarioError, scenario_table
 from sim_cluster.scenarios.synthetic.appearance import AppearanceModel, AppearanceParams
@@ -60,7 +62,7 @@ from sim_cluster.scenarios.synthetic.schema import (appearance_params_from_table
 
 ENV_DATA_ROOT = "DMTT_DATA"
 EPFL_DIR = "epfl_pom"
-CALIBRATION_FILE = "homographies.json"
+CALIBRATION_FILE = FILE
 DEFAULT_FPS = 25.0
 PERSON_WIDTH_M = 0.5
 PERSON_HEIGHT_M = 1.75
@@ -242,31 +244,15 @@ def read_calibration(path: str | os.PathLike[str], sequence: str,
     """Cameras of ``sequence`` (a key of the calibration JSON) and its entry (for ``sequence`` name).
 
     Each camera gets ``G = H[c]``, ``pixel_scale = image_scale``, ``image_size`` from
-    ``image_size_annotations`` (default 360x288).
+    ``image_size_annotations`` (default 360x288): ``edge_node/formats/homographies.py``.
     """
-    path = Path(path)
     try:
-        doc = json.loads(path.read_text(encoding="utf-8"))
+        entry = sequence_entry(read_homographies(path), sequence, path)
+        return sequence_cameras(entry, sequence, path, fps=fps), entry
     except FileNotFoundError as exc:
         raise DataNotFoundError(f"calibration file not found: {path}") from exc
-    except json.JSONDecodeError as exc:
-        raise EpflFormatError(f"{path}: not valid JSON ({exc})") from exc
-    if sequence not in doc or not isinstance(doc[sequence], dict):
-        keys = [k for k, v in doc.items() if isinstance(v, dict)]
-        raise EpflFormatError(f"{path}: no sequence {sequence!r} (has {keys})")
-    entry = doc[sequence]
-    if "H" not in entry:
-        raise EpflFormatError(f"{path}: {sequence}.H (per-camera homographies) is missing")
-    scale = float(entry.get("image_scale", 1.0))
-    size = entry.get("image_size_annotations", [360, 288])
-    cams = []
-    for c, H in enumerate(entry["H"]):
-        try:
-            cams.append(Camera(id=c, image_size=(int(size[0]), int(size[1])),
-                               G=np.asarray(H, dtype=float), pixel_scale=scale, fps=fps))
-        except (GeometryError, ValueError, TypeError) as exc:
-            raise EpflFormatError(f"{path}: {sequence}.H[{c}]: {exc}") from exc
-    return cams, entry
+    except HomographiesError as exc:
+        raise EpflFormatError(str(exc)) from exc
 
 
 # -- a sequence -------------------------------------------------------------------------------------
