@@ -16,9 +16,9 @@ import numpy as np
 import pytest
 
 from edge_node.core.config import TrackerConfig
+from edge_node.formats.tracks import read_tracks
 from sim_cluster.cluster.processes import alive
 from sim_cluster.cluster.state import ClusterState
-from edge_node.formats.tracks import read_tracks
 from sim_cluster.evaluation.metrics import evaluate
 from sim_cluster.network.inprocess import run_network
 from sim_cluster.network.topology import build

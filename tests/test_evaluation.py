@@ -8,10 +8,10 @@ import pytest
 
 from edge_node.core.types import Track
 from edge_node.geometry import Camera
-from sim_cluster.scenarios.data import GroundTruth, ScenarioData
 from sim_cluster.evaluation.metrics import (EvaluationError, evaluate, evaluate_ground,
                                             evaluate_image, iou_matrix, project_boxes, visible_box,
                                             visible_boxes)
+from sim_cluster.scenarios.data import GroundTruth, ScenarioData
 
 UPM = 30.0  # ground units per metre in these cases, to exercise the conversion
 A, B = 1, 2

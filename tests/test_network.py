@@ -14,8 +14,8 @@ from edge_node.faults import FaultPlan, FaultPlanError
 from protocol.messages import FrameMessage, TrackerInfo
 from sim_cluster.evaluation.metrics import evaluate
 from sim_cluster.network.inprocess import run_network
-from sim_cluster.scenarios.loader import load_scenario
 from sim_cluster.network.topology import build
+from sim_cluster.scenarios.loader import load_scenario
 
 FRAMES = 300
 

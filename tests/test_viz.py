@@ -15,9 +15,9 @@ import numpy as np
 import pytest
 
 from edge_node.core.types import Track
+from edge_node.formats.tracks import read_tracks
 from edge_node.viz import (NullSink, VizSpecError, disagreement, fov_polygon, make_sink,
                            parse_spec, track_colour, track_label)
-from edge_node.formats.tracks import read_tracks
 
 BIN = Path(sys.executable).parent
 FRAMES = 40

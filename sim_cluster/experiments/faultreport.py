@@ -23,11 +23,11 @@ import numpy as np
 
 from edge_node.core.config import TrackerConfig
 from edge_node.faults import FaultPlan
-from sim_cluster.scenarios.data import ScenarioData
 from sim_cluster.evaluation.metrics import evaluate
 from sim_cluster.network.inprocess import run_network
 from sim_cluster.network.topology import build
 from sim_cluster.progress import progress_bar
+from sim_cluster.scenarios.data import ScenarioData
 from sim_cluster.scenarios.loader import scenario_from_args
 
 
