@@ -8,7 +8,7 @@
 
 Exit codes: 0 done (or stopped by SIGINT / SIGTERM), 1 internal error, 2 bad command line /
 config / source files, 3 start-up barrier timed out, 4 Zenoh could not start
-(``edge_node/runtime/loop.py``). Errors are one line on stderr. Zenoh is imported only by ``run``.
+(``edge_node/runtime/loop.py``). Errors are one line on stderr.
 """
 from __future__ import annotations
 
@@ -16,6 +16,14 @@ import argparse
 import json
 import logging
 import sys
+from dataclasses import replace
+
+from edge_node.perception import PerceptionError, calibrate
+from edge_node.runtime import loop
+from edge_node.runtime.config import NodeConfigError, load_node_config
+from edge_node.runtime.sources import SourceError, open_source
+from edge_node.runtime.transport import StartupError, TransportError
+from edge_node.viz import VizSpecError, parse_spec
 
 PROG = "edge_node"
 
@@ -59,15 +67,12 @@ def _parser() -> argparse.ArgumentParser:
 
 
 def _calibrate(args) -> int:
-    from edge_node.perception import PerceptionError
-    from edge_node.perception.calibrate import fit_homography, read_pairs, report
-
     try:
-        img, gnd = read_pairs(args.points)
-        cal = fit_homography(img, gnd, ransac_px=args.ransac)
+        img, gnd = calibrate.read_pairs(args.points)
+        cal = calibrate.fit_homography(img, gnd, ransac_px=args.ransac)
     except PerceptionError as e:
         return _fail(str(e))
-    print(report(cal, tuple(args.image_size) if args.image_size else None))
+    print(calibrate.report(cal, tuple(args.image_size) if args.image_size else None))
     return 0
 
 
@@ -77,9 +82,6 @@ def _fail(message: str, code: int = 2) -> int:
 
 
 def _check(args) -> int:
-    from edge_node.runtime.config import NodeConfigError, load_node_config
-    from edge_node.runtime.sources import SourceError, open_source
-
     try:
         cfg = load_node_config(args.config)
         d = cfg.to_dict()
@@ -95,10 +97,6 @@ def _check(args) -> int:
 
 
 def _run(args) -> int:
-    from edge_node.runtime import loop
-    from edge_node.runtime.config import NodeConfigError, load_node_config
-    from edge_node.runtime.sources import SourceError
-
     logging.basicConfig(level=args.log_level.upper(), stream=sys.stderr,
                         format="%(asctime)s %(name)s %(levelname)s: %(message)s")
     if args.frames is not None and args.frames < 1:
@@ -108,10 +106,6 @@ def _run(args) -> int:
     except NodeConfigError as e:
         return _fail(str(e))
     if args.rerun is not None or args.recording_id is not None:
-        from dataclasses import replace
-
-        from edge_node.viz import VizSpecError, parse_spec  # does not import Rerun
-
         try:
             spec = parse_spec(args.rerun) if args.rerun is not None else None
         except VizSpecError as e:
@@ -119,8 +113,6 @@ def _run(args) -> int:
         viz = replace(cfg.viz, **({"rerun": str(spec)} if spec else {}),
                       **({"recording_id": args.recording_id} if args.recording_id else {}))
         cfg = replace(cfg, viz=viz)
-    from edge_node.runtime.transport import StartupError, TransportError  # imports zenoh lazily
-
     try:
         report = loop.run_node(cfg, frames=args.frames, mode=args.mode, join=args.join)
     except (NodeConfigError, SourceError) as e:

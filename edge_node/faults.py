@@ -27,14 +27,15 @@ TOML form (``sim_cluster up --faults faults.toml``, ``sim_cluster run --faults``
 """
 from __future__ import annotations
 
-import tomllib
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
+from edge_node.settings import SettingsError, Table, read_toml
 
-class FaultPlanError(ValueError):
+
+class FaultPlanError(SettingsError):
     """A fault file that cannot be used; the message names the file and the field."""
 
 
@@ -105,99 +106,73 @@ class FaultPlan:
     # -- loading -------------------------------------------------------------------------------
     @classmethod
     def from_dict(cls, d: dict, where: str = "faults") -> "FaultPlan":
-        known = {"seed", "link", "partition", "node"}
-        unknown = sorted(set(d) - known)
-        if unknown:
-            raise FaultPlanError(f"{where}: unknown section(s) {', '.join(unknown)}")
-        links: list[LinkFault] = []
-        for i, t in enumerate(d.get("link", [])):
-            links.append(_link(t, f"{where}: link[{i}]"))
-        for i, t in enumerate(d.get("partition", [])):
-            links.extend(_partition(t, f"{where}: partition[{i}]"))
-        nodes = []
-        for i, t in enumerate(d.get("node", [])):
-            w = f"{where}: node[{i}]"
-            _only(t, {"node", "kill", "restart"}, w)
-            node, kill = _int(t, "node", w), _int(t, "kill", w)
-            restart = t.get("restart")
-            if restart is not None and (_int(t, "restart", w) <= kill):
-                raise FaultPlanError(f"{w}.restart must be after kill ({kill}), got {restart}")
-            nodes.append(NodeFault(node, kill, restart))
-        seed = d.get("seed", 0)
-        if not isinstance(seed, int) or isinstance(seed, bool) or seed < 0:
-            raise FaultPlanError(f"{where}: seed must be an integer >= 0, got {seed!r}")
+        """A plan from its (TOML) tables; ``where`` names it in errors (the file)."""
+        top = Table(d, where, error=FaultPlanError)
+        seed = top.integer("seed", 0, lo=0)
+        links: list[LinkFault] = [_link(t) for t in top.tables("link", required=False)]
+        for t in top.tables("partition", required=False):
+            links.extend(_partition(t))
+        nodes = [_node(t) for t in top.tables("node", required=False)]
+        top.finish()
         return cls(tuple(links), tuple(nodes), seed)
 
     @classmethod
     def load(cls, path: str | Path) -> "FaultPlan":
         path = Path(path)
-        try:
-            d = tomllib.loads(path.read_text())
-        except OSError as e:
-            raise FaultPlanError(f"{path}: cannot read ({e.strerror})") from None
-        except tomllib.TOMLDecodeError as e:
-            raise FaultPlanError(f"{path}: not valid TOML ({e})") from None
-        return cls.from_dict(d, where=str(path))
+        return cls.from_dict(read_toml(path, FaultPlanError, file=str(path), what="fault plan"),
+                             where=str(path))
 
 
-def _only(t: dict, keys: set[str], where: str) -> None:
-    if not isinstance(t, dict):
-        raise FaultPlanError(f"{where} must be a table")
-    unknown = sorted(set(t) - keys)
-    if unknown:
-        raise FaultPlanError(f"{where}: unknown field(s) {', '.join(unknown)}")
-
-
-def _int(t: dict, key: str, where: str, default: int | None = None) -> int:
-    v = t.get(key, default)
-    if not isinstance(v, int) or isinstance(v, bool) or v < 0:
-        raise FaultPlanError(f"{where}.{key} must be an integer >= 0, got {v!r}")
-    return v
-
-
-def _prob(t: dict, key: str, where: str) -> float:
-    v = t.get(key, 0.0)
-    if not isinstance(v, (int, float)) or isinstance(v, bool) or not 0.0 <= v <= 1.0:
-        raise FaultPlanError(f"{where}.{key} must be a probability in [0, 1], got {v!r}")
-    return float(v)
-
-
-def _link(t: dict, where: str) -> LinkFault:
-    _only(t, {"src", "dst", "start", "stop", "loss", "delay", "jitter", "duplicate"}, where)
-    src = _int(t, "src", where) if "src" in t else None
-    dst = _int(t, "dst", where) if "dst" in t else None
-    start = _int(t, "start", where, 0)
-    stop = _int(t, "stop", where) if "stop" in t else None
+def _frames(t: Table) -> tuple[int, int | None]:
+    """``start`` and ``stop`` of a rule: frames ``[start, stop)``."""
+    start = t.integer("start", 0, lo=0)
+    stop = t.integer("stop", None, lo=0)
     if stop is not None and stop <= start:
-        raise FaultPlanError(f"{where}.stop must be after start ({start}), got {stop}")
-    return LinkFault(src, dst, start, stop, _prob(t, "loss", where), _int(t, "delay", where, 0),
-                     _int(t, "jitter", where, 0), _prob(t, "duplicate", where))
+        raise t.error("stop", f"must be after start ({start}), got {stop}")
+    return start, stop
 
 
-def _partition(t: dict, where: str) -> list[LinkFault]:
-    _only(t, {"between", "groups", "start", "stop"}, where)
-    start = _int(t, "start", where, 0)
-    stop = _int(t, "stop", where) if "stop" in t else None
+def _link(t: Table) -> LinkFault:
+    src = t.integer("src", None, lo=0)
+    dst = t.integer("dst", None, lo=0)
+    start, stop = _frames(t)
+    fault = LinkFault(src, dst, start, stop, t.probability("loss", 0.0),
+                      t.integer("delay", 0, lo=0), t.integer("jitter", 0, lo=0),
+                      t.probability("duplicate", 0.0))
+    t.finish()
+    return fault
+
+
+def _partition(t: Table) -> list[LinkFault]:
+    start, stop = _frames(t)
     pairs: list[tuple[int, int]] = []
-    if "between" in t:
-        for p in t["between"]:
-            if not (isinstance(p, list) and len(p) == 2 and all(isinstance(v, int) for v in p)):
-                raise FaultPlanError(f"{where}.between must be a list of node pairs, got {p!r}")
-            pairs.append((p[0], p[1]))
-    if "groups" in t:
-        groups = t["groups"]
-        if not (isinstance(groups, list) and all(isinstance(g, list) for g in groups)):
-            raise FaultPlanError(f"{where}.groups must be a list of node lists")
-        for i, a in enumerate(groups):
-            for b in groups[i + 1:]:
-                pairs.extend((x, y) for x in a for y in b)
+    for p in t.list("between", []):
+        if not (isinstance(p, list) and len(p) == 2 and all(isinstance(v, int) for v in p)):
+            raise t.error("between", f"must be a list of node pairs, got {p!r}")
+        pairs.append((p[0], p[1]))
+    groups = t.list("groups", [])
+    if not all(isinstance(g, list) for g in groups):
+        raise t.error("groups", "must be a list of node lists")
+    for i, a in enumerate(groups):
+        for b in groups[i + 1:]:
+            pairs.extend((x, y) for x in a for y in b)
+    t.finish()
     if not pairs:
-        raise FaultPlanError(f"{where} needs 'between' or 'groups'")
+        raise t.error(None, "needs 'between' or 'groups'")
     out = []
     for a, b in pairs:
         out.append(LinkFault(a, b, start, stop, cut=True))
         out.append(LinkFault(b, a, start, stop, cut=True))
     return out
+
+
+def _node(t: Table) -> NodeFault:
+    node, kill = t.integer("node", lo=0), t.integer("kill", lo=0)
+    restart = t.integer("restart", None, lo=0)
+    if restart is not None and restart <= kill:
+        raise t.error("restart", f"must be after kill ({kill}), got {restart}")
+    t.finish()
+    return NodeFault(node, kill, restart)
 
 
 NO_FAULTS = FaultPlan()

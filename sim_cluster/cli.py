@@ -1,4 +1,5 @@
-"""``sim_cluster``: run camera networks in one process (reference runs, experiments, benchmarks).
+"""``sim_cluster``: run camera networks in one process (reference runs, experiments, benchmarks)
+and as real processes on loopback.
 
     sim_cluster run --scenario terrace-sim --topology ring --config dkf+lda+dtm --seed 0 --out DIR
     sim_cluster bench
@@ -10,116 +11,30 @@
 from __future__ import annotations
 
 import argparse
-import json
 import sys
-from pathlib import Path
 
-from edge_node.core.config import ABLATIONS, ConfigError, TrackerConfig
+from edge_node.core.config import ABLATIONS, ConfigError
+from edge_node.formats.detfile import DetFilesError
+from edge_node.geometry import GeometryError
+from edge_node.runtime.sources import SourceError
+from edge_node.settings import SettingsError
+from sim_cluster.cluster import commands as cluster
+from sim_cluster.cluster.state import ClusterError
+from sim_cluster.experiments import ablation, bench, bench_cluster, faultreport, run
+from sim_cluster.experiments.ablation import AblationError
+from sim_cluster.network.topology import TopologyError
+from sim_cluster.scenarios import commands as scenarios
+from sim_cluster.scenarios.epfl import EpflFormatError
+from sim_cluster.scenarios.synthetic.appearance import AppearanceError
+from sim_cluster.scenarios.synthetic.detector_model import DetectorParamsError
+from sim_cluster.scenarios.synthetic.render import RenderError
+from sim_cluster.scenarios.synthetic.world import WorldError
+from sim_cluster.viz import VizError
 
-
-class CliError(Exception):
-    """A user error: printed as one line, exit status 2."""
-
-
-def _scenario(args):
-    from sim_cluster.scenario import ScenarioError, load_scenario
-
-    try:
-        return load_scenario(args.scenario, seed=args.seed, frames=args.frames,
-                             data_root=getattr(args, "data_root", None))
-    except (ScenarioError, OSError) as e:
-        raise CliError(str(e)) from None
-
-
-def _tracker_config(args) -> TrackerConfig:
-    try:
-        cfg = TrackerConfig.for_ablation(args.config)
-        if getattr(args, "tracker_config", None):
-            import tomllib
-
-            path = Path(args.tracker_config)
-            try:
-                table = tomllib.loads(path.read_text())
-            except (OSError, tomllib.TOMLDecodeError) as e:
-                raise CliError(f"{path}: {e}") from None
-            cfg = TrackerConfig.from_dict({**cfg.to_dict(), **table.get("tracker", table)},
-                                          where=str(path))
-        return cfg
-    except ConfigError as e:
-        raise CliError(str(e)) from None
-
-
-def run_once(data, topology: str, cfg: TrackerConfig, *, order=None, show_progress: bool = False,
-             evaluate: bool = True, ground_threshold_m: float = 1.0, mode: str = "sync",
-             faults=None):
-    """One in-process run plus its evaluation; returns ``(RunResult, summary dict)``."""
-    from edge_node.faults import NO_FAULTS
-
-    from sim_cluster import topology as topo
-    from sim_cluster.network import CENTRALIZED, run_network
-    from sim_cluster.progress import progress_bar
-
-    adj = CENTRALIZED if topology == CENTRALIZED else topo.build(topology, data.num_cameras, order)
-    update, close = progress_bar(f"{data.name} {topology}", data.frames, show_progress)
-    try:
-        result = run_network(data, adj, cfg, topology_name=Path(topology).stem
-                             if topology not in topo.NAMES + (CENTRALIZED,) else topology,
-                             progress=update, mode=mode, faults=faults or NO_FAULTS)
-    finally:
-        close()
-    summary = result.summary()
-    if order is not None:
-        summary["order"] = list(order)
-    if evaluate:
-        from sim_cluster.evaluation import evaluate as ev
-
-        summary["metrics"] = ev(result.tracks, data, ground_threshold_m=ground_threshold_m)
-    return result, summary
-
-
-def cmd_run(args) -> int:
-    from sim_cluster.report import run_table
-    from sim_cluster.tracks_io import write_tracks
-
-    rerun = _rerun_spec(args)
-    data = _scenario(args)
-    cfg = _tracker_config(args)
-    faults = None
-    if args.faults:
-        from edge_node.faults import FaultPlan, FaultPlanError
-
-        try:
-            faults = FaultPlan.load(args.faults)
-        except FaultPlanError as e:
-            raise CliError(str(e)) from None
-    result, summary = run_once(data, args.topology, cfg, show_progress=not args.quiet,
-                               ground_threshold_m=args.ground_threshold, mode=args.mode,
-                               faults=faults)
-    out = Path(args.out)
-    out.mkdir(parents=True, exist_ok=True)
-    for node, frames in result.tracks.items():
-        write_tracks(out / f"tracks_node{node}.csv", frames)
-    (out / "summary.json").write_text(json.dumps(summary, indent=2, sort_keys=True))
-    print(run_table(summary))
-    print(f"wrote {out}/summary.json and {len(result.tracks)} track files")
-    if rerun.enabled:
-        from sim_cluster.viz import VizError, record_run
-
-        try:
-            record_run(rerun, result, data)
-        except VizError as e:
-            raise CliError(str(e)) from None
-    return 0
-
-
-def _rerun_spec(args):
-    """``--rerun`` checked before any work (Rerun itself is imported only when it is used)."""
-    from sim_cluster.viz import VizError, spec_from_args
-
-    try:
-        return spec_from_args(getattr(args, "rerun", None))
-    except VizError as e:
-        raise CliError(str(e)) from None
+#: Errors that mean "your input is wrong": one line on stderr, exit status 2 (not a traceback).
+INPUT_ERRORS = (SettingsError, ConfigError, ClusterError, VizError, AblationError, GeometryError,
+                AppearanceError, DetectorParamsError, DetFilesError, EpflFormatError,
+                SourceError, TopologyError, WorldError, RenderError, OSError)
 
 
 def _rerun_arg(sp) -> None:
@@ -128,70 +43,9 @@ def _rerun_arg(sp) -> None:
                          "serve [PORT]; all nodes in one recording")
 
 
-def cmd_export(args) -> int:
-    from sim_cluster.detfiles import export_detections
-
-    data = _scenario(args)
-    path = export_detections(data, Path(args.out),
-                             descriptor_dtype="float32" if args.float32 else "float16")
-    print(f"wrote {data.num_cameras} cameras x {data.frames} frames to {args.out} "
-          f"(replay: sim_cluster run --scenario {path})")
-    return 0
-
-
-def _cluster(name: str):
-    def cmd(args) -> int:
-        from sim_cluster import cluster
-
-        try:
-            return getattr(cluster, name)(args)
-        except cluster.ClusterError as e:
-            raise CliError(str(e)) from None
-    return cmd
-
-
-def cmd_fault_report(args) -> int:
-    from sim_cluster.faultreport import main as report_main
-
-    return report_main(args)
-
-
-def cmd_scenarios(args) -> int:
-    from sim_cluster.scenario import list_presets
-
-    for name in list_presets():
-        print(name)
-    return 0
-
-
-def cmd_bench(args) -> int:
-    from sim_cluster.bench import main as bench_main
-
-    return bench_main(args)
-
-
-def cmd_bench_cluster(args) -> int:
-    from sim_cluster.bench_cluster import main as bench_cluster_main
-    from sim_cluster.cluster import ClusterError
-
-    try:
-        return bench_cluster_main(args)
-    except ClusterError as e:
-        raise CliError(str(e)) from None
-
-
-def cmd_ablation(args) -> int:
-    from sim_cluster.ablation import AblationError, main as ablation_main
-
-    try:
-        return ablation_main(args)
-    except AblationError as e:
-        raise CliError(str(e)) from None
-
-
 def _source_args(sp) -> None:
     """``up --source video``: every node runs from its camera's rendered frames
-    (sim_cluster/render.py, edge_node/perception)."""
+    (sim_cluster/scenarios/synthetic/render.py, edge_node/perception)."""
     sp.add_argument("--source", default="scenario", choices=("scenario", "video"),
                     help="scenario: each node replays the scenario's simulated detections; "
                          "video: render each camera's frames, nodes run detector + re-id on them")
@@ -202,16 +56,6 @@ def _source_args(sp) -> None:
                     help="--source video: the appearance descriptor (default histogram)")
     sp.add_argument("--reid-weights", default=None, help="torchreid checkpoint for --reid osnet_*")
     sp.add_argument("--onnx-model", default=None, help="ONNX person detector for --detector onnx")
-
-
-def cmd_render(args) -> int:
-    from sim_cluster.render import render_scenario
-
-    info = render_scenario(args.scenario, Path(args.out), seed=args.seed, frames=args.frames,
-                           fmt="png" if args.png else "avi", noise=args.noise)
-    for c, v in info["cameras"].items():
-        print(f"camera {c}: {v['frames']} (background {v['background']})")
-    return 0
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -241,7 +85,7 @@ def build_parser() -> argparse.ArgumentParser:
     r.add_argument("--out", default="runs/latest")
     r.add_argument("--quiet", action="store_true", help="no progress bar")
     _rerun_arg(r)
-    r.set_defaults(func=cmd_run)
+    r.set_defaults(func=run.main)
 
     u = sub.add_parser("up", help="start one edge_node process per camera on loopback (Zenoh)")
     scenario_args(u)
@@ -267,30 +111,30 @@ def build_parser() -> argparse.ArgumentParser:
     u.add_argument("--quiet", action="store_true")
     _rerun_arg(u)
     _source_args(u)
-    u.set_defaults(func=_cluster("up"))
+    u.set_defaults(func=cluster.up)
     for name, what in (("status", "list a cluster's nodes"), ("down", "stop every node")):
         c = sub.add_parser(name, help=what)
         c.add_argument("--out", default="runs/cluster")
-        c.set_defaults(func=_cluster(name))
+        c.set_defaults(func=getattr(cluster, name))
     for name, what in (("kill", "SIGKILL one node (a crash)"), ("restart", "start a node again")):
         c = sub.add_parser(name, help=what)
         c.add_argument("node", type=int)
         c.add_argument("--out", default="runs/cluster")
-        c.set_defaults(func=_cluster(name))
+        c.set_defaults(func=getattr(cluster, name))
 
     fr = sub.add_parser("fault-report", help="standard faults (kill, restart, loss, delay, "
                         "partition) against the fault-free run")
     scenario_args(fr)
     fr.add_argument("--out", default="runs/faults")
     fr.add_argument("--quiet", action="store_true")
-    fr.set_defaults(func=cmd_fault_report)
+    fr.set_defaults(func=faultreport.main)
 
     e = sub.add_parser("export-detections",
                        help="write a scenario's detections (det.txt + .npy), truth and calibration")
     scenario_args(e)
     e.add_argument("--out", required=True, help="folder to write (one c<i>/ per camera)")
     e.add_argument("--float32", action="store_true", help="descriptors as float32 (default float16)")
-    e.set_defaults(func=cmd_export)
+    e.set_defaults(func=scenarios.export)
 
     rd = sub.add_parser("render", help="render each camera's frames of a synthetic scenario "
                         "(MJPG .avi or PNG folders, plus the empty background)")
@@ -298,17 +142,17 @@ def build_parser() -> argparse.ArgumentParser:
     rd.add_argument("--out", required=True, help="folder to write")
     rd.add_argument("--png", action="store_true", help="PNG folders c<i>/ instead of c<i>.avi")
     rd.add_argument("--noise", type=float, default=2.0, help="sensor noise sigma (grey levels)")
-    rd.set_defaults(func=cmd_render)
+    rd.set_defaults(func=scenarios.render)
 
     s = sub.add_parser("scenarios", help="list the scenario presets")
-    s.set_defaults(func=cmd_scenarios)
+    s.set_defaults(func=scenarios.scenarios)
 
     b = sub.add_parser("bench", help="time prepare+update per node per frame; bytes per tracker")
     b.add_argument("--targets", default="5,20,50")
     b.add_argument("--neighbours", type=int, default=4)
     b.add_argument("--frames", type=int, default=60)
     b.add_argument("--repeats", type=int, default=3)
-    b.set_defaults(func=cmd_bench)
+    b.set_defaults(func=bench.main)
 
     bc = sub.add_parser("bench-cluster", help="real clusters of N processes: frames/s, one-hop "
                         "latency, bytes per link (passive subscriber), start-up time")
@@ -322,7 +166,7 @@ def build_parser() -> argparse.ArgumentParser:
     bc.add_argument("--sync-timeout", type=float, default=10.0)
     bc.add_argument("--startup-timeout", type=float, default=60.0)
     bc.add_argument("--out", default="runs/bench-cluster")
-    bc.set_defaults(func=cmd_bench_cluster)
+    bc.set_defaults(func=bench_cluster.main)
 
     a = sub.add_parser("ablation", help="configs x topologies x seeds over scenarios (paper Fig. 3)")
     a.add_argument("--scenarios", default="terrace-sim,lab-sim,campus-sim,terrace-gt,campus-gt",
@@ -340,34 +184,15 @@ def build_parser() -> argparse.ArgumentParser:
                    help="folder holding epfl_pom/ (default: $DMTT_DATA or ../shared/data)")
     a.add_argument("--out", default="runs/ablation")
     a.add_argument("--quiet", action="store_true", help="no progress")
-    a.set_defaults(func=cmd_ablation)
+    a.set_defaults(func=ablation.main)
     return p
-
-
-def _input_errors() -> tuple[type[BaseException], ...]:
-    """Errors that mean "your input is wrong" (a message, not a traceback)."""
-    from edge_node.core.config import ConfigError
-    from edge_node.faults import FaultPlanError
-    from edge_node.geometry import GeometryError
-    from sim_cluster.appearance import AppearanceError
-    from sim_cluster.detector_model import DetectorParamsError
-    from sim_cluster.detfiles import DetFilesError
-    from sim_cluster.epfl import EpflFormatError
-    from sim_cluster.scenario import ScenarioError
-    from sim_cluster.topology import TopologyError
-    from sim_cluster.world import WorldError
-    from sim_cluster.render import RenderError
-
-    return (CliError, ConfigError, FaultPlanError, GeometryError, AppearanceError,
-            DetectorParamsError, DetFilesError, EpflFormatError, ScenarioError, TopologyError,
-            WorldError, RenderError, OSError)
 
 
 def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     try:
         return args.func(args)
-    except _input_errors() as e:
+    except INPUT_ERRORS as e:
         print(f"sim_cluster: error: {e}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:

@@ -4,6 +4,8 @@ from __future__ import annotations
 import sys
 from collections.abc import Callable
 
+from tqdm import tqdm
+
 
 def progress_bar(desc: str, total: int, enabled: bool = True) -> tuple[Callable[[int, int], None],
                                                                        Callable[[], None]]:
@@ -11,8 +13,6 @@ def progress_bar(desc: str, total: int, enabled: bool = True) -> tuple[Callable[
     if not enabled:
         return (lambda done, total: None), (lambda: None)
     if sys.stderr.isatty():
-        from tqdm import tqdm
-
         bar = tqdm(total=total, desc=desc, unit="frame", leave=False)
 
         def update(done: int, _total: int) -> None:

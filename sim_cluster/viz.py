@@ -13,6 +13,8 @@ Entity layout and the sink itself: ``edge_node/viz/rerun_log.py``.
 """
 from __future__ import annotations
 
+import json
+import signal
 import subprocess
 import sys
 import threading
@@ -21,9 +23,12 @@ from pathlib import Path
 
 import numpy as np
 
+from edge_node.formats.tracks import read_tracks
+from edge_node.runtime.output import tracks_path
 from edge_node.viz import VizSpec, VizSpecError, disagreement, ground_points, parse_spec
 from edge_node.viz.rerun_log import DEFAULT_GRPC_PORT, make_blueprint, make_sink
-from sim_cluster.cluster import ClusterError
+from sim_cluster.cluster.processes import free_ports
+from sim_cluster.cluster.state import ClusterError
 
 
 class VizError(ClusterError):
@@ -77,8 +82,6 @@ def log_run(sink, result, data) -> None:
 
 def wait_for_interrupt(url: str) -> None:
     """``serve``: keep the server up for the browser until Ctrl-C (or SIGTERM)."""
-    import signal
-
     print(f"Rerun web viewer: {url}  (Ctrl-C to stop serving)", flush=True)
     done = threading.Event()
     old = {s: signal.signal(s, lambda *_: done.set()) for s in (signal.SIGINT, signal.SIGTERM)}
@@ -158,8 +161,6 @@ class ClusterViz:
             for f in self.dir.glob("*.rrd"):
                 f.unlink()
         elif spec.kind == "serve":
-            from sim_cluster.cluster import free_ports
-
             self.grpc_port = free_ports(1)[0]
 
     @property
@@ -180,8 +181,6 @@ class ClusterViz:
         """The ``[viz]`` table of node ``i`` (empty when off)."""
         if not self.enabled:
             return ""
-        import json
-
         area = ", ".join(repr(float(v)) for v in self.data.area)
         return "\n".join(["", "[viz]", f"rerun = {json.dumps(self.node_spec(i))}",
                           f"recording_id = {json.dumps(self.recording_id)}",
@@ -209,9 +208,6 @@ class ClusterViz:
         (``save``), say where it is."""
         if self.sink is None:
             return
-        from edge_node.runtime.output import tracks_path
-        from sim_cluster.tracks_io import read_tracks
-
         tracks = {}
         for i in range(self.n):
             path = tracks_path(self.out / "nodes", i)

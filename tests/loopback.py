@@ -28,8 +28,8 @@ def wait_for(pred, timeout: float = 10.0, every: float = 0.01) -> bool:
 
 def export_scenario(directory: Path, frames: int, scenario: str = "terrace-sim") -> Path:
     """A det-files export of ``scenario`` (what file-source nodes play back)."""
-    from sim_cluster.detfiles import export_detections
-    from sim_cluster.scenario import load_scenario
+    from sim_cluster.scenarios.detfiles import export_detections
+    from sim_cluster.scenarios.loader import load_scenario
 
     export_detections(load_scenario(scenario, frames=frames), directory)
     return directory

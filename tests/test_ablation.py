@@ -1,5 +1,5 @@
 """``sim_cluster ablation``: a tiny grid run twice (one process, two processes); the aggregates are
-recomputed here from results.csv, independently of ``sim_cluster.ablation.aggregate``."""
+recomputed here from results.csv, independently of ``sim_cluster.experiments.ablation.aggregate``."""
 from __future__ import annotations
 
 import csv
@@ -9,7 +9,8 @@ from collections import defaultdict
 
 import pytest
 
-from sim_cluster import ablation, cli
+from sim_cluster import cli
+from sim_cluster.experiments import ablation
 
 GRID = ["--scenarios", "terrace-sim", "--seeds", "0-1", "--frames", "15",
         "--configs", "dkf+lda,dkf+lda+dtm", "--topologies", "ring,centralized", "--orderings", "2",
@@ -44,6 +45,7 @@ def _per_seed(rows, col):
     return {k: {s: statistics.fmean(v) for s, v in d.items()} for k, d in acc.items()}
 
 
+@pytest.mark.integration
 def test_csv_rows_and_columns(runs):
     rows = _rows(runs[1])
     assert len(rows) == EXPECTED_RUNS
@@ -65,6 +67,7 @@ def test_csv_rows_and_columns(runs):
                     for t, n in (("ring", 2), ("centralized", 1)) for o in range(n)]
 
 
+@pytest.mark.integration
 def test_jobs_do_not_change_results(runs):
     assert (runs[1] / "results.csv").read_bytes() == (runs[2] / "results.csv").read_bytes()
     s1 = json.loads((runs[1] / "summary.json").read_text())
@@ -72,6 +75,7 @@ def test_jobs_do_not_change_results(runs):
     assert s1 == s2
 
 
+@pytest.mark.integration
 def test_aggregates_match_csv(runs):
     rows = _rows(runs[1])
     summary = json.loads((runs[1] / "summary.json").read_text())
@@ -89,6 +93,7 @@ def test_aggregates_match_csv(runs):
                 assert f"{mean:.3f} ± {std:.3f}" in md
 
 
+@pytest.mark.integration
 def test_orderings_are_averaged_within_a_seed(runs):
     rows = _rows(runs[1])
     cell = json.loads((runs[1] / "summary.json").read_text())["cells"]["terrace-sim"]
@@ -108,6 +113,7 @@ def test_orderings_are_averaged_within_a_seed(runs):
     assert got == {"mean": 3.5, "std": pytest.approx(statistics.stdev([2.0, 5.0])), "n": 2}
 
 
+@pytest.mark.integration
 def test_ratio_to_centralized(runs):
     rows = _rows(runs[1])
     summary = json.loads((runs[1] / "summary.json").read_text())
@@ -121,6 +127,7 @@ def test_ratio_to_centralized(runs):
     assert "Distributed / centralized" in md and "1215" in md and "16.38" in md and "0.78" in md
 
 
+@pytest.mark.integration
 def test_png_written(runs):
     data = (runs[1] / "ablation.png").read_bytes()
     assert data[:8] == b"\x89PNG\r\n\x1a\n" and data[12:16] == b"IHDR"

@@ -4,12 +4,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from sim_cluster.appearance import (
-    AppearanceError,
-    AppearanceModel,
-    AppearanceParams,
-    cosine_distance,
-)
+from sim_cluster.scenarios.synthetic.appearance import (AppearanceError, AppearanceModel,
+                                                        AppearanceParams, cosine_distance)
 
 
 def _distances(model: AppearanceModel, n: int = 60, seed: int = 0) -> dict[str, np.ndarray]:

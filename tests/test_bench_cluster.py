@@ -15,8 +15,10 @@ counts equal the counters exactly.
 import json
 import math
 
-from sim_cluster.bench_cluster import RESULT, main, run_cluster, table
-from sim_cluster.cluster import alive
+import pytest
+
+from sim_cluster.cluster.processes import alive
+from sim_cluster.experiments.bench_cluster import RESULT, main, run_cluster, table
 
 FRAMES = 40
 
@@ -25,6 +27,7 @@ def _positive(x) -> bool:
     return isinstance(x, (int, float)) and math.isfinite(x) and x > 0
 
 
+@pytest.mark.integration
 def test_two_node_cluster_monitor_equals_counters(tmp_path):
     fig = run_cluster("lab-sim", 2, FRAMES, tmp_path / "c", topology="chain")
     bw = fig["bandwidth"]
@@ -64,6 +67,7 @@ def test_two_node_cluster_monitor_equals_counters(tmp_path):
     assert not any(alive(p["pid"]) for p in state["nodes"].values())
 
 
+@pytest.mark.integration
 def test_command_writes_summary_and_table(tmp_path, capsys):
     class Args:
         nodes, frames, repeats, topology, scenario, seed = "2", 10, 1, "chain", "lab-sim", 0
@@ -82,7 +86,8 @@ def test_command_writes_summary_and_table(tmp_path, capsys):
 
 
 def test_ring8_preset_loads():
-    from sim_cluster.scenario import list_presets, load_scenario
+    from sim_cluster.scenarios.files import list_presets
+    from sim_cluster.scenarios.loader import load_scenario
 
     assert "ring8-sim" in list_presets()
     s = load_scenario("ring8-sim", frames=100)

@@ -16,12 +16,15 @@ import numpy as np
 import pytest
 
 from edge_node.core.config import TrackerConfig
-from sim_cluster.cluster import ClusterState, alive
-from sim_cluster.evaluation import evaluate
-from sim_cluster.network import run_network
-from sim_cluster.scenario import load_scenario
-from sim_cluster.topology import build
-from sim_cluster.tracks_io import read_tracks
+from edge_node.formats.tracks import read_tracks
+from sim_cluster.cluster.processes import alive
+from sim_cluster.cluster.state import ClusterState
+from sim_cluster.evaluation.metrics import evaluate
+from sim_cluster.network.inprocess import run_network
+from sim_cluster.network.topology import build
+from sim_cluster.scenarios.loader import load_scenario
+
+pytestmark = pytest.mark.integration  # every test here starts a cluster of processes
 
 EXE = str(Path(sys.executable).parent / "sim_cluster")
 FRAMES = 80

@@ -4,8 +4,8 @@ from pathlib import Path
 import pytest
 
 from edge_node.runtime.config import load_node_config
-from sim_cluster.detfiles import export_detections
-from sim_cluster.scenario import load_scenario
+from sim_cluster.scenarios.detfiles import export_detections
+from sim_cluster.scenarios.loader import load_scenario
 
 DEPLOY = Path(__file__).resolve().parent.parent / "deploy"
 

@@ -6,15 +6,12 @@ import pytest
 
 from edge_node.core.types import Detection
 from edge_node.geometry import Camera
-from sim_cluster.data import GroundTruth, ScenarioData
-from sim_cluster.detfiles import (
-    DetFilesError,
-    export_detections,
-    load_det_files,
-    read_det,
-    scenario_from_table,
-)
-from sim_cluster.scenario import ScenarioError, camera_from_pose, load_scenario
+from sim_cluster.scenarios.data import GroundTruth, ScenarioData
+from sim_cluster.scenarios.detfiles import (DetFilesError, export_detections, load_det_files,
+                                            read_det, scenario_from_table)
+from sim_cluster.scenarios.files import ScenarioError
+from sim_cluster.scenarios.loader import load_scenario
+from sim_cluster.scenarios.synthetic.schema import camera_from_pose
 
 
 def hand_scenario(frames: int = 6, dim: int = 16) -> ScenarioData:

@@ -9,19 +9,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from sim_cluster import epfl
-from sim_cluster.epfl import (
-    DataNotFoundError,
-    EpflFormatError,
-    build_ground_truth,
-    load_sequence,
-    read_annotations,
-    read_mot_csv,
-    read_vatic,
-    resolve_data_root,
-    scenario_from_table,
-    visible_fractions,
-)
+from sim_cluster.scenarios import epfl
+from sim_cluster.scenarios.epfl import (DataNotFoundError, EpflFormatError, build_ground_truth,
+                                        load_sequence, read_annotations, read_mot_csv, read_vatic,
+                                        resolve_data_root, scenario_from_table, visible_fractions)
 
 PRESETS = Path(epfl.__file__).resolve().parent / "presets"
 
@@ -128,7 +119,7 @@ def test_mini_scenario_through_a_table(tmp_path):
     np.testing.assert_array_equal(sc.detection_truth[0][0], [0])
     np.testing.assert_allclose(sc.detections[0][1][0].box, [0, 22, 10, 30])  # no noise
     assert sc.detections[0][1][0].descriptor.shape == (512,)
-    from sim_cluster.scenario import ScenarioError
+    from sim_cluster.scenarios.files import ScenarioError
     raw["source"]["typo"] = 1
     with pytest.raises(ScenarioError, match="typo"):
         scenario_from_table(raw, tmp_path / "mini.toml", 0, None)
@@ -187,7 +178,7 @@ def test_campus_preset_loads():
 def test_own_camera_oracle_scores_perfectly_in_the_image_plane():
     """Each node's tracks = cylinders of its own camera's annotated boxes: image MOTA 1 in every
     camera (catches camera order, pixel scale and homography sign conventions)."""
-    from sim_cluster.evaluation import evaluate_image
+    from sim_cluster.evaluation.metrics import evaluate_image
 
     _real_root()
     for name, n in (("terrace-gt", 60), ("campus-gt", 60)):

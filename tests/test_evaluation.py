@@ -8,17 +8,10 @@ import pytest
 
 from edge_node.core.types import Track
 from edge_node.geometry import Camera
-from sim_cluster.data import GroundTruth, ScenarioData
-from sim_cluster.evaluation import (
-    EvaluationError,
-    evaluate,
-    evaluate_ground,
-    evaluate_image,
-    iou_matrix,
-    project_boxes,
-    visible_box,
-    visible_boxes,
-)
+from sim_cluster.evaluation.metrics import (EvaluationError, evaluate, evaluate_ground,
+                                            evaluate_image, iou_matrix, project_boxes, visible_box,
+                                            visible_boxes)
+from sim_cluster.scenarios.data import GroundTruth, ScenarioData
 
 UPM = 30.0  # ground units per metre in these cases, to exercise the conversion
 A, B = 1, 2
@@ -202,7 +195,7 @@ def test_start_frame_evaluates_only_the_later_frames():
     """Frames before ``start`` are neither misses nor false positives."""
     import numpy as np
     from types import SimpleNamespace
-    from sim_cluster.evaluation import evaluate_ground
+    from sim_cluster.evaluation.metrics import evaluate_ground
 
     xy = [np.array([[0.0, 0.0]])] * 4
     truth = SimpleNamespace(ids=[np.array([1])] * 4, xy=xy, wh=[np.array([[0.5, 1.7]])] * 4,

@@ -1,8 +1,8 @@
 """``sim_cluster fault-report``: every standard case runs, nothing crashes, ratios add up."""
 import pytest
 
-from sim_cluster.faultreport import run_report, standard_cases, table
-from sim_cluster.scenario import load_scenario
+from sim_cluster.experiments.faultreport import run_report, standard_cases, table
+from sim_cluster.scenarios.loader import load_scenario
 
 
 @pytest.fixture(scope="module")

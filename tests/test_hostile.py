@@ -35,9 +35,10 @@ import pytest
 from edge_node.core.config import TrackerConfig
 from edge_node.core.node import CameraNode
 from edge_node.core.trigger import EventTrigger, TriggerConfig
+from edge_node.formats.tracks import TrackWriter
 from edge_node.runtime.config import load_node_config
 from edge_node.runtime.loop import FrameLoop, tracker_config_for
-from edge_node.runtime.output import StatusWriter, TrackWriter, status_path
+from edge_node.runtime.output import StatusWriter, status_path
 from edge_node.runtime.sources import open_source
 from protocol import codec
 from protocol.errors import ProtocolError
@@ -227,13 +228,14 @@ def fuzz_batch(rng: np.random.Generator, genuine: list[bytes], k: int, n: int):
 
 
 # -- the test ---------------------------------------------------------------------------------------
+@pytest.mark.integration
 def test_fuzzed_inbox_rejects_everything_and_tracks_equal_reference(tmp_path, export_dir):
     import zenoh
 
     from edge_node.runtime.transport import ZenohTransport, zenoh_config
-    from sim_cluster.cluster import ClusterState, NodeProc, status_table
-    from sim_cluster.detfiles import load_det_files
-    from sim_cluster.network import run_network
+    from sim_cluster.cluster.state import ClusterState, NodeProc, status_table
+    from sim_cluster.scenarios.detfiles import load_det_files
+    from sim_cluster.network.inprocess import run_network
 
     t_start = time.monotonic()
     p0, p1 = free_port(), free_port()
@@ -387,7 +389,7 @@ def _async_pair(data, frames: int, replay: bool, seed: int = 5):
 
 
 def test_async_replayed_old_frames_change_nothing(export_dir):
-    from sim_cluster.detfiles import load_det_files
+    from sim_cluster.scenarios.detfiles import load_det_files
 
     data = load_det_files(export_dir)
     clean, _ = _async_pair(data, FRAMES, replay=False)
@@ -403,6 +405,7 @@ def test_async_replayed_old_frames_change_nothing(export_dir):
 
 
 # -- a flood of future frames cannot push out the message a node waits for ---------------------------
+@pytest.mark.integration
 def test_future_frame_flood_keeps_the_awaited_message():
     """Valid-looking messages of frames far ahead, on a neighbour's key (what an unauthenticated
     spoofer can send; tests/test_security.py shows how mTLS + access control stop it), fill the

@@ -12,10 +12,10 @@ from edge_node.core.config import TrackerConfig
 from edge_node.core.trigger import EventTrigger, TriggerConfig
 from edge_node.faults import FaultPlan, FaultPlanError
 from protocol.messages import FrameMessage, TrackerInfo
-from sim_cluster.evaluation import evaluate
-from sim_cluster.network import run_network
-from sim_cluster.scenario import load_scenario
-from sim_cluster.topology import build
+from sim_cluster.evaluation.metrics import evaluate
+from sim_cluster.network.inprocess import run_network
+from sim_cluster.network.topology import build
+from sim_cluster.scenarios.loader import load_scenario
 
 FRAMES = 300
 
@@ -61,11 +61,13 @@ def _digest(result) -> str:
     return h.hexdigest()
 
 
+@pytest.mark.integration
 def test_core_is_deterministic_in_any_shell(terrace, sync_ring):
     again = run_network(terrace, build("ring", 4), TrackerConfig())
     assert _digest(again) == _digest(sync_ring)
-    code = ("from sim_cluster.scenario import load_scenario; from sim_cluster.network import "
-            "run_network; from sim_cluster.topology import build; from edge_node.core.config import "
+    code = ("from sim_cluster.scenarios.loader import load_scenario; from "
+            "sim_cluster.network.inprocess import run_network; from sim_cluster.network.topology "
+            "import build; from edge_node.core.config import "
             "TrackerConfig; import tests.test_network as t; "
             f"d = load_scenario('terrace-sim', seed=0, frames={FRAMES}); "
             "print(t._digest(run_network(d, build('ring', 4), TrackerConfig())))")
@@ -160,6 +162,7 @@ def test_fault_plan_is_seeded_and_validated(tmp_path):
         FaultPlan.load(bad)
 
 
+@pytest.mark.integration
 def test_cli_run_and_export_round_trip(tmp_path):
     env = {**os.environ}
     exe = os.path.join(os.path.dirname(sys.executable), "sim_cluster")

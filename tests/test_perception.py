@@ -48,8 +48,8 @@ stay_s = [30.0, 40.0]
 
 @pytest.fixture(scope="module")
 def close_world(tmp_path_factory):
-    from sim_cluster.render import Renderer, load_world, world_trajectories
-    from sim_cluster.world import generate
+    from sim_cluster.scenarios.synthetic.render import Renderer, load_world, world_trajectories
+    from sim_cluster.scenarios.synthetic.world import generate
 
     path = tmp_path_factory.mktemp("scene") / "close.toml"
     path.write_text(CLOSE_SCENE)
@@ -189,7 +189,7 @@ def test_hog_missing_is_a_clear_error():
 
 def test_mog2_splits_people_side_by_side():
     """Two people touching in the image: one blob, two boxes (the camera says how wide one is)."""
-    from sim_cluster.scenario import camera_from_pose
+    from sim_cluster.scenarios.synthetic.schema import camera_from_pose
 
     cam = camera_from_pose(0, (320, 240), np.array([0.0, -6.0, 2.5]), 90.0, 15.0, fov_deg=60.0)
     bg = np.full((240, 320, 3), 90, np.uint8)
@@ -259,9 +259,10 @@ def test_histogram_reid_separates_rendered_identities(close_world):
 
 
 # -- calibration -------------------------------------------------------------------------------------
+@pytest.mark.integration
 def test_calibrate_recovers_a_known_homography(tmp_path):
     from edge_node.perception.calibrate import fit_homography, read_pairs
-    from sim_cluster.scenario import camera_from_pose
+    from sim_cluster.scenarios.synthetic.schema import camera_from_pose
 
     cam = camera_from_pose(0, (360, 288), np.array([-1.0, -1.0, 3.0]), 45.0, 20.0, fov_deg=62.0)
     ground = np.array([[2, 2], [6, 2], [6, 6], [2, 6], [4, 3], [3, 5]], float)
@@ -357,6 +358,7 @@ def test_video_config_is_validated(tmp_path):
         load_node_config(f)
 
 
+@pytest.mark.integration
 def test_perception_modules_do_not_import_torch():
     code = ("import sys; import edge_node.perception.pipeline, edge_node.perception.settings, "
             "edge_node.runtime.sources, edge_node.core.node; "
@@ -366,6 +368,7 @@ def test_perception_modules_do_not_import_torch():
 
 
 # -- end to end: rendered video -> detector -> re-id -> tracker, one process per camera --------------
+@pytest.mark.integration
 def test_cluster_from_rendered_video_tracks_at_least_0_8_of_simulated(tmp_path):
     """Issue 7's bar: one process per camera from rendered frames (MOG2 + histogram re-id) reaches
     at least 0.8 x the ground MOTA of the same scenario from simulated detections (the in-process
@@ -393,6 +396,7 @@ def test_cluster_from_rendered_video_tracks_at_least_0_8_of_simulated(tmp_path):
     assert video["mota"] >= 0.8 * simulated["mota"], (video, simulated)
 
 
+@pytest.mark.integration
 def test_cluster_runs_osnet_from_a_torchreid_checkpoint(tmp_path):
     """The OSNet path end to end: random weights saved as a torchreid checkpoint, loaded by each
     node at start-up (the features carry no identity; this checks the plumbing, not accuracy)."""

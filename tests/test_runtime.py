@@ -1,5 +1,6 @@
-"""The camera-process runtime: config validation, Zenoh transport on loopback, frame loops,
-and an end-to-end run of real ``edge_node run`` processes against the in-process reference."""
+"""The camera-process runtime: Zenoh transport on loopback, frame loops, and an end-to-end run of
+real ``edge_node run`` processes against the in-process reference. (Its config:
+test_node_config.py; its sources: test_sources.py; the files it writes: test_formats.py.)"""
 from __future__ import annotations
 
 import json
@@ -15,22 +16,18 @@ import pytest
 
 from edge_node.core.config import TrackerConfig
 from edge_node.core.node import CameraNode
-from edge_node.runtime.config import NodeConfigError, load_node_config
+from edge_node.runtime.config import load_node_config
 from edge_node.runtime.loop import FrameLoop
-from edge_node.runtime.output import TrackWriter, tracks_path
-from edge_node.runtime.sources import open_source
+from edge_node.runtime.output import tracks_path
 from protocol import codec
 from protocol.keys import link_key
 from protocol.messages import FrameMessage, TrackerInfo
 from tests.fakes import det, topdown_camera
-
-from tests.loopback import ep, export_scenario, free_port, wait_for  # noqa: E402
+from tests.loopback import ep, export_scenario, free_port, wait_for
+from tests.test_node_config import BASE
 
 REPO = Path(__file__).resolve().parents[1]
 FRAMES = 40
-
-
-
 
 
 # -- fixtures -----------------------------------------------------------------------------------------
@@ -93,131 +90,6 @@ def start_node(procs, config: Path, *args: str) -> subprocess.Popen:
     return p
 
 
-# -- config ---------------------------------------------------------------------------------------------
-BASE = """node = 0
-network = "net"
-neighbours = [1]
-[zenoh]
-listen = ["tcp/127.0.0.1:7447"]
-connect = ["tcp/127.0.0.1:7448"]
-[source]
-kind = "det-file"
-path = "EXPORT"
-"""
-
-
-@pytest.mark.parametrize("edit, expected", [
-    (("tcp/127.0.0.1:7447", "x"),
-     "cam0.toml: zenoh.listen[0] must be an endpoint like tcp/127.0.0.1:7447, got 'x'"),
-    (("tcp/127.0.0.1:7448", "tcp/127.0.0.1:99999"), "cam0.toml: zenoh.connect[0] must be an endpoint"),
-    (('network = "net"', 'network = "a/b"'), "cam0.toml: network must be a non-empty name"),
-    (("neighbours = [1]", "neighbours = [0]"), "cam0.toml: neighbours[0] is this node itself"),
-    (("neighbours = [1]", "neighbours = [1, 1]"), "cam0.toml: neighbours[1] repeats neighbour 1"),
-    (("node = 0", "node = -1"), "cam0.toml: node must be a non-negative integer"),
-    (("[zenoh]", "[zenoh]\nlissen = []"), "cam0.toml: zenoh.lissen is not a known field"),
-    (("[source]", "[runtime]\nmode = \"fast\"\n[source]"),
-     "cam0.toml: runtime.mode must be one of 'sync', 'async', got 'fast'"),
-    (("[source]", "[runtime]\nsync_timeout_s = 0\n[source]"), "cam0.toml: runtime.sync_timeout_s must be > 0"),
-    (('kind = "det-file"', 'kind = "hologram"'), "cam0.toml: source.kind must be one of"),
-    (('path = "EXPORT"', 'path = "nowhere"'), "cam0.toml: source.path does not exist"),
-    (("[source]", "[tracker]\ntau = -1\n[source]"), "cam0.toml: tracker.tau must be a positive number"),
-    (("[source]", "[tracker]\nablation = \"x\"\n[source]"), "cam0.toml: tracker.ablation must be one of"),
-    (("[source]", "[tracker]\ntua = 1\n[source]"), "cam0.toml: tracker: unknown parameter(s) tua"),
-    (("[source]", "[camera]\nhomography = [[1, 0], [0, 1]]\nimage_size = [10, 10]\n[source]"),
-     "cam0.toml: camera.homography must be a 3x3"),
-    (("[source]", "[zenoh2]\n[source]"), "cam0.toml: zenoh2 is not a known field"),
-])
-def test_config_errors_name_file_and_field(tmp_path, export_dir, edit, expected):
-    text = BASE.replace(*edit, 1).replace("EXPORT", str(export_dir))
-    p = tmp_path / "cam0.toml"
-    p.write_text(text)
-    with pytest.raises(NodeConfigError) as e:
-        load_node_config(p)
-    assert str(e.value).startswith(expected), str(e.value)
-
-
-def test_config_missing_source_and_bad_toml(tmp_path):
-    p = tmp_path / "cam0.toml"
-    p.write_text('node = 0\nnetwork = "n"\n')
-    with pytest.raises(NodeConfigError, match=r"^cam0.toml: source is required"):
-        load_node_config(p)
-    p.write_text("node = \n")
-    with pytest.raises(NodeConfigError, match=r"^cam0.toml: not valid TOML"):
-        load_node_config(p)
-    with pytest.raises(NodeConfigError, match="config file not found"):
-        load_node_config(tmp_path / "nope.toml")
-
-
-def test_config_defaults_and_relative_paths(tmp_path, export_dir):
-    (tmp_path / "data").symlink_to(export_dir)
-    p = tmp_path / "cam3.toml"
-    p.write_text('node = 3\nnetwork = "n"\nneighbours = [2, 0]\n[source]\nkind = "det-file"\n'
-                 'path = "data"\ncamera = 1\n[tracker]\nablation = "dkf"\nkappa = 9\n'
-                 '[output]\ndir = "out"\n')
-    cfg = load_node_config(p)
-    assert cfg.neighbours == (0, 2) and cfg.runtime.mode == "sync"
-    assert cfg.runtime.sync_timeout_s == 1.0 and cfg.runtime.startup_timeout_s == 30.0
-    assert cfg.zenoh.scouting is False and cfg.zenoh.listen == ()
-    assert cfg.source.path == tmp_path / "data" / "calibration.json"
-    assert cfg.output.dir == tmp_path / "out"
-    assert cfg.tracker.kappa == 9 and not cfg.tracker.use_manager and cfg.ablation == "dkf"
-    src = open_source(cfg)
-    assert src.camera.id == 3 and src.frames == FRAMES  # camera index 1 played by node 3
-    json.dumps(cfg.to_dict())
-
-
-def test_cli_check(tmp_path, export_dir, capsys):
-    from edge_node.cli import main
-
-    p = tmp_path / "cam0.toml"
-    p.write_text(BASE.replace("EXPORT", str(export_dir)))
-    assert main(["check", "--config", str(p)]) == 0
-    out = json.loads(capsys.readouterr().out)
-    assert out["node"] == 0 and out["resolved"]["frames"] == FRAMES
-    p.write_text(BASE.replace("EXPORT", str(export_dir)).replace("tcp/127.0.0.1:7447", "x"))
-    assert main(["check", "--config", str(p)]) == 2
-    err = capsys.readouterr().err
-    assert err.count("\n") == 1 and "zenoh.listen[0]" in err
-
-
-# -- sources and output ------------------------------------------------------------------------------------
-def test_det_file_source_equals_sim_cluster_loader(tmp_path, export_dir):
-    from sim_cluster.detfiles import load_det_files
-
-    ref = load_det_files(export_dir)
-    for c in range(ref.num_cameras):
-        p = tmp_path / f"cam{c}.toml"
-        p.write_text(BASE.replace("EXPORT", str(export_dir)).replace("node = 0", f"node = {c}")
-                     .replace("neighbours = [1]", "neighbours = []"))
-        src = open_source(load_node_config(p))
-        assert src.frames == ref.frames and src.fps == ref.fps
-        assert src.units_per_metre == ref.units_per_metre
-        assert np.array_equal(src.camera.G, ref.cameras[c].G)
-        for k in range(ref.frames):
-            a, b = src(k), ref.detections[k][c]
-            assert len(a) == len(b)
-            for x, y in zip(a, b):
-                assert np.array_equal(x.box, y.box) and x.score == y.score
-                assert (x.descriptor is None) == (y.descriptor is None)
-                if x.descriptor is not None:
-                    assert x.descriptor.dtype == y.descriptor.dtype
-                    assert np.array_equal(x.descriptor, y.descriptor)
-
-
-def test_track_writer_matches_sim_cluster(tmp_path, export_dir):
-    from sim_cluster.detfiles import load_det_files
-    from sim_cluster.network import run_network
-    from sim_cluster.tracks_io import write_tracks
-
-    r = run_network(load_det_files(export_dir), {0: (1,), 1: (0,), 2: (), 3: ()}, TrackerConfig(),
-                    frames=10)
-    write_tracks(tmp_path / "ref.csv", r.tracks[0])
-    with TrackWriter(tmp_path / "mine.csv") as w:
-        for frame in r.tracks[0]:
-            w.write(frame)
-    assert (tmp_path / "ref.csv").read_bytes() == (tmp_path / "mine.csv").read_bytes()
-
-
 # -- transport --------------------------------------------------------------------------------------------
 def _pair(transports, network="tp", **kw):
     from edge_node.runtime.transport import ZenohTransport
@@ -235,6 +107,7 @@ def _msg(sender: int, frame: int, network="tp") -> FrameMessage:
     return FrameMessage(network, sender, frame, (t,), sent_at=time.time())
 
 
+@pytest.mark.integration
 def test_transport_delivers_and_barrier_passes(transports):
     a, b, _, _ = _pair(transports)
     assert a.wait_ready(5.0) < 5.0 and b.wait_ready(5.0) < 5.0
@@ -252,6 +125,7 @@ def test_transport_delivers_and_barrier_passes(transports):
     assert wait_for(lambda: b.counters()["late"] == {"0->1": 1})
 
 
+@pytest.mark.integration
 def test_barrier_timeout_names_missing_neighbour(transports):
     from edge_node.runtime.transport import StartupError, ZenohTransport
 
@@ -265,6 +139,7 @@ def test_barrier_timeout_names_missing_neighbour(transports):
     assert "neighbour(s) 1, 2" in str(e.value) and "no liveliness token" in str(e.value)
 
 
+@pytest.mark.integration
 def test_garbage_is_counted_not_fatal(transports):
     import zenoh
 
@@ -294,6 +169,7 @@ def test_garbage_is_counted_not_fatal(transports):
         raw.close()
 
 
+@pytest.mark.integration
 def test_liveliness_loss_is_seen_and_not_waited_for(transports):
     a, b, _, _ = _pair(transports, network="tl")
     a.wait_ready(5.0)
@@ -306,6 +182,7 @@ def test_liveliness_loss_is_seen_and_not_waited_for(transports):
     assert a.counters()["timeouts"] == {}
 
 
+@pytest.mark.integration
 def test_drain_hands_over_each_message_once_up_to_k(transports):
     a, b, _, _ = _pair(transports, network="ta")
     a.wait_ready(5.0)
@@ -395,10 +272,11 @@ def test_sync_loop_with_fake_transport_uses_frame_k_only(tmp_path, export_dir):
 
 
 # -- processes --------------------------------------------------------------------------------------------
+@pytest.mark.integration
 def test_two_processes_equal_the_in_process_run(tmp_path, export_dir, procs):
-    from sim_cluster.detfiles import load_det_files
-    from sim_cluster.network import run_network
-    from sim_cluster.tracks_io import read_tracks
+    from sim_cluster.scenarios.detfiles import load_det_files
+    from sim_cluster.network.inprocess import run_network
+    from edge_node.formats.tracks import read_tracks
 
     out = tmp_path / "out"
     p0, p1 = free_port(), free_port()
@@ -431,6 +309,7 @@ def test_two_processes_equal_the_in_process_run(tmp_path, export_dir, procs):
     assert c0j["bytes_per_link"]["0->1"] == ref.wire.bytes_per_link[(0, 1)]
 
 
+@pytest.mark.integration
 def test_startup_timeout_exit_code_names_neighbour(tmp_path, export_dir, procs):
     c = write_config(tmp_path / "cam0.toml", 0, [1], [ep(free_port())], [ep(free_port())],
                      export_dir, out=tmp_path / "out")
@@ -443,6 +322,7 @@ def test_startup_timeout_exit_code_names_neighbour(tmp_path, export_dir, procs):
     assert s["phase"] == "failed" and s["exit_code"] == 3
 
 
+@pytest.mark.integration
 def test_sigterm_finishes_the_frame_and_exits_0(tmp_path, export_dir, procs):
     out = tmp_path / "out"
     c = write_config(tmp_path / "cam0.toml", 0, [], [ep(free_port())], [], export_dir, out=out,
@@ -462,6 +342,7 @@ def test_sigterm_finishes_the_frame_and_exits_0(tmp_path, export_dir, procs):
     assert max(int(r.split(",")[0]) for r in rows) == s["frame"]
 
 
+@pytest.mark.integration
 def test_sigterm_during_startup_exits_0(tmp_path, export_dir, procs):
     out = tmp_path / "out"
     c = write_config(tmp_path / "cam0.toml", 0, [1], [ep(free_port())], [ep(free_port())],
@@ -475,15 +356,3 @@ def test_sigterm_during_startup_exits_0(tmp_path, export_dir, procs):
     assert p.returncode == 0, err
     s = json.loads(status.read_text())
     assert s["phase"] == "stopped" and s["frames_done"] == 0 and s["exit_code"] == 0
-
-
-def test_scenario_source_plays_back_one_camera(tmp_path):
-    from sim_cluster.scenario import load_scenario
-
-    p = tmp_path / "cam2.toml"
-    p.write_text('node = 2\nnetwork = "n"\n[source]\nkind = "scenario"\nscenario = "terrace-sim"\n'
-                 "seed = 3\nframes = 5\n")
-    src = open_source(load_node_config(p))
-    ref = load_scenario("terrace-sim", seed=3, frames=5)
-    assert src.frames == 5 and src.camera.id == 2 and np.array_equal(src.camera.G, ref.cameras[2].G)
-    assert all(len(src(k)) == len(ref.detections[k][2]) for k in range(5))

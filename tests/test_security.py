@@ -35,10 +35,10 @@ from tests.loopback import ep, free_port, wait_for  # noqa: E402
 
 NET = "terrace"  # the network deploy/zenoh/peer-acl.json5 is written for (boxes cam0..cam3)
 
-pytestmark = pytest.mark.skipif(
+pytestmark = [pytest.mark.integration, pytest.mark.skipif(
     shutil.which("openssl") is None,
     reason="the openssl command is not installed: deploy/tls/make-certs.sh needs it to make the "
-           "test CA and certificates")
+           "test CA and certificates")]
 
 
 
@@ -220,8 +220,8 @@ def test_acl_lets_only_the_networks_boxes_publish(tmp_path, certs, closing):
 
 
 def test_two_processes_run_under_mtls_and_acl(tmp_path, certs):
-    from sim_cluster.detfiles import export_detections
-    from sim_cluster.scenario import load_scenario
+    from sim_cluster.scenarios.detfiles import export_detections
+    from sim_cluster.scenarios.loader import load_scenario
 
     frames = 8
     good, _ = certs

@@ -15,9 +15,9 @@ import numpy as np
 import pytest
 
 from edge_node.core.types import Track
+from edge_node.formats.tracks import read_tracks
 from edge_node.viz import (NullSink, VizSpecError, disagreement, fov_polygon, make_sink,
                            parse_spec, track_colour, track_label)
-from sim_cluster.tracks_io import read_tracks
 
 BIN = Path(sys.executable).parent
 FRAMES = 40
@@ -65,6 +65,7 @@ def test_viz_config_resolves_save_path(tmp_path):
     assert cfg.viz.recording_id == "r1" and cfg.to_dict()["viz"]["blueprint"] is True
 
 
+@pytest.mark.integration
 def test_edge_node_cli_rejects_bad_rerun(tmp_path):
     r = subprocess.run([str(BIN / "edge_node"), "run", "--config", str(_cfg(tmp_path, "")),
                         "--rerun", "show"], capture_output=True, text=True, timeout=60)
@@ -72,6 +73,7 @@ def test_edge_node_cli_rejects_bad_rerun(tmp_path):
 
 
 # -- pure helpers --------------------------------------------------------------------------------
+@pytest.mark.integration
 def test_track_colour_is_stable_and_spread():
     assert track_colour((2, 17)) == track_colour((2, 17))
     # the same in another process (no salted hash)
@@ -95,7 +97,7 @@ def test_disagreement_is_max_pairwise_spread():
 
 
 def test_fov_polygon_is_clipped_to_the_area():
-    from sim_cluster.scenario import load_scenario
+    from sim_cluster.scenarios.loader import load_scenario
 
     data = load_scenario("terrace-sim", seed=0, frames=2)
     for cam in data.cameras:
@@ -167,6 +169,7 @@ def test_run_saves_one_recording(tmp_path):
     check_recording(rrd, {i: tmp_path / f"tracks_node{i}.csv" for i in range(4)}, 4, live=False)
 
 
+@pytest.mark.integration
 def test_cluster_up_saves_one_merged_recording(tmp_path):
     rrd = tmp_path / "cluster.rrd"
     r = subprocess.run([str(BIN / "sim_cluster"), "up", "--scenario", "terrace-sim", "--nodes", "2",
@@ -185,6 +188,7 @@ def test_cluster_up_saves_one_merged_recording(tmp_path):
     assert sent[-1][0] > 0 and sent == sorted(sent)  # cumulative bytes
 
 
+@pytest.mark.integration
 def test_rerun_off_imports_no_rerun(tmp_path):
     code = f"""
 import sys
@@ -204,6 +208,7 @@ print("RERUN", bad)
     assert "RERUN []" in r.stdout, r.stdout
 
 
+@pytest.mark.integration
 def test_cluster_up_streams_to_a_running_viewer(tmp_path):
     """``--rerun connect ADDR``: the launcher and every node stream into one recording of a
     running Rerun server (here a headless one that saves what it receives)."""

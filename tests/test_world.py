@@ -8,26 +8,15 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from sim_cluster.appearance import AppearanceModel
-from sim_cluster.data import ScenarioData
-from sim_cluster.detector_model import DetectorParams, detect, in_image_fraction
-from sim_cluster.scenario import (
-    SCENARIO_KINDS,
-    ScenarioError,
-    camera_from_pose,
-    list_presets,
-    load_scenario,
-    parse_synthetic,
-    read_scenario_toml,
-    resolve_scenario_path,
-)
-from sim_cluster.world import (
-    WorldConfig,
-    generate,
-    project_people,
-    simulate_people,
-    visible_fractions,
-)
+from sim_cluster.scenarios.data import ScenarioData
+from sim_cluster.scenarios.files import (ScenarioError, list_presets, read_scenario_toml,
+                                         resolve_scenario_path)
+from sim_cluster.scenarios.loader import SCENARIO_KINDS, load_scenario
+from sim_cluster.scenarios.synthetic.appearance import AppearanceModel
+from sim_cluster.scenarios.synthetic.detector_model import DetectorParams, detect, in_image_fraction
+from sim_cluster.scenarios.synthetic.schema import camera_from_pose, parse_synthetic
+from sim_cluster.scenarios.synthetic.world import (WorldConfig, generate, project_people,
+                                                   simulate_people, visible_fractions)
 
 SIMS = ("terrace-sim", "lab-sim", "campus-sim")
 

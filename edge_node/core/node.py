@@ -27,7 +27,8 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from edge_node.core import dkf, manager
+import edge_node.core.dkf as dkf
+import edge_node.core.manager as manager
 from edge_node.core.association import Candidate, LocalDataAssociation, Observation
 from edge_node.core.config import TrackerConfig
 from edge_node.core.gallery import Gallery

@@ -29,7 +29,7 @@ class PerceptionError(ValueError):
 def require_cv2():
     """``cv2``, or a :class:`PerceptionError` saying how to install it."""
     try:
-        import cv2  # noqa: PLC0415
+        import cv2  # noqa: PLC0415 - OpenCV is optional (the vision extra): only when used
     except ImportError as e:  # pragma: no cover - the vision extra is installed in dev
         raise PerceptionError("OpenCV is needed for frames and detectors: "
                               "pip install 'dmtt[vision]' (opencv-python-headless)"

@@ -17,15 +17,16 @@ from __future__ import annotations
 
 from abc import ABC, abstractmethod
 
-import json
 import re
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Iterator
 
 import numpy as np
 
+from edge_node.formats.homographies import (HomographiesError, read_homographies,
+                                            sequence_cameras, sequence_entry)
 from edge_node.perception import PerceptionError, require_cv2
 
 IMAGE_EXTENSIONS = (".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff", ".webp", ".ppm", ".pgm")
@@ -267,31 +268,17 @@ class EpflLayout(FrameSource):
         """This camera's calibration from ``homographies.json`` (``None`` without the file)."""
         if self.calibration_file is None:
             return None
-        from edge_node.geometry import Camera, GeometryError
-
         path = self.calibration_file
         try:
-            doc = json.loads(path.read_text(encoding="utf-8"))
-        except (OSError, json.JSONDecodeError) as e:
-            raise PerceptionError(f"{path}: cannot read ({e})") from None
-        entry = None
-        for key, v in doc.items():
-            if isinstance(v, dict) and (key == self.sequence or v.get("sequence") == self.sequence
-                                        or self.sequence.rstrip("0123456789") == key):
-                entry = v
-                break
-        if entry is None:
-            raise PerceptionError(f"{path}: no calibration for sequence {self.sequence!r}")
-        Hs = entry.get("H")
-        if not isinstance(Hs, list) or self.camera_index >= len(Hs):
+            entry = sequence_entry(read_homographies(path), self.sequence, path, loose=True)
+            cams = sequence_cameras(entry, self.sequence, path, fps=self.fps,
+                                    image_size=self.image_size)
+        except (OSError, HomographiesError) as e:
+            raise PerceptionError(str(e) if isinstance(e, HomographiesError)
+                                  else f"{path}: cannot read ({e})") from None
+        if self.camera_index >= len(cams):
             raise PerceptionError(f"{path}: {self.sequence}: no homography H[{self.camera_index}]")
-        size = entry.get("image_size_annotations", list(self.image_size))
-        try:
-            return Camera(id=node, image_size=(int(size[0]), int(size[1])),
-                          G=np.asarray(Hs[self.camera_index], float),
-                          pixel_scale=float(entry.get("image_scale", 1.0)), fps=self.fps)
-        except (GeometryError, ValueError, TypeError) as e:
-            raise PerceptionError(f"{path}: {self.sequence}.H[{self.camera_index}]: {e}") from None
+        return replace(cams[self.camera_index], id=node)
 
 
 FRAME_KINDS = ("video", "images", "epfl", "camera")

@@ -20,6 +20,7 @@ from edge_node.perception import PerceptionError
 from edge_node.perception.detectors import Detector, make_detector
 from edge_node.perception.frames import FrameSource, open_frames
 from edge_node.perception.reid import ReidExtractor, make_reid
+from edge_node.perception.settings import PerceptionSettings
 
 log = logging.getLogger("edge_node.perception")
 UNBOUNDED_FRAMES = 2**31 - 1  # a live camera runs until stopped (or [runtime] frames)
@@ -199,8 +200,6 @@ def build_perception(settings, *, camera=None, units_per_metre: float = 1.0) -> 
 def open_frame_source(cfg) -> FrameDetections:
     """The runtime source of a ``NodeConfig`` whose ``[source]`` is a frame kind. Raises
     :class:`PerceptionError` for anything that cannot be opened or loaded (at start-up)."""
-    from edge_node.perception.settings import PerceptionSettings
-
     s = cfg.source
     fps_hint = s.fps if s.fps is not None else (cfg.camera.fps if cfg.camera is not None else None)
     frames_in = open_frames(s.kind, path=s.path, camera=s.camera, sequence=s.sequence,

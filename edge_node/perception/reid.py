@@ -166,7 +166,7 @@ class OsnetReid:
             import torch  # noqa: PLC0415 - torch only when OSNet is configured
         except ImportError as e:  # pragma: no cover
             raise PerceptionError(f"OSNet needs torch: pip install 'dmtt[reid]' ({e})") from None
-        from edge_node.perception import osnet as osn  # noqa: PLC0415
+        from edge_node.perception import osnet as osn  # noqa: PLC0415 - it imports torch
 
         self.cv2 = require_cv2()
         self.torch = torch

@@ -85,13 +85,6 @@ class PerceptionSettings:
                 "onnx": dict(self.onnx), "osnet": dict(self.osnet)}
 
 
-def _number(t, key: str, lo: float | None = None, hi: float | None = None, lo_open=False):
-    v = t.number(key, None, lo=lo, lo_open=lo_open)
-    if v is not None and hi is not None and v > hi:
-        raise t.error(key, f"must be <= {hi:g}, got {v!r}")
-    return v
-
-
 def _file(t, key: str, base: Path, what: str, required: bool = False) -> str | None:
     p = t.path(key, base, None)
     if p is None:
@@ -121,23 +114,23 @@ def _drop_none(d: dict) -> dict:
 
 
 def parse_perception(t, base: Path) -> PerceptionSettings:
-    """``[perception]`` (a ``runtime.config._Table`` or ``None``) -> :class:`PerceptionSettings`."""
+    """``[perception]`` (an ``edge_node.settings.Table`` or ``None``) -> :class:`PerceptionSettings`."""
     if t is None:
         return PerceptionSettings()
     detector = t.string("detector", "mog2", choices=DETECTOR_KINDS)
     reid = t.string("reid", "histogram", choices=REID_KINDS)
     min_h = t.number("min_height_px", 0.0, lo=0)
     log_every = t.integer("log_every", 250, lo=0)
-    foot_offset = _number(t, "foot_offset_m", lo=0, hi=1.0)
+    foot_offset = t.number("foot_offset_m", None, lo=0, hi=1.0)
 
-    m = t.table("mog2")
+    m = t.optional_table("mog2")
     mog2: dict[str, Any] = {}
     if m is not None:
         mog2 = _drop_none({
             "background": _file(m, "background", base, "a video or image of the empty scene"),
             "history": m.integer("history", None, lo=1),
-            "var_threshold": _number(m, "var_threshold", lo=0, lo_open=True),
-            "learning_rate": _number(m, "learning_rate", lo=-1, hi=1),
+            "var_threshold": m.number("var_threshold", None, lo=0, lo_open=True),
+            "learning_rate": m.number("learning_rate", None, lo=-1, hi=1),
             "min_area": m.integer("min_area", None, lo=1),
             "min_height": m.integer("min_height", None, lo=0),
             "open_px": m.integer("open_px", None, lo=0),
@@ -147,29 +140,29 @@ def parse_perception(t, base: Path) -> PerceptionSettings:
         })
         m.finish()
 
-    h = t.table("hog")
+    h = t.optional_table("hog")
     hog: dict[str, Any] = {}
     if h is not None:
         hog = _drop_none({
-            "upscale": _number(h, "upscale", lo=0, lo_open=True),
+            "upscale": h.number("upscale", None, lo=0, lo_open=True),
             "win_stride": h.integer("win_stride", None, lo=1),
             "padding": h.integer("padding", None, lo=0),
-            "scale": _number(h, "scale", lo=1, lo_open=True),
-            "hit_threshold": _number(h, "hit_threshold"),
-            "nms_threshold": _number(h, "nms_threshold", lo=0, hi=1),
-            "min_score": _number(h, "min_score"),
+            "scale": h.number("scale", None, lo=1, lo_open=True),
+            "hit_threshold": h.number("hit_threshold", None),
+            "nms_threshold": h.number("nms_threshold", None, lo=0, hi=1),
+            "min_score": h.number("min_score", None),
         })
         h.finish()
 
-    o = t.table("onnx")
+    o = t.optional_table("onnx")
     onnx: dict[str, Any] = {}
     if o is not None:
         onnx = _drop_none({
             "model": _file(o, "model", base, "an ONNX person detector",
                            required=detector == "onnx"),
             "input_size": _pair(o, "input_size", integer=True),
-            "score_threshold": _number(o, "score_threshold", lo=0, hi=1),
-            "nms_threshold": _number(o, "nms_threshold", lo=0, hi=1),
+            "score_threshold": o.number("score_threshold", None, lo=0, hi=1),
+            "nms_threshold": o.number("nms_threshold", None, lo=0, hi=1),
             "class_id": o.integer("class_id", None, lo=0),
             "layout": o.string("layout", None, choices=ONNX_LAYOUTS),
         })
@@ -178,7 +171,7 @@ def parse_perception(t, base: Path) -> PerceptionSettings:
         raise t.error("onnx", "is required for detector = \"onnx\" ([perception.onnx] model = "
                       "\"your-detector.onnx\")")
 
-    s = t.table("osnet")
+    s = t.optional_table("osnet")
     osnet: dict[str, Any] = {}
     if s is not None:
         osnet = _drop_none({

@@ -32,11 +32,11 @@ Schema (defaults in brackets)::
                                     #        (sets TrackerConfig.staleness_frames)     [tracker's]
 
     [source]                        # where detections (and by default the camera) come from
-    kind = "det-file"               # a det-files directory (sim_cluster/detfiles.py format)
+    kind = "det-file"               # a det-files directory (edge_node/formats/calibration.py)
     path = "export/calibration.json"#   its calibration.json (or the directory)
     camera = 0                      #   camera index in calibration.json                 [node]
-    # kind = "scenario"             # developer convenience: play back a sim_cluster scenario
-    # scenario = "terrace-sim"      #   preset name or path
+    # kind = "scenario"             # a plug-in kind (edge_node/runtime/sources.py): sim_cluster's
+    # scenario = "terrace-sim"      #   replay of a scenario, preset name or path
     # seed = 0  frames = 200  data_root = "..."  camera = 0
     # kind = "video"                # frames: "video" | "images" | "epfl" | "camera", run through
     # path = "cam0.avi"             #   [perception] (detector, re-id); needs [camera] (except
@@ -75,25 +75,28 @@ run) unless ``[tracker]`` sets them explicitly; ``[camera] units_per_metre`` ove
 """
 from __future__ import annotations
 
-import math
 import re
-import tomllib
-from dataclasses import dataclass, field, fields
+from dataclasses import dataclass, field, fields, replace
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from edge_node.core.config import ABLATIONS, ConfigError, TrackerConfig
+from edge_node.core.config import ABLATIONS, TrackerConfig
+from edge_node.core.params import build
 from edge_node.core.trigger import TriggerConfig
+from edge_node.faults import FaultPlan, FaultPlanError
+from edge_node.geometry import Camera
+from edge_node.perception.frames import FRAME_KINDS
+from edge_node.perception.settings import PerceptionSettings, parse_frame_source, parse_perception
+from edge_node.runtime.sources import PLUGIN_GROUP, SourceError, plugin_kinds, source_plugin
+from edge_node.settings import SettingsError, Table, read_toml
+from edge_node.viz import VizSpecError, parse_spec
 from protocol.keys import is_valid_network, is_valid_node
 
 MODES = ("sync", "async")
 _TRIGGER = TriggerConfig()
-SOURCE_KINDS = ("det-file", "scenario", "video", "images", "epfl", "camera")
-FRAME_SOURCE_KINDS = ("video", "images", "epfl", "camera")  # edge_node/perception
-
-_REQUIRED = object()
+SOURCE_KINDS = ("det-file", *FRAME_KINDS)  # built in; others are plug-ins (runtime/sources.py)
 _ENDPOINT_RE = re.compile(r"(?P<proto>[a-z][a-z0-9-]*)/(?P<addr>[^?#]+)(?:\?[^#]*)?(?:#.*)?")
 _IP_PROTOS = frozenset({"tcp", "udp", "tls", "quic", "ws"})
 _OTHER_PROTOS = frozenset({"unixsock-stream", "unixpipe", "serial", "vsock"})
@@ -101,120 +104,8 @@ _HOST_RE = re.compile(r"\[[0-9A-Fa-f:.]+(?:%[A-Za-z0-9_.-]+)?\]|[A-Za-z0-9_.-]+"
 ENDPOINT_HINT = "an endpoint like tcp/127.0.0.1:7447"
 
 
-class NodeConfigError(ValueError):
+class NodeConfigError(SettingsError):
     """A camera config that cannot be used; the message names the file and the field."""
-
-    def __init__(self, file: str, field: str | None, message: str):
-        self.file = file
-        self.field = field
-        super().__init__(f"{file}: {field} {message}" if field else f"{file}: {message}")
-
-
-# -- a small validating reader for TOML tables -----------------------------------------------------
-class _Table:
-    def __init__(self, data: Any, file: str, where: str = ""):
-        if not isinstance(data, dict):
-            raise NodeConfigError(file, where or None, f"must be a table, got {type(data).__name__}")
-        self.data, self.file, self.where = data, file, where
-        self._used: set[str] = set()
-
-    def name(self, key: str) -> str:
-        return f"{self.where}.{key}" if self.where else key
-
-    def error(self, key: str | None, message: str) -> NodeConfigError:
-        return NodeConfigError(self.file, self.name(key) if key else (self.where or None), message)
-
-    def has(self, key: str) -> bool:
-        return key in self.data
-
-    def raw(self, key: str, default: Any = _REQUIRED) -> Any:
-        self._used.add(key)
-        if key not in self.data:
-            if default is _REQUIRED:
-                raise self.error(key, "is required")
-            return default
-        return self.data[key]
-
-    def number(self, key: str, default: Any = _REQUIRED, *, lo: float | None = None,
-               lo_open: bool = False) -> float:
-        v = self.raw(key, default)
-        if v is default and default is not _REQUIRED:
-            return v
-        return self._number(key, v, lo, lo_open)
-
-    def _number(self, label: str, v: Any, lo: float | None = None, lo_open: bool = False) -> float:
-        if isinstance(v, bool) or not isinstance(v, (int, float)):
-            raise self.error(label, f"must be a number, got {v!r}")
-        if not math.isfinite(v):
-            raise self.error(label, f"must be finite, got {v!r}")
-        if lo is not None and (v <= lo if lo_open else v < lo):
-            raise self.error(label, f"must be {'>' if lo_open else '>='} {lo:g}, got {v!r}")
-        return float(v)
-
-    def integer(self, key: str, default: Any = _REQUIRED, *, lo: int | None = None) -> int:
-        v = self.raw(key, default)
-        if v is default and default is not _REQUIRED:
-            return v
-        if isinstance(v, bool) or not isinstance(v, int):
-            raise self.error(key, f"must be an integer, got {v!r}")
-        if lo is not None and v < lo:
-            raise self.error(key, f"must be >= {lo}, got {v!r}")
-        return v
-
-    def boolean(self, key: str, default: Any = _REQUIRED) -> bool:
-        v = self.raw(key, default)
-        if not isinstance(v, bool):
-            raise self.error(key, f"must be true or false, got {v!r}")
-        return v
-
-    def string(self, key: str, default: Any = _REQUIRED, *, choices: tuple[str, ...] | None = None
-               ) -> str:
-        v = self.raw(key, default)
-        if v is default and default is not _REQUIRED:
-            return v
-        if not isinstance(v, str):
-            raise self.error(key, f"must be a string, got {v!r}")
-        if choices is not None and v not in choices:
-            raise self.error(key, f"must be one of {', '.join(repr(c) for c in choices)}, got {v!r}")
-        return v
-
-    def path(self, key: str, base: Path, default: Any = _REQUIRED) -> Path:
-        v = self.string(key, default)
-        if v is default and default is not _REQUIRED:
-            return v
-        if not v:
-            raise self.error(key, "must be a non-empty path")
-        p = Path(v).expanduser()
-        return p if p.is_absolute() else (base / p)
-
-    def list(self, key: str, default: Any = _REQUIRED) -> list:
-        v = self.raw(key, default)
-        if not isinstance(v, list):
-            raise self.error(key, f"must be a list, got {v!r}")
-        return v
-
-    def matrix(self, key: str, rows: int, cols: int) -> np.ndarray:
-        v = self.raw(key)
-        ok = isinstance(v, list) and len(v) == rows and all(
-            isinstance(r, list) and len(r) == cols for r in v)
-        if not ok:
-            raise self.error(key, f"must be a {rows}x{cols} list of lists of numbers, got {v!r}")
-        return np.array([[self._number(f"{key}[{i}][{j}]", x) for j, x in enumerate(r)]
-                         for i, r in enumerate(v)])
-
-    def table(self, key: str, required: bool = False) -> "_Table | None":
-        self._used.add(key)
-        if key not in self.data:
-            if required:
-                raise self.error(key, "is required (a [table])")
-            return None
-        return _Table(self.data[key], self.file, self.name(key))
-
-    def finish(self) -> None:
-        unknown = sorted(set(self.data) - self._used)
-        if unknown:
-            raise self.error(unknown[0], "is not a known field"
-                             + (f" of [{self.where}]" if self.where else ""))
 
 
 # -- endpoints ------------------------------------------------------------------------------------------
@@ -270,9 +161,7 @@ class CameraSettings:
     fps: float = 25.0
     units_per_metre: float | None = None
 
-    def camera(self, node: int):
-        from edge_node.geometry import Camera
-
+    def camera(self, node: int) -> Camera:
         return Camera(id=node, image_size=self.image_size, G=self.homography, P=self.projection,
                       pixel_scale=self.pixel_scale, fps=self.fps)
 
@@ -282,10 +171,7 @@ class SourceSettings:
     kind: str
     camera: int  # index of this node's camera in the source
     path: Path | None = None  # det-file: calibration.json or its directory
-    scenario: str | None = None  # scenario: preset name or path
-    seed: int | None = None
-    frames: int | None = None
-    data_root: Path | None = None
+    options: dict = field(default_factory=dict)  # a plug-in kind's own fields (its parse())
     sequence: str | None = None  # epfl: the files' prefix (terrace1)
     pattern: str | None = None  # images: a glob
     device: int | str | None = None  # camera: device index or stream URL
@@ -332,8 +218,6 @@ class NodeConfig:
 
     def with_runtime(self, **changes) -> "NodeConfig":
         """A copy with ``[runtime]`` fields changed (command-line overrides), re-validated."""
-        from dataclasses import replace
-
         for k, v in changes.items():
             if k == "mode" and v not in MODES:
                 raise NodeConfigError(self.name, "runtime.mode", f"must be one of {MODES}, got {v!r}")
@@ -352,6 +236,8 @@ class NodeConfig:
                 return [conv(x) for x in v]
             if isinstance(v, frozenset):
                 return sorted(v)
+            if isinstance(v, dict):
+                return {k: conv(x) for k, x in v.items()}
             return v
 
         def table(obj) -> dict:
@@ -376,18 +262,7 @@ class NodeConfig:
 # -- parsing ------------------------------------------------------------------------------------------
 def load_node_config(path: str | Path) -> NodeConfig:
     """Read and validate a camera config TOML file."""
-    path = Path(path)
-    try:
-        text = path.read_text(encoding="utf-8")
-    except FileNotFoundError:
-        raise NodeConfigError(path.name, None, f"config file not found: {path}") from None
-    except OSError as e:
-        raise NodeConfigError(path.name, None, f"cannot read {path}: {e.strerror}") from None
-    try:
-        data = tomllib.loads(text)
-    except tomllib.TOMLDecodeError as e:
-        raise NodeConfigError(path.name, None, f"not valid TOML ({e})") from None
-    return parse_node_config(data, path)
+    return parse_node_config(read_toml(path, NodeConfigError, what="config file"), path)
 
 
 def parse_node_config(data: dict, path: str | Path) -> NodeConfig:
@@ -396,7 +271,7 @@ def parse_node_config(data: dict, path: str | Path) -> NodeConfig:
     path = Path(path)
     file = path.name
     base = path.resolve().parent
-    top = _Table(data, file)
+    top = Table(data, file, error=NodeConfigError)
 
     node = top.raw("node")
     if not is_valid_node(node):
@@ -416,15 +291,15 @@ def parse_node_config(data: dict, path: str | Path) -> NodeConfig:
             raise top.error(f"neighbours[{i}]", f"repeats neighbour {n}")
         seen.add(n)
 
-    zenoh_s = _zenoh(top.table("zenoh"), file, base)
-    runtime = _runtime(top.table("runtime"), file)
+    zenoh_s = _zenoh(top.optional_table("zenoh"), base)
+    runtime = _runtime(top.optional_table("runtime"))
     source = _source(top.table("source", required=True), base, node)
-    camera = _camera(top.table("camera"))
-    tracker, ablation, explicit = _tracker(top.table("tracker"), file)
-    output = _output(top.table("output"), base)
-    faults = _faults(top.table("faults"), base)
-    viz = _viz(top.table("viz"), base)
-    perception = _perception(top.table("perception"), base, source, camera, file)
+    camera = _camera(top.optional_table("camera"))
+    tracker, ablation, explicit = _tracker(top.optional_table("tracker"))
+    output = _output(top.optional_table("output"), base)
+    faults = _faults(top.optional_table("faults"), base)
+    viz = _viz(top.optional_table("viz"), base)
+    perception = _perception(top.optional_table("perception"), base, source, camera, file)
     top.finish()
     if runtime.staleness_frames is not None and "staleness_frames" in explicit:
         raise NodeConfigError(file, "runtime.staleness_frames", "and tracker.staleness_frames are "
@@ -435,7 +310,7 @@ def parse_node_config(data: dict, path: str | Path) -> NodeConfig:
                       faults=faults, viz=viz, perception=perception)
 
 
-def _endpoints(t: _Table, key: str, listen: bool) -> tuple[str, ...]:
+def _endpoints(t: Table, key: str, listen: bool) -> tuple[str, ...]:
     v = t.list(key, [])
     for i, e in enumerate(v):
         why = endpoint_problem(e, listen=listen)
@@ -444,7 +319,7 @@ def _endpoints(t: _Table, key: str, listen: bool) -> tuple[str, ...]:
     return tuple(v)
 
 
-def _zenoh(t: _Table | None, file: str, base: Path) -> ZenohSettings:
+def _zenoh(t: Table | None, base: Path) -> ZenohSettings:
     if t is None:
         return ZenohSettings()
     listen = _endpoints(t, "listen", True)
@@ -459,30 +334,29 @@ def _zenoh(t: _Table | None, file: str, base: Path) -> ZenohSettings:
     return ZenohSettings(listen, connect, scouting, gossip, lease, cf)
 
 
-def _runtime(t: _Table | None, file: str) -> RuntimeSettings:
+def _runtime(t: Table | None) -> RuntimeSettings:
     if t is None:
         return RuntimeSettings()
     d = RuntimeSettings()
-    r = RuntimeSettings(
-        mode=t.string("mode", d.mode, choices=MODES),
-        sync_timeout_s=t.number("sync_timeout_s", d.sync_timeout_s, lo=0, lo_open=True),
-        startup_timeout_s=t.number("startup_timeout_s", d.startup_timeout_s, lo=0, lo_open=True),
-        fps=t.number("fps", d.fps, lo=0),
-        frames=t.integer("frames", None, lo=1),
-        heartbeat_frames=t.integer("heartbeat_frames", d.heartbeat_frames, lo=1),
-        drift_m=t.number("drift_m", d.drift_m, lo=0, lo_open=True),
-        staleness_frames=t.integer("staleness_frames", None, lo=0),
-    )
+    mode = t.string("mode", d.mode, choices=MODES)
+    sync_timeout_s = t.number("sync_timeout_s", d.sync_timeout_s, lo=0, lo_open=True)
+    startup_timeout_s = t.number("startup_timeout_s", d.startup_timeout_s, lo=0, lo_open=True)
+    fps = t.number("fps", d.fps, lo=0)
+    frames = t.integer("frames", None, lo=1)
+    # the event trigger's own rules (core/trigger.py) check heartbeat_frames and drift_m
+    trigger = t.built(lambda: build(TriggerConfig, {
+        "heartbeat_frames": t.raw("heartbeat_frames", d.heartbeat_frames),
+        "drift": t.raw("drift_m", d.drift_m)}, t.where), keys={"drift": "drift_m"})
+    staleness_frames = t.integer("staleness_frames", None, lo=0)
     t.finish()
-    return r
+    return RuntimeSettings(mode, sync_timeout_s, startup_timeout_s, fps, frames,
+                           trigger.heartbeat_frames, float(trigger.drift), staleness_frames)
 
 
-def _source(t: _Table, base: Path, node: int) -> SourceSettings:
-    kind = t.string("kind", choices=SOURCE_KINDS)
+def _source(t: Table, base: Path, node: int) -> SourceSettings:
+    kind = t.string("kind")
     camera = t.integer("camera", node, lo=0)
-    if kind in FRAME_SOURCE_KINDS:
-        from edge_node.perception.settings import parse_frame_source  # no OpenCV / torch
-
+    if kind in FRAME_KINDS:
         fields_ = parse_frame_source(t, kind, base)
         t.finish()
         return SourceSettings(kind, camera, **fields_)
@@ -495,21 +369,20 @@ def _source(t: _Table, base: Path, node: int) -> SourceSettings:
             raise t.error("path", f"has no calibration.json: {p}")
         t.finish()
         return SourceSettings(kind, camera, path=cal)
-    name = t.string("scenario")
-    if not name:
-        raise t.error("scenario", "must be a preset name or a path")
-    if "/" in name or name.endswith(".toml"):
-        p = Path(name).expanduser()
-        name = str(p if p.is_absolute() else base / p)
-    seed = t.integer("seed", None, lo=0)
-    frames = t.integer("frames", None, lo=1)
-    data_root = t.path("data_root", base, None)
+    if kind not in plugin_kinds():
+        kinds = ", ".join(repr(k) for k in (*SOURCE_KINDS, *plugin_kinds()))
+        raise t.error("kind", f"must be one of {kinds}, got {kind!r} (other kinds are plug-ins: "
+                      f"none is installed for it in the entry-point group {PLUGIN_GROUP!r})")
+    try:
+        plugin = source_plugin(kind)
+    except SourceError as e:  # installed but broken
+        raise t.error("kind", str(e)) from None
+    options = plugin.parse(t, base)
     t.finish()
-    return SourceSettings(kind, camera, scenario=name, seed=seed, frames=frames,
-                          data_root=data_root)
+    return SourceSettings(kind, camera, options=options)
 
 
-def _camera(t: _Table | None) -> CameraSettings | None:
+def _camera(t: Table | None) -> CameraSettings | None:
     if t is None:
         return None
     G = t.matrix("homography", 3, 3)
@@ -530,28 +403,24 @@ def _camera(t: _Table | None) -> CameraSettings | None:
     return cam
 
 
-def _tracker(t: _Table | None, file: str) -> tuple[TrackerConfig, str, frozenset[str]]:
+def _tracker(t: Table | None) -> tuple[TrackerConfig, str, frozenset[str]]:
     if t is None:
         return TrackerConfig.for_ablation("dkf+lda+dtm"), "dkf+lda+dtm", frozenset()
     ablation = t.string("ablation", "dkf+lda+dtm", choices=ABLATIONS)
     rest = {k: v for k, v in t.data.items() if k != "ablation"}
-    try:
-        cfg = TrackerConfig.for_ablation(ablation, **rest)
-    except ConfigError as e:
-        raise NodeConfigError(file, None, str(e)) from None
+    try:  # the parameters' own rules (core/config.py) check the rest, unknown names too
+        cfg = t.built(lambda: TrackerConfig.for_ablation(ablation, **rest))
     except TypeError as e:  # e.g. fixed_R not a list
-        raise NodeConfigError(file, "tracker", f"has a bad value ({e})") from None
+        raise NodeConfigError(t.file, t.where, f"has a bad value ({e})") from None
     return cfg, ablation, frozenset(rest)
 
 
-def _faults(t: _Table | None, base: Path) -> Path | None:
+def _faults(t: Table | None, base: Path) -> Path | None:
     if t is None:
         return None
     f = t.path("file", base, None)
     t.finish()
     if f is not None:
-        from edge_node.faults import FaultPlan, FaultPlanError
-
         try:
             FaultPlan.load(f)
         except FaultPlanError as e:
@@ -559,11 +428,9 @@ def _faults(t: _Table | None, base: Path) -> Path | None:
     return f
 
 
-def _viz(t: _Table | None, base: Path) -> VizSettings:
+def _viz(t: Table | None, base: Path) -> VizSettings:
     if t is None:
         return VizSettings()
-    from edge_node.viz import VizSpecError, parse_spec  # does not import Rerun
-
     try:
         spec = parse_spec(t.string("rerun", "off"))
     except VizSpecError as e:
@@ -579,31 +446,29 @@ def _viz(t: _Table | None, base: Path) -> VizSettings:
         a = t.list("area")
         if len(a) != 4:
             raise t.error("area", f"must be [xmin, xmax, ymin, ymax], got {a!r}")
-        area = tuple(t._number(f"area[{i}]", v) for i, v in enumerate(a))
+        area = tuple(t.check_number(f"area[{i}]", v) for i, v in enumerate(a))
         if not (area[0] < area[1] and area[2] < area[3]):
             raise t.error("area", f"must have xmin < xmax and ymin < ymax, got {a!r}")
     t.finish()
     return VizSettings(str(spec), rid, blueprint, area)
 
 
-def _perception(t: _Table | None, base: Path, source: SourceSettings,
+def _perception(t: Table | None, base: Path, source: SourceSettings,
                 camera: CameraSettings | None, file: str):
     """``[perception]`` (frame sources only; edge_node/perception/settings.py)."""
-    if source.kind not in FRAME_SOURCE_KINDS:
+    if source.kind not in FRAME_KINDS:
         if t is not None:
-            raise t.error(None, f"applies to frame sources ({', '.join(FRAME_SOURCE_KINDS)}), "
+            raise t.error(None, f"applies to frame sources ({', '.join(FRAME_KINDS)}), "
                           f"not to source kind {source.kind!r}")
         return None
     if camera is None and source.kind != "epfl":
         raise NodeConfigError(file, "camera", f"is required for source "
                               f"kind {source.kind!r}: the image-to-ground homography (see "
                               "docs/real-cameras.md, edge_node calibrate)")
-    from edge_node.perception.settings import PerceptionSettings, parse_perception
-
     return parse_perception(t, base) if t is not None else PerceptionSettings()
 
 
-def _output(t: _Table | None, base: Path) -> OutputSettings:
+def _output(t: Table | None, base: Path) -> OutputSettings:
     if t is None:
         return OutputSettings()
     d = t.path("dir", base, None)

@@ -45,17 +45,18 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Callable
 
-
 from edge_node.core.config import TrackerConfig
 from edge_node.core.node import CameraNode
 from edge_node.core.trigger import EventTrigger, TriggerConfig
 from edge_node.faults import NO_FAULTS, FaultPlan
+from edge_node.formats.tracks import TrackWriter
 from edge_node.outbox import Delivery, Outbox, OutboxCounters
+from edge_node.runtime import transport as tr
 from edge_node.runtime.config import NodeConfig, NodeConfigError
-from edge_node.runtime.output import (StatusWriter, TrackWriter, counters_path, latency_summary,
-                                      state_path, status_path, tracks_path, write_json_atomic)
+from edge_node.runtime.output import (StatusWriter, counters_path, latency_summary, state_path,
+                                      status_path, tracks_path, write_json_atomic)
 from edge_node.runtime.sources import Source, open_source
-from edge_node.viz import NullSink, ground_points, open_node_sink
+from edge_node.viz import NullSink, SinkError, ground_points, open_node_sink
 from protocol.messages import FrameMessage
 
 log = logging.getLogger("edge_node.loop")
@@ -389,8 +390,6 @@ def run_node(cfg: NodeConfig, *, frames: int | None = None, mode: str | None = N
     the frame its neighbours are at, not at 0; they see its liveliness come back and resync it
     with all their trackers and galleries. The id counter persists in the output folder
     (``state_node<id>.json``), so a restarted node never reuses an id."""
-    from edge_node.runtime import transport as tr
-
     if mode is not None or frames is not None:
         changes = {}
         if mode is not None:
@@ -441,7 +440,11 @@ def run_node(cfg: NodeConfig, *, frames: int | None = None, mode: str | None = N
         code = EXIT_FAILURE
         error: str | None = None
         try:
-            sink = open_node_sink(cfg, source.camera, source.units_per_metre, keep_existing=join)
+            try:
+                sink = open_node_sink(cfg, source.camera, source.units_per_metre,
+                                      keep_existing=join)
+            except SinkError as e:
+                raise NodeConfigError(cfg.name, "viz.rerun", str(e)) from None
             writer = TrackWriter(tracks_path(out, cfg.node) if out else None, append=join)
             loop = FrameLoop(cfg, node, source, transport, mode=mode, frames=total,
                              writer=writer, status=status, stop=shutdown.event,

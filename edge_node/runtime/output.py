@@ -2,32 +2,22 @@
 
 Files in ``[output] dir`` (node-suffixed so several nodes can share one directory)::
 
-    tracks_node<id>.csv     frame,id,camera,counter,x,y,w,h,vx,vy,observed,ell — byte for byte
-                            the format of sim_cluster/tracks_io.py (``id = camera * 1e6 + counter``,
-                            state floats as ``f"{v:.6f}"``, csv module's default ``\\r\\n`` rows)
+    tracks_node<id>.csv     frame,id,camera,counter,x,y,w,h,vx,vy,observed,ell, written by
+                            ``edge_node.formats.tracks.TrackWriter`` (the simulator's format too)
     status_node<id>.json    rewritten atomically about once per second and at exit
     counters_node<id>.json  written at exit: bytes / messages per link, receive counts, rejected
                             messages by reason, one-hop latency (send time ``sent_at`` to receipt)
-
-This module is deliberately independent of sim_cluster (which sits above edge_node); the CSV
-format is duplicated here and a test checks both writers agree.
 """
 from __future__ import annotations
 
-import csv
 import json
 import os
 import time
-from collections.abc import Iterable, Sequence
+from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
 import numpy as np
-
-from edge_node.core.types import Track
-
-HEADER = ["frame", "id", "camera", "counter", "x", "y", "w", "h", "vx", "vy", "observed", "ell"]
-ID_BASE = 1_000_000
 
 
 def tracks_path(out_dir: Path, node: int) -> Path:
@@ -45,49 +35,6 @@ def state_path(out_dir: Path, node: int) -> Path:
 
 def counters_path(out_dir: Path, node: int) -> Path:
     return Path(out_dir) / f"counters_node{node}.json"
-
-
-def track_row(t: Track) -> list[Any]:
-    cam, cnt = t.id
-    return [t.frame, cam * ID_BASE + cnt, cam, cnt, *(f"{v:.6f}" for v in t.x), int(t.observed),
-            t.ell]
-
-
-class TrackWriter:
-    """Appends one frame's tracks at a time; ``flush`` is cheap enough to call once a second."""
-
-    def __init__(self, path: Path | None, append: bool = False):
-        """``append``: a restarted node continues its earlier life's file."""
-        self.path = path
-        self._f = None
-        self._w = None
-        if path is not None:
-            path.parent.mkdir(parents=True, exist_ok=True)
-            cont = append and path.exists() and path.stat().st_size > 0
-            self._f = open(path, "a" if cont else "w", newline="")
-            self._w = csv.writer(self._f)
-            if not cont:
-                self._w.writerow(HEADER)
-
-    def write(self, tracks: Iterable[Track]) -> None:
-        if self._w is not None:
-            self._w.writerows(track_row(t) for t in tracks)
-
-    def flush(self) -> None:
-        if self._f is not None:
-            self._f.flush()
-
-    def close(self) -> None:
-        if self._f is not None:
-            self._f.close()
-            self._f = None
-            self._w = None
-
-    def __enter__(self) -> "TrackWriter":
-        return self
-
-    def __exit__(self, *exc) -> None:
-        self.close()
 
 
 def write_json_atomic(path: Path, obj: Any) -> None:

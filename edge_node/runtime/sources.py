@@ -1,31 +1,55 @@
-"""Where a camera process gets its detections: one camera of a det-files directory, or (for
-developers) one camera of a sim_cluster scenario played back.
+"""Where a camera process gets its detections: the :class:`Source` interface and its kinds.
 
-The det-files reader is a small, independent re-implementation of the per-camera part of
-``sim_cluster/detfiles.py`` (edge_node must not import sim_cluster): it yields the very same
-``Detection`` objects (boxes float64 as parsed from det.txt, descriptors float32 from the
-``.npy``, all-NaN rows = no descriptor, NaN confidence = 1.0), so a multi-process run equals the
-in-process reference run on the same files.
+A source is this node's camera and a callable ``source(k) -> [Detection]`` over frames
+``0..frames-1`` (plus ``fps``, ``units_per_metre`` and a one-line ``description``). Kinds
+(``[source] kind`` of a camera config):
+
+``det-file``
+    one camera of a det-files directory, read with :mod:`edge_node.formats`, the reader the
+    simulator uses too: the very same ``Detection`` objects (boxes float64 as parsed from
+    det.txt, descriptors float32 from the ``.npy``, all-NaN rows = no descriptor, NaN
+    confidence = 1.0), so a multi-process run equals the in-process reference run on the files.
+``video`` | ``images`` | ``epfl`` | ``camera``
+    frames through a detector and re-id (``edge_node/perception``; a ``FrameDetections``).
+plug-ins
+    any other kind is looked up by name in the entry-point group ``dmtt.sources``
+    (:data:`PLUGIN_GROUP`). ``sim_cluster`` registers ``scenario`` there (a developer's node that
+    replays one camera of a simulated scenario, ``sim_cluster/scenarios/replay.py``), so this
+    package never imports the simulator; on a camera box without it, that kind is a clear
+    :class:`SourceError`. A plug-in is an object with::
+
+        parse(table: edge_node.settings.Table, base: Path) -> dict
+            # its own [source] fields, validated (relative paths against base); the config
+            # keeps them as SourceSettings.options and finishes the table
+        open(options: dict, camera: int, node: int) -> Source
+            # at start-up: camera index ``camera`` of the source, as node ``node``
 """
 from __future__ import annotations
 
-import json
 from dataclasses import dataclass, replace
+from importlib.metadata import entry_points
 from pathlib import Path
+from typing import Any, Protocol
 
 from edge_node.core.types import Detection
-from edge_node.detfile import DetFilesError, camera_from_entry, last_frame, read_det
+from edge_node.formats.calibration import read_calibration
+from edge_node.formats.detfile import DetFilesError, read_det
 from edge_node.geometry import Camera
-from edge_node.runtime.config import NodeConfig, NodeConfigError
+from edge_node.perception import PerceptionError
+from edge_node.perception.frames import FRAME_KINDS
+from edge_node.perception.pipeline import open_frame_source
+from edge_node.settings import Table
+
+PLUGIN_GROUP = "dmtt.sources"
 
 
 class SourceError(ValueError):
-    """Detection files that cannot be read; the message names the file."""
+    """A source that cannot be opened: unreadable files, or a kind nobody installed."""
 
 
 @dataclass
 class Source:
-    """This node's camera and its detections per frame ``0..frames-1``."""
+    """This node's camera and its detections per frame ``0..frames-1`` (held in memory)."""
 
     camera: Camera
     frames: int
@@ -38,90 +62,68 @@ class Source:
         return self.detections[k] if 0 <= k < len(self.detections) else []
 
 
-# -- det-files --------------------------------------------------------------------------------------
-def read_camera_detections(det: Path, frames: int, npy: Path | None, require_npy: bool
-                           ) -> list[list[Detection]]:
-    """One camera's detections per frame ``0..frames-1`` (the shared det-file reader)."""
+class SourcePlugin(Protocol):
+    """A source kind provided by another package (entry-point group ``dmtt.sources``)."""
+
+    def parse(self, table: Table, base: Path) -> dict[str, Any]: ...
+
+    def open(self, options: dict[str, Any], camera: int, node: int) -> Source: ...
+
+
+def plugin_kinds() -> list[str]:
+    """The source kinds installed as plug-ins."""
+    return sorted({ep.name for ep in entry_points(group=PLUGIN_GROUP)})
+
+
+def source_plugin(kind: str) -> SourcePlugin:
+    """The plug-in registered for ``kind``; :class:`SourceError` when none is installed or it
+    cannot be loaded."""
+    found = [ep for ep in entry_points(group=PLUGIN_GROUP) if ep.name == kind]
+    if not found:
+        raise SourceError(f"source kind {kind!r} is not installed: no package registers it in the "
+                          f"entry-point group {PLUGIN_GROUP!r} ('scenario' comes with sim_cluster; "
+                          f"installed: {', '.join(plugin_kinds()) or 'none'})")
     try:
-        dets, _ = read_det(det, frames, npy, require_npy)
-    except DetFilesError as e:
-        raise SourceError(str(e)) from None
-    return dets
+        return found[0].load()
+    except Exception as e:  # noqa: BLE001 - a broken plug-in is the user's setup, say which
+        raise SourceError(f"source kind {kind!r}: its plug-in {found[0].value} cannot be loaded "
+                          f"({type(e).__name__}: {e})") from None
 
 
+# -- det-files --------------------------------------------------------------------------------------
 def load_det_file_camera(calibration: Path, index: int, node: int,
                          frames: int | None = None) -> Source:
-    """Camera ``index`` of a det-files directory, as node ``node`` (its camera id)."""
+    """Camera ``index`` of a det-files directory, as node ``node`` (its camera id): the same
+    ``Detection`` objects the simulator's det-files loader builds (edge_node.formats)."""
     try:
-        doc = json.loads(calibration.read_text(encoding="utf-8"))
-    except (OSError, json.JSONDecodeError) as e:
-        raise SourceError(f"{calibration}: cannot read ({e})") from None
-    entries = doc.get("cameras")
-    if not isinstance(entries, list) or not entries:
-        raise SourceError(f"{calibration}: 'cameras' must be a non-empty list")
-    if index >= len(entries):
-        raise SourceError(f"{calibration}: has {len(entries)} cameras, no camera index {index}")
-    e = entries[index]
-    fps = float(doc.get("fps", 25.0))
-    try:
-        cam = replace(camera_from_entry(index, e, calibration, fps), id=node)
-    except DetFilesError as ex:
-        raise SourceError(str(ex)) from None
-    base = calibration.parent
-    det_rel = e.get("det", f"c{index}/det.txt")
-    npy_rel = e.get("descriptors", str(Path(det_rel).with_suffix(".npy")))
-    det = base / det_rel
-    n = doc.get("frames")
-    if n is None:  # as load_det_files: the last frame in any camera's det.txt / gt.txt / gt_ground
-        n = max([last_frame(base / x.get("det", f"c{c}/det.txt")) for c, x in enumerate(entries)]
-                + [last_frame(base / x.get("gt", f"c{c}/gt.txt")) for c, x in enumerate(entries)]
-                + [last_frame(base / doc.get("gt_ground", "gt_ground.csv"))])
-    n = int(n) if frames is None else min(int(n), frames)
-    if n <= 0:
-        raise SourceError(f"{calibration}: no frames")
-    upm = float(doc.get("units_per_metre", 1.0))
-    dets = read_camera_detections(det, n, base / npy_rel, "descriptors" in e)
-    return Source(cam, n, fps, upm, dets, f"det-file {calibration} camera {index}")
-
-
-# -- scenario (developer convenience) -------------------------------------------------------------
-def load_scenario_camera(name: str, index: int, node: int, seed: int | None, frames: int | None,
-                         data_root: Path | None) -> Source:
-    """Camera ``index`` of a sim_cluster scenario; imports sim_cluster lazily (edge_node does not
-    depend on it)."""
-    try:
-        from sim_cluster.scenario import load_scenario
-    except ImportError as e:  # a camera box without the simulator installed
-        raise SourceError(f"source kind 'scenario' needs the sim_cluster package ({e})") from None
-    try:
-        data = load_scenario(name, seed=seed, frames=frames, data_root=data_root)
-    except (ValueError, OSError) as e:
+        cal = read_calibration(calibration)
+        if index >= len(cal.cameras):
+            raise SourceError(f"{cal.path}: has {len(cal.cameras)} cameras, no camera index {index}")
+        n = cal.frame_count()
+        n = n if frames is None else min(n, frames)
+        if n <= 0:
+            raise SourceError(f"{cal.path}: no frames")
+        f = cal.files[index]
+        dets, _ = read_det(f.det, n, f.descriptors, f.descriptors_required)
+    except DetFilesError as e:
         raise SourceError(str(e)) from None
-    if index >= data.num_cameras:
-        raise SourceError(f"scenario {data.name} has {data.num_cameras} cameras, no camera {index}")
-    dets = [data.detections[k][index] for k in range(data.frames)]
-    cam = replace(data.cameras[index], id=node)
-    return Source(cam, data.frames, data.fps, data.units_per_metre, dets,
-                  f"scenario {data.name} seed {data.seed} camera {index}")
+    cam = replace(cal.cameras[index], id=node)
+    return Source(cam, n, cal.fps, cal.units_per_metre, dets,
+                  f"det-file {calibration} camera {index}")
 
 
-def open_source(cfg: NodeConfig) -> Source:
-    """The source the config names; ``[camera]`` overrides its calibration."""
+def open_source(cfg) -> Source:
+    """The source a ``NodeConfig`` names; ``[camera]`` overrides its calibration."""
     s = cfg.source
-    if s.kind == "det-file":
-        src = load_det_file_camera(s.path, s.camera, cfg.node)
-    elif s.kind == "scenario":
-        src = load_scenario_camera(s.scenario, s.camera, cfg.node, s.seed, s.frames, s.data_root)
-    elif s.kind in ("video", "images", "epfl", "camera"):  # frames -> edge_node/perception
-        from edge_node.perception import PerceptionError
-        from edge_node.perception.pipeline import open_frame_source
-
+    if s.kind in FRAME_KINDS:  # frames -> edge_node/perception
         try:  # detector, re-id weights and frames are all opened here, at start-up
             return open_frame_source(cfg)  # its camera is [camera] (or EPFL's homographies)
         except PerceptionError as e:
             raise SourceError(str(e)) from None
-    else:  # pragma: no cover - the config validated it
-        raise NodeConfigError(cfg.name, "source.kind", f"unknown kind {s.kind!r}")
+    if s.kind == "det-file":
+        src = load_det_file_camera(s.path, s.camera, cfg.node)
+    else:
+        src = source_plugin(s.kind).open(dict(s.options), s.camera, cfg.node)
     if cfg.camera is not None:
         src.camera = cfg.camera.camera(cfg.node)
         src.fps = cfg.camera.fps

@@ -28,6 +28,8 @@ from collections.abc import Iterable, Sequence
 from pathlib import Path
 from typing import Any
 
+import zenoh
+
 from protocol import codec
 from protocol.errors import ProtocolError
 from protocol.keys import (alive_key, alive_pattern, inbox_key, link_key, parse_alive_key,
@@ -89,8 +91,6 @@ def zenoh_config(listen: Sequence[str] = (), connect: Sequence[str] = (), scouti
                  lease_ms: int | None = None):
     """A peer-mode ``zenoh.Config``: from ``config_file`` when given, then our settings on top
     (``listen``/``connect`` replace the file's when non-empty, or always without a file)."""
-    import zenoh
-
     try:
         conf = zenoh.Config.from_file(str(config_file)) if config_file else zenoh.Config()
         conf.insert_json5("mode", '"peer"')
@@ -115,8 +115,6 @@ class ZenohTransport:
                  listen: Sequence[str] = (), connect: Sequence[str] = (), scouting: bool = False,
                  config_file: str | Path | None = None, *, gossip: bool = False,
                  lease_ms: int | None = None, max_pending_frames: int = 256):
-        import zenoh
-
         self.network = network
         self.node = int(node)
         self.neighbours = tuple(sorted(set(int(n) for n in neighbours) - {self.node}))
@@ -149,7 +147,6 @@ class ZenohTransport:
 
         conf = zenoh_config(listen, connect, scouting, config_file, gossip=gossip,
                             lease_ms=lease_ms)
-        self._zenoh = zenoh
         try:
             self.session = zenoh.open(conf)
         except zenoh.ZError as e:
@@ -242,7 +239,7 @@ class ZenohTransport:
                 return
             if net != self.network or n == self.node:
                 return
-            gone = sample.kind == self._zenoh.SampleKind.DELETE
+            gone = sample.kind == zenoh.SampleKind.DELETE
             with self._cond:
                 if gone:
                     self._alive_any.discard(n)

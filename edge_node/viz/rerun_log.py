@@ -63,6 +63,10 @@ class VizSpecError(ValueError):
     """A ``--rerun`` spec that cannot be used; the message says why."""
 
 
+class SinkError(RuntimeError):
+    """A Rerun sink that could not start (port in use, unwritable file, no viewer binary)."""
+
+
 @dataclass(frozen=True)
 class VizSpec:
     kind: str  # one of KINDS
@@ -246,7 +250,7 @@ def make_blueprint(nodes: Sequence[int] | None = None, *, images: Sequence[int] 
     ``cameras``' positions), time series below, one image panel per node in ``images``.
     Without ``nodes`` the time series panels take every node's series (a standalone node does
     not know the others)."""
-    import rerun.blueprint as rrb
+    import rerun.blueprint as rrb  # Rerun is optional (viz extra), imported only to log
 
     hide = [f"- /nodes/{i}/camera/**" for i in images]
     bounds = None
@@ -292,7 +296,7 @@ class RerunSink:
 
     def __init__(self, spec: VizSpec, *, app_id: str = APP_ID, recording_id: str | None = None,
                  node: int | None = None, blueprint: Any = None, grpc_port: int | None = None):
-        import rerun as rr
+        import rerun as rr  # Rerun is optional (viz extra), imported only to log
 
         self.rr = rr
         self.spec = spec
@@ -477,9 +481,10 @@ class RerunSink:
 
 def open_node_sink(cfg, camera, units_per_metre: float = 1.0, *, keep_existing: bool = False):
     """The sink of one ``edge_node`` process from its ``[viz]`` settings (``NullSink`` when
-    off), with its camera logged. A Rerun that cannot start is a config error on
-    ``viz.rerun``. ``keep_existing`` (a restarted node): ``save`` never overwrites an earlier
-    life's file, it writes ``<stem>.<n>.rrd`` beside it."""
+    off), with its camera logged. A Rerun that cannot start raises :class:`SinkError` (the
+    runtime reports it as a config error on ``viz.rerun``). ``keep_existing`` (a restarted
+    node): ``save`` never overwrites an earlier life's file, it writes ``<stem>.<n>.rrd``
+    beside it."""
     viz = cfg.viz
     spec = parse_spec(viz.rerun)
     if not spec.enabled:
@@ -495,8 +500,5 @@ def open_node_sink(cfg, camera, units_per_metre: float = 1.0, *, keep_existing: 
                          blueprint=make_blueprint(None, area=viz.area) if viz.blueprint else None)
         sink.log_world(area=viz.area, units_per_metre=units_per_metre, cameras=[camera])
     except Exception as e:  # noqa: BLE001 - port in use, unwritable file, no viewer binary ...
-        from edge_node.runtime.config import NodeConfigError
-
-        raise NodeConfigError(cfg.name, "viz.rerun", f"{str(spec)!r}: Rerun could not start "
-                              f"({type(e).__name__}: {e})") from None
+        raise SinkError(f"{str(spec)!r}: Rerun could not start ({type(e).__name__}: {e})") from None
     return sink

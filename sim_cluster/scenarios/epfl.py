@@ -9,9 +9,10 @@ Two annotation formats are read, one file per camera, with identities consistent
     ``track_id xmin ymin xmax ymax frame lost occluded generated label`` separated by spaces
     (``label`` may be quoted); ``w = xmax - xmin``, ``h = ymax - ymin``; ``lost = 1`` rows skipped.
 
-Calibration is a JSON file (``epfl_pom/homographies.json``) holding per sequence the image-to-ground
-homographies ``H`` (camera order = list order), the ``image_scale`` they expect
-(``g = H [u s, v s, 1]``, taken from the file, never assumed) and the annotation image size.
+Calibration is a JSON file (``epfl_pom/homographies.json``, ``edge_node/formats/homographies.py``)
+holding per sequence the image-to-ground homographies ``H`` (camera order = list order), the
+``image_scale`` they expect (``g = H [u s, v s, 1]``, taken from the file, never assumed) and the
+annotation image size.
 
 Ground truth built from the annotations (``GroundTruth``):
 
@@ -41,7 +42,6 @@ Data root resolution (first that applies): an explicit ``data_root`` argument (t
 """
 from __future__ import annotations
 
-import json
 import os
 from dataclasses import dataclass
 from pathlib import Path
@@ -50,12 +50,19 @@ from typing import Any
 import numpy as np
 
 from edge_node.core.types import Detection
-from edge_node.geometry import Camera, GeometryError
-from sim_cluster.data import GroundTruth, ScenarioData
+from edge_node.formats.homographies import (FILE, HomographiesError, read_homographies,
+                                            sequence_cameras, sequence_entry)
+from edge_node.geometry import Camera
+from sim_cluster.scenarios.data import GroundTruth, ScenarioData
+from sim_cluster.scenarios.files import ScenarioError, scenario_table
+from sim_cluster.scenarios.synthetic.appearance import AppearanceModel, AppearanceParams
+from sim_cluster.scenarios.synthetic.detector_model import DetectorParams, detect_frames
+from sim_cluster.scenarios.synthetic.schema import (appearance_params_from_table,
+                                                    detector_params_from_table)
 
 ENV_DATA_ROOT = "DMTT_DATA"
 EPFL_DIR = "epfl_pom"
-CALIBRATION_FILE = "homographies.json"
+CALIBRATION_FILE = FILE
 DEFAULT_FPS = 25.0
 PERSON_WIDTH_M = 0.5
 PERSON_HEIGHT_M = 1.75
@@ -237,31 +244,15 @@ def read_calibration(path: str | os.PathLike[str], sequence: str,
     """Cameras of ``sequence`` (a key of the calibration JSON) and its entry (for ``sequence`` name).
 
     Each camera gets ``G = H[c]``, ``pixel_scale = image_scale``, ``image_size`` from
-    ``image_size_annotations`` (default 360x288).
+    ``image_size_annotations`` (default 360x288): ``edge_node/formats/homographies.py``.
     """
-    path = Path(path)
     try:
-        doc = json.loads(path.read_text(encoding="utf-8"))
+        entry = sequence_entry(read_homographies(path), sequence, path)
+        return sequence_cameras(entry, sequence, path, fps=fps), entry
     except FileNotFoundError as exc:
         raise DataNotFoundError(f"calibration file not found: {path}") from exc
-    except json.JSONDecodeError as exc:
-        raise EpflFormatError(f"{path}: not valid JSON ({exc})") from exc
-    if sequence not in doc or not isinstance(doc[sequence], dict):
-        keys = [k for k, v in doc.items() if isinstance(v, dict)]
-        raise EpflFormatError(f"{path}: no sequence {sequence!r} (has {keys})")
-    entry = doc[sequence]
-    if "H" not in entry:
-        raise EpflFormatError(f"{path}: {sequence}.H (per-camera homographies) is missing")
-    scale = float(entry.get("image_scale", 1.0))
-    size = entry.get("image_size_annotations", [360, 288])
-    cams = []
-    for c, H in enumerate(entry["H"]):
-        try:
-            cams.append(Camera(id=c, image_size=(int(size[0]), int(size[1])),
-                               G=np.asarray(H, dtype=float), pixel_scale=scale, fps=fps))
-        except (GeometryError, ValueError, TypeError) as exc:
-            raise EpflFormatError(f"{path}: {sequence}.H[{c}]: {exc}") from exc
-    return cams, entry
+    except HomographiesError as exc:
+        raise EpflFormatError(str(exc)) from exc
 
 
 # -- a sequence -------------------------------------------------------------------------------------
@@ -429,8 +420,6 @@ def replay_detections(seq_truth: GroundTruth, cameras: list[Camera], detector: A
     One random stream per camera (``default_rng([seed, c])``), so a camera's detections do not
     depend on the other cameras. Returns ``(detections[k][c], true_ids[k][c])``.
     """
-    from sim_cluster.detector_model import detect_frames  # lazy: a sibling module
-
     frames = len(seq_truth.ids)
     dets: list[list[list[Detection]]] = [[[] for _ in cameras] for _ in range(frames)]
     truth: list[list[np.ndarray]] = [[np.zeros(0, np.int64) for _ in cameras] for _ in range(frames)]
@@ -460,9 +449,6 @@ def load_epfl_gt(sequence: str, *, seed: int = 0, frames: int | None = None,
     (clipped to the last annotated frame). ``detector``/``appearance`` are ``DetectorParams`` and
     ``AppearanceParams`` (defaults when None).
     """
-    from sim_cluster.appearance import AppearanceModel, AppearanceParams
-    from sim_cluster.detector_model import DetectorParams
-
     if units_per_metre <= 0:
         raise EpflFormatError(f"units_per_metre must be positive, got {units_per_metre}")
     seq = load_sequence(sequence, data_root, annotations, calibration, fmt, fps)
@@ -489,28 +475,9 @@ def load_epfl_gt(sequence: str, *, seed: int = 0, frames: int | None = None,
         seed=seed)
 
 
-def detector_from_table(t: Any) -> Any:
-    """``DetectorParams`` from a scenario ``[detector]`` table (a ``scenario.Table``); the
-    dataclass validates the values, unknown keys are errors naming the field."""
-    from dataclasses import fields
-
-    from sim_cluster.detector_model import DetectorParams, DetectorParamsError
-
-    kwargs: dict[str, Any] = {}
-    for f in fields(DetectorParams):
-        if t.has(f.name):
-            v = t.raw(f.name)
-            kwargs[f.name] = tuple(v) if isinstance(v, list) else v
-    t.finish()
-    try:
-        return DetectorParams(**kwargs)
-    except (DetectorParamsError, TypeError) as exc:
-        raise t.error(None, str(exc)) from None
-
-
 def scenario_from_table(raw: dict[str, Any], path: Path, seed: int, frames: int | None,
                         data_root: str | os.PathLike[str] | None = None) -> ScenarioData:
-    """Registry entry for ``[source] kind = "epfl-gt"`` (``SCENARIO_KINDS["epfl-gt"]``).
+    """The scenario loader of kind ``epfl-gt`` (``loader.SCENARIO_KINDS``).
 
     Top level: ``name``, ``description``, ``seed``, ``frames`` (the ``frames`` argument overrides
     it), ``fps``. ``[source]``: ``kind``, ``sequence`` (required; a key of the calibration file),
@@ -520,10 +487,8 @@ def scenario_from_table(raw: dict[str, Any], path: Path, seed: int, frames: int 
     overrides ``[source] data_root``. Errors are ``ScenarioError`` naming file and field;
     missing data raises ``DataNotFoundError`` (an ``OSError``).
     """
-    from sim_cluster.scenario import ScenarioError, Table, _appearance  # lazy: no import cycle
-
     file = Path(path).name
-    top = Table(raw, file)
+    top = scenario_table(raw, file)
     name = top.string("name", Path(path).stem)
     top.string("description", "")
     top.integer("seed", 0, lo=0)  # validated; the resolved seed is passed in
@@ -544,8 +509,8 @@ def scenario_from_table(raw: dict[str, Any], path: Path, seed: int, frames: int 
     if fmt not in ("auto", "mot-csv", "vatic"):
         raise src.error("format", f"must be one of auto, mot-csv, vatic, got {fmt!r}")
     src.finish()
-    detector = detector_from_table(top.table("detector"))
-    appearance = _appearance(top.table("appearance"))
+    detector = detector_params_from_table(top.table("detector"))
+    appearance = appearance_params_from_table(top.table("appearance"))
     top.finish()
     if data_root is None and root:
         data_root = Path(root).expanduser()

@@ -28,7 +28,7 @@ import numpy as np
 
 from edge_node.core.types import Detection
 from edge_node.geometry import Camera
-from sim_cluster.appearance import AppearanceModel
+from sim_cluster.scenarios.synthetic.appearance import AppearanceModel
 
 
 class DetectorParamsError(ValueError):

@@ -45,9 +45,10 @@ import numpy as np
 
 from edge_node.core.types import Detection
 from edge_node.geometry import Camera
-from sim_cluster.appearance import AppearanceModel, AppearanceParams
-from sim_cluster.data import GroundTruth, ScenarioData
-from sim_cluster.detector_model import DetectorParams, detect_frames, in_image_fraction
+from sim_cluster.scenarios.data import GroundTruth, ScenarioData
+from sim_cluster.scenarios.synthetic.appearance import AppearanceModel, AppearanceParams
+from sim_cluster.scenarios.synthetic.detector_model import (DetectorParams, detect_frames,
+                                                            in_image_fraction)
 
 _TAG_PEOPLE = 1
 _TAG_DETECT = 2

@@ -1,7 +1,7 @@
 """Rendered synthetic video: each camera's frames of a synthetic scenario.
 
-The people are the scenario's own (:func:`sim_cluster.world.simulate_people` with the same seed
-stream as :func:`~sim_cluster.world.generate`), so tracks from rendered frames are evaluated
+The people are the scenario's own (``world.simulate_people`` with the same seed stream as
+``world.generate``), so tracks from rendered frames are evaluated
 against the scenario's ground truth. Per camera:
 
 * **Background**, static: a paved ground (tiles 0.5 m, per-tile brightness, grout lines, a
@@ -33,7 +33,10 @@ from pathlib import Path
 import numpy as np
 
 from edge_node.geometry import Camera
-from sim_cluster.world import _TAG_PEOPLE, Trajectories, WorldConfig, simulate_people
+from sim_cluster.scenarios.files import read_scenario_toml, resolve_scenario_path, scenario_table
+from sim_cluster.scenarios.synthetic.schema import parse_synthetic
+from sim_cluster.scenarios.synthetic.world import (_TAG_PEOPLE, Trajectories, WorldConfig,
+                                                   simulate_people)
 
 _TAG_RENDER = 7
 STRIDE_M = 1.4  # distance walked per full gait cycle
@@ -88,7 +91,7 @@ def person_look(seed: int, pid: int) -> Look:
 
 def _cv2():
     try:
-        import cv2  # noqa: PLC0415
+        import cv2  # noqa: PLC0415 - OpenCV is optional (the vision extra): only to render
     except ImportError as e:  # pragma: no cover
         raise RenderError(f"rendering needs OpenCV: pip install 'dmtt[vision]' ({e})") from None
     return cv2
@@ -408,7 +411,7 @@ class Renderer:
 
 
 def world_trajectories(config: WorldConfig) -> Trajectories:
-    """The people of a synthetic world, exactly as :func:`sim_cluster.world.generate` moves them."""
+    """The people of a synthetic world, exactly as ``world.generate`` moves them."""
     return simulate_people(config.area, config.fps, config.frames, config.people,
                            np.random.default_rng([int(config.seed), _TAG_PEOPLE]))
 
@@ -416,15 +419,13 @@ def world_trajectories(config: WorldConfig) -> Trajectories:
 def load_world(scenario: str | Path, seed: int | None = None,
                frames: int | None = None) -> WorldConfig:
     """The :class:`WorldConfig` of a synthetic scenario preset or file."""
-    from sim_cluster.scenario import Table, parse_synthetic, read_scenario_toml, resolve_scenario_path
-
     path = resolve_scenario_path(scenario)
     raw = read_scenario_toml(path)
     kind = (raw.get("source") or {}).get("kind", "synthetic")
     if kind != "synthetic":
         raise RenderError(f"{path.name}: only synthetic scenarios can be rendered (kind {kind!r})")
     if seed is None:
-        seed = Table(raw, path.name).integer("seed", 0, lo=0)
+        seed = scenario_table(raw, path.name).integer("seed", 0, lo=0)
     return parse_synthetic(raw, path, int(seed), frames)
 
 
@@ -494,12 +495,7 @@ def render_scenario(scenario: str | Path, out: str | Path, *, seed: int | None =
     return written
 
 
-# -- sim_cluster up --source video ------------------------------------------------------------------
-def _toml_matrix(m) -> str:
-    return "[" + ", ".join("[" + ", ".join(repr(float(v)) for v in row) + "]"
-                           for row in np.asarray(m, float)) + "]"
-
-
+# -- rendering once for a cluster (sim_cluster up --source video) ------------------------------
 def ensure_rendered(scenario: str | Path, out: str | Path, seed: int | None, frames: int | None,
                     cameras: list[int] | None = None, progress=None) -> dict:
     """``render_scenario`` into ``out`` unless ``out/render.json`` already holds this scenario,
@@ -519,55 +515,3 @@ def ensure_rendered(scenario: str | Path, out: str | Path, seed: int | None, fra
         pass
     return render_scenario(scenario, out, seed=seed, frames=frames, cameras=cameras,
                            progress=progress)
-
-
-def video_source_toml(camera: Camera, video: str | Path, background: str | Path | None, *,
-                      detector: str = "mog2", reid: str = "histogram",
-                      reid_weights: str | Path | None = None, onnx_model: str | Path | None = None,
-                      units_per_metre: float = 1.0) -> str:
-    """The ``[source]`` body, ``[camera]`` and ``[perception]`` tables of a node that runs from a
-    rendered video (what ``sim_cluster up --source video`` writes; schema in
-    ``edge_node/perception/settings.py``)."""
-    lines = ['kind = "video"', f"path = {json.dumps(str(Path(video).resolve()))}", "",
-             "[camera]",
-             f"homography = {_toml_matrix(camera.G)}"]
-    if camera.P is not None:
-        lines.append(f"projection = {_toml_matrix(camera.P)}")
-    lines += [f"image_size = [{int(camera.image_size[0])}, {int(camera.image_size[1])}]",
-              f"pixel_scale = {float(camera.pixel_scale)!r}", f"fps = {float(camera.fps)!r}",
-              f"units_per_metre = {float(units_per_metre)!r}", "",
-              "[perception]", f"detector = {json.dumps(detector)}", f"reid = {json.dumps(reid)}"]
-    if detector == "mog2":
-        lines += ["", "[perception.mog2]", "learning_rate = 0.001  # people who pause stay foreground"]
-        if background is not None:
-            lines.append(f"background = {json.dumps(str(Path(background).resolve()))}")
-    if detector == "onnx":
-        lines += ["", "[perception.onnx]", f"model = {json.dumps(str(Path(onnx_model).resolve()))}"]
-    if reid.startswith("osnet_"):
-        lines += ["", "[perception.osnet]", "threads = 1"]
-        if reid_weights is not None:
-            lines.append(f"weights = {json.dumps(str(Path(reid_weights).resolve()))}")
-    return "\n".join(lines)
-
-
-def cluster_video_sources(args, data, out: Path, n: int) -> dict[int, str] | None:
-    """For ``sim_cluster up``: with ``--source video``, render each camera's video into
-    ``out/video`` (reused when already there) and return each node's source TOML; else ``None``."""
-    if getattr(args, "source", "scenario") != "video":
-        return None
-    detector = getattr(args, "detector", "mog2") or "mog2"
-    reid = getattr(args, "reid", "histogram") or "histogram"
-    if reid.startswith("osnet_") and not getattr(args, "reid_weights", None):
-        raise RenderError(f"--reid {reid} needs --reid-weights (a torchreid checkpoint)")
-    if detector == "onnx" and not getattr(args, "onnx_model", None):
-        raise RenderError("--detector onnx needs --onnx-model (an ONNX person detector)")
-    if not getattr(args, "quiet", False):
-        print(f"rendering {n} camera videos of {data.name} ({data.frames} frames) into {out / 'video'}")
-    info = ensure_rendered(args.scenario, out / "video", args.seed, data.frames,
-                           cameras=list(range(n)))
-    return {i: video_source_toml(data.cameras[i], info["cameras"][str(i)]["frames"],
-                                 info["cameras"][str(i)]["background"], detector=detector,
-                                 reid=reid, reid_weights=getattr(args, "reid_weights", None),
-                                 onnx_model=getattr(args, "onnx_model", None),
-                                 units_per_metre=data.units_per_metre)
-            for i in range(n)}

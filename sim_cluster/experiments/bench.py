@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import statistics
 import time
+from dataclasses import replace
 
 import numpy as np
 
@@ -91,7 +92,6 @@ def bench_targets(targets: int, neighbours: int = 4, frames: int = 60, seed: int
                 header = len(codec.encode(type(m)(m.network, m.sender, m.frame)))
                 per_tracker.append((len(p) - header) / len(m.trackers))
             if with_app:
-                from dataclasses import replace
                 bare = replace(m, trackers=tuple(replace(t, appearance=None) for t in m.trackers))
                 app_bytes.append((len(p) - len(codec.encode(bare))) / len(with_app))
         trackers_seen.append(statistics.mean(len(nd.trackers) for nd in nodes))

@@ -1,7 +1,8 @@
 """``sim_cluster bench-cluster``: what a real cluster of edge_node processes costs on loopback.
 
-For each node count N, ``repeats`` times, a cluster of N ``edge_node run`` processes (the configs
-``sim_cluster up`` writes: one listen endpoint per node, connects on both ends of every link) plays
+For each node count N, ``repeats`` times, a cluster of N ``edge_node run`` processes (the
+:class:`~sim_cluster.cluster.launcher.Cluster` that ``sim_cluster up`` runs, with the configs it
+writes: one listen endpoint per node, connects on both ends of every link) plays
 ``frames`` frames of a scenario in sync mode with no pacing, and the benchmark measures:
 
 latency
@@ -20,7 +21,7 @@ frames per second
     start-up skew. ``busy_ms_per_frame`` (median over nodes of ``(prepare + update) / frames``
     from ``timing_s``) says how much of a frame period is the tracker's own work.
 bytes per link per frame
-    counted by a **passive subscriber**: the benchmark opens its own Zenoh peer session,
+    counted by a **passive subscriber** (``sim_cluster/cluster/monitor.py``): the benchmark opens its own Zenoh peer session,
     subscribed to ``all_links_key(network)`` (``dmtt/<net>/link/**``) before any node starts its
     frames, and counts payload bytes and messages per key. Reported as the median over links of
     bytes / frames and as the network-wide total per frame, next to the same figures from the
@@ -47,95 +48,19 @@ from __future__ import annotations
 import json
 import os
 import statistics
-import subprocess
-import threading
 import time
-from dataclasses import dataclass, field
 from pathlib import Path
 
-from sim_cluster.cluster import (STATE, ClusterError, ClusterState, NodeProc, alive, node_config,
-                                 node_counters, node_status, free_ports, spawn,
-                                 terminate)
+import numpy as np
+
+from sim_cluster.cluster.launcher import Cluster
+from sim_cluster.cluster.monitor import LinkMonitor, LinkTally
+from sim_cluster.cluster.processes import free_ports
+from sim_cluster.cluster.state import STATE, ClusterError, ClusterState, node_counters, node_status
+from sim_cluster.scenarios.loader import load_scenario
 
 RESULT = "bench_cluster.json"
 POLL_S = 0.01
-
-
-# -- the passive subscriber ------------------------------------------------------------------
-@dataclass
-class LinkTally:
-    bytes: int = 0
-    messages: int = 0
-    frames: dict[int, float] = field(default_factory=dict)  # frame -> sender's sent_at
-    latency_s: list[float] = field(default_factory=list)  # receipt here minus sent_at
-    last_recv: float = 0.0
-    undecodable: int = 0
-
-
-class LinkMonitor:
-    """A Zenoh peer session that only listens: counts bytes and messages on every link key of
-    ``network`` and keeps each message's frame and ``sent_at`` (decoded after the run)."""
-
-    def __init__(self, network: str, listen: str, connect: list[str]):
-        import zenoh
-
-        from edge_node.runtime.transport import zenoh_config
-        from protocol.keys import all_links_key
-
-        conf = zenoh_config([listen], connect)
-        # retry the nodes' endpoints quickly: they are not listening yet when we open
-        conf.insert_json5("connect/retry", '{"period_init_ms": 20, "period_max_ms": 100, '
-                                           '"period_increase_factor": 1.5}')
-        self.network = network
-        self._raw: list[tuple[str, bytes, float]] = []
-        self._lock = threading.Lock()
-        self.session = zenoh.open(conf)
-        self._sub = self.session.declare_subscriber(all_links_key(network), self._on_sample)
-
-    def _on_sample(self, sample) -> None:
-        now = time.time()
-        payload = sample.payload.to_bytes()
-        with self._lock:
-            self._raw.append((str(sample.key_expr), payload, now))
-
-    def count(self) -> int:
-        with self._lock:
-            return len(self._raw)
-
-    def close(self) -> None:
-        for obj in (self._sub, self.session):
-            try:
-                obj.undeclare() if obj is self._sub else obj.close()
-            except Exception:  # noqa: BLE001 - best effort on the way out
-                pass
-
-    def tallies(self) -> dict[str, LinkTally]:
-        """Per link ``"src->dst"``: bytes, messages, frames and latencies seen."""
-        from protocol import codec
-        from protocol.errors import ProtocolError
-        from protocol.keys import parse_link_key
-
-        with self._lock:
-            raw = list(self._raw)
-        out: dict[str, LinkTally] = {}
-        for key, payload, t in raw:
-            try:
-                _, src, dst = parse_link_key(key)
-            except ProtocolError:
-                continue
-            tl = out.setdefault(f"{src}->{dst}", LinkTally())
-            tl.bytes += len(payload)
-            tl.messages += 1
-            tl.last_recv = max(tl.last_recv, t)
-            try:
-                msg = codec.decode(payload, expect_network=self.network, expect_sender=src)
-            except ProtocolError:
-                tl.undecodable += 1
-                continue
-            tl.frames[msg.frame] = msg.sent_at
-            if msg.sent_at > 0:
-                tl.latency_s.append(t - msg.sent_at)
-        return out
 
 
 # -- one cluster run -------------------------------------------------------------------------
@@ -145,8 +70,6 @@ def _median(xs):
 
 
 def _percentile(xs, q):
-    import numpy as np
-
     return float(np.percentile(np.asarray(xs, float), q)) if len(xs) else None
 
 
@@ -159,98 +82,50 @@ def run_cluster(scenario: str, n: int, frames: int, out: Path, *, topology: str 
     passive monitor attached, stop everything, and return the measured figures (module
     docstring). Raises :class:`ClusterError` when a node fails or the run takes longer than
     ``timeout_s`` (default: generous, from ``frames``). No process outlives this call."""
-    from sim_cluster import topology as topo
-
-    out = Path(out).resolve()
-    for sub in ("nodes", "configs", "logs"):
-        (out / sub).mkdir(parents=True, exist_ok=True)
-    for f in (out / "nodes").glob("*"):
-        f.unlink()
-    for f in (out / "logs").glob("*"):
-        f.unlink()
     network = network or f"bench{n}"
-    adjacency = topo.build(topology, n)
-    state = ClusterState(str(out), network, scenario, seed, frames, "sync", Path(topology).stem,
-                         {str(i): list(v) for i, v in adjacency.items()},
-                         data_root=str(Path(data_root).resolve()) if data_root else None)
+    cluster = Cluster.create(out, network=network, scenario=scenario, seed=seed, frames=frames,
+                             mode="sync", topology=topology, nodes=n, data_root=data_root,
+                             clear_logs=True)
     *node_ports, mon_port = free_ports(n + 1)
-    ports = dict(enumerate(node_ports))
     mon_ep = f"tcp/127.0.0.1:{mon_port}"
-    for i in range(n):
-        text = node_config(i, state, ports, config=config, sync_timeout_s=sync_timeout_s,
-                           startup_timeout_s=startup_timeout_s, fps=0.0)
-        if monitor_connect_back:  # the monitor's endpoint first in the node's connect list
-            lines = text.splitlines()
-            j = next(k for k, line in enumerate(lines) if line.startswith("connect = "))
-            eps = json.loads(lines[j].split("=", 1)[1])
-            lines[j] = f"connect = {json.dumps([mon_ep, *eps])}"
-            text = "\n".join(lines) + "\n"
-        cfg = out / "configs" / f"node{i}.toml"
-        cfg.write_text(text)
-        state.nodes[str(i)] = NodeProc(i, str(cfg), str(out / "logs" / f"node{i}.log"), ports[i])
-
-    from edge_node.runtime.output import status_path
-
+    cluster.write_configs(config=config, sync_timeout_s=sync_timeout_s,
+                          startup_timeout_s=startup_timeout_s, fps=0.0, ports=node_ports,
+                          # the monitor's endpoint first in every node's connect list
+                          connect_first=[mon_ep] if monitor_connect_back else ())
     timeout_s = timeout_s if timeout_s is not None else startup_timeout_s + 60 + 0.5 * frames
-    procs: dict[int, subprocess.Popen] = {}
-    spawned: dict[int, float] = {}
     seen: dict[int, dict[str, float]] = {i: {} for i in range(n)}  # phase -> its updated_at
+
+    def watch(running: list[int]) -> None:  # the short-lived "starting" and first "running"
+        for i in running:
+            if "running" in seen[i]:
+                continue
+            st = cluster.status(i)
+            phase = st.get("phase")
+            if phase == "starting":
+                seen[i].setdefault("starting", st["updated_at"])
+            elif phase == "running" and not st.get("frames_done"):
+                seen[i]["running"] = st["updated_at"]
+
     monitor = None
     try:
         # the monitor listens before any node starts (they connect to it), and connects to
         # every node's endpoint as soon as it is up
-        monitor = LinkMonitor(network, mon_ep, [f"tcp/127.0.0.1:{ports[i]}" for i in range(n)])
-        state.started_at = time.time()
-        for p in state.nodes.values():
-            spawned[p.node] = time.time()
-            procs[p.node] = spawn(p)
-            p.pid = procs[p.node].pid
-        state.save()
-        deadline = time.time() + timeout_s
-        running = dict(procs)
-        while running:
-            for node, pr in list(running.items()):
-                code = pr.poll()
-                if code is None:
-                    continue
-                del running[node]
-                if code != 0:
-                    tail = Path(state.nodes[str(node)].log).read_text(errors="replace")
-                    tail = "\n".join(tail.splitlines()[-8:])
-                    raise ClusterError(f"node {node} exited with code {code}; its log "
-                                       f"({state.nodes[str(node)].log}) ends:\n{tail}")
-            for i in running:  # catch the short-lived "starting" and first "running" statuses
-                if "running" in seen[i]:
-                    continue
-                try:
-                    st = json.loads(status_path(out / "nodes", i).read_text())
-                except (OSError, json.JSONDecodeError):
-                    continue
-                phase = st.get("phase")
-                if phase == "starting":
-                    seen[i].setdefault("starting", st["updated_at"])
-                elif phase == "running" and not st.get("frames_done"):
-                    seen[i]["running"] = st["updated_at"]
-            if time.time() > deadline:
-                raise ClusterError(f"{n}-node cluster did not finish {frames} frames within "
-                                   f"{timeout_s:.0f} s (logs in {out / 'logs'})")
-            time.sleep(POLL_S)
+        monitor = LinkMonitor(network, mon_ep, [f"tcp/127.0.0.1:{p}" for p in node_ports])
+        cluster.start()
+        cluster.wait(poll_s=POLL_S, timeout_s=timeout_s, on_poll=watch)
         # every node has finished, so every message reached its neighbour; give the monitor a
         # moment for the last ones in flight to it
-        expected = sum(node_counters(state, i).get("messages_sent", 0) for i in range(n))
+        expected = sum(cluster.counters(i).get("messages_sent", 0) for i in range(n))
         settle = time.time() + 2.0
         while monitor.count() < expected and time.time() < settle:
             time.sleep(POLL_S)
     finally:
-        if procs:
-            terminate([pr.pid for pr in procs.values()])
-            for pr in procs.values():
-                pr.wait()
+        cluster.stop()
         if monitor is not None:
             monitor.close()
-    if any(alive(pr.pid) for pr in procs.values()):
+    if cluster.running():
         raise ClusterError("a node could not be stopped")
-    return _figures(state, n, frames, spawned, seen, monitor.tallies())
+    return _figures(cluster.state, n, frames, cluster.spawned, seen, monitor.tallies())
 
 
 def _figures(state: ClusterState, n: int, frames: int, spawned: dict[int, float],
@@ -381,8 +256,6 @@ def bench(node_counts: list[int], frames: int, repeats: int, topology: str, out:
           data_root: str | None = None, log=print) -> dict:
     """Run every node count ``repeats`` times; the summary holds each headline figure's median
     over repeats (``summary[n]``) and every run's full figures (``runs[n]``)."""
-    from sim_cluster.scenario import load_scenario
-
     data = load_scenario(scenario, seed=seed, frames=1, data_root=data_root)
     for n in node_counts:
         if n < 2:

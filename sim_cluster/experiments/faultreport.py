@@ -23,10 +23,12 @@ import numpy as np
 
 from edge_node.core.config import TrackerConfig
 from edge_node.faults import FaultPlan
-from sim_cluster.data import ScenarioData
-from sim_cluster.evaluation import evaluate
-from sim_cluster.network import run_network
-from sim_cluster.topology import build
+from sim_cluster.evaluation.metrics import evaluate
+from sim_cluster.network.inprocess import run_network
+from sim_cluster.network.topology import build
+from sim_cluster.progress import progress_bar
+from sim_cluster.scenarios.data import ScenarioData
+from sim_cluster.scenarios.loader import scenario_from_args
 
 
 @dataclass
@@ -159,10 +161,8 @@ def table(report: dict) -> str:
 
 
 def main(args) -> int:
-    from sim_cluster.cli import _scenario
-    from sim_cluster.progress import progress_bar
-
-    data = _scenario(args)
+    """``sim_cluster fault-report``."""
+    data = scenario_from_args(args)
     update, close = progress_bar("fault cases", len(standard_cases(data.frames)), not args.quiet)
     try:
         report = run_report(data, progress=update)

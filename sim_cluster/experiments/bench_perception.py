@@ -1,7 +1,7 @@
 """Perception timings on this CPU: detector and re-id milliseconds per frame, and the frame rate
 one node sustains from a video (detector + re-id + the tracker core, no network).
 
-    python -m sim_cluster.bench_perception [--frames 100] [--out runs/bench-perception]
+    python -m sim_cluster.experiments.bench_perception [--frames 100] [--out runs/bench-perception]
 
 Frames are terrace-sim's, rendered (360 x 288, about 6 people per camera). OSNet runs with
 random weights (its speed does not depend on them), saved and loaded as a torchreid checkpoint.
@@ -20,6 +20,15 @@ from pathlib import Path
 
 import numpy as np
 
+from edge_node.core.config import TrackerConfig
+from edge_node.core.node import CameraNode
+from edge_node.perception.detectors import HogDetector, Mog2Detector, hog_available
+from edge_node.perception.frames import VideoFile
+from edge_node.perception.pipeline import Perception
+from edge_node.perception.reid import HistogramReid, OsnetReid
+from sim_cluster.scenarios.loader import load_scenario
+from sim_cluster.scenarios.synthetic.render import render_scenario, renderer_for
+
 
 def _ms(fn, frames, repeat: int = 1) -> float:
     t = time.perf_counter()
@@ -30,23 +39,17 @@ def _ms(fn, frames, repeat: int = 1) -> float:
 
 
 def main(argv: list[str] | None = None) -> int:
-    p = argparse.ArgumentParser(prog="python -m sim_cluster.bench_perception", description=__doc__,
+    p = argparse.ArgumentParser(prog="python -m sim_cluster.experiments.bench_perception", description=__doc__,
                                 formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--frames", type=int, default=100)
     p.add_argument("--scenario", default="terrace-sim")
     p.add_argument("--out", default="runs/bench-perception")
     args = p.parse_args(argv)
 
-    import cv2
-    import torch
+    import cv2  # OpenCV and torch are optional extras (vision, reid): only this benchmark
+    import torch  # (times them) needs them, so `sim_cluster` imports neither
 
-    from edge_node.core.config import TrackerConfig
-    from edge_node.core.node import CameraNode
-    from edge_node.perception.detectors import HogDetector, Mog2Detector, hog_available
-    from edge_node.perception.osnet import osnet
-    from edge_node.perception.reid import HistogramReid, OsnetReid
-    from sim_cluster.render import render_scenario, renderer_for
-    from sim_cluster.scenario import load_scenario
+    from edge_node.perception.osnet import osnet  # imports torch
 
     n = args.frames
     data = load_scenario(args.scenario, frames=n)
@@ -102,9 +105,6 @@ def main(argv: list[str] | None = None) -> int:
         vid = Path(tmp) / "video"
         info = render_scenario(args.scenario, vid, frames=n, cameras=[0])
         for name, reid_kind in (("MOG2 + histogram", "histogram"), ("MOG2 + OSNet x0_25", "x0_25")):
-            from edge_node.perception.frames import VideoFile
-            from edge_node.perception.pipeline import Perception
-
             det = Mog2Detector(camera=cam, background=info["cameras"]["0"]["background"],
                                learning_rate=0.001)
             reid = (HistogramReid() if reid_kind == "histogram"

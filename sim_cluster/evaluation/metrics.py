@@ -30,7 +30,7 @@ from typing import Any, Protocol, Union
 import numpy as np
 
 from edge_node.geometry import Camera
-from sim_cluster.data import ScenarioData
+from sim_cluster.scenarios.data import ScenarioData
 
 try:  # motmetrics is a declared dependency; fail with a clear message if the env lacks it.
     import motmetrics as mm

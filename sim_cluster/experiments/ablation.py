@@ -39,9 +39,14 @@ from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import Any
 
-from edge_node.core.config import ABLATIONS
+from tqdm import tqdm
 
-CENTRALIZED = "centralized"  # == sim_cluster.network.CENTRALIZED (not imported: keeps this light)
+from edge_node.core.config import ABLATIONS, TrackerConfig
+from sim_cluster.experiments.run import run_once
+from sim_cluster.network import topology as topo
+from sim_cluster.network.inprocess import CENTRALIZED
+from sim_cluster.scenarios.files import ScenarioError, read_scenario_toml, resolve_scenario_path
+from sim_cluster.scenarios.loader import load_scenario
 DEFAULT_SCENARIOS = ("terrace-sim", "lab-sim", "campus-sim", "terrace-gt", "campus-gt")
 DEFAULT_TOPOLOGIES = ("complete", "ring", "chain", "disconnected", CENTRALIZED)
 TOPOLOGY_NAMES = ("complete", "ring", "chain", "disconnected", "star", CENTRALIZED)
@@ -144,14 +149,12 @@ def plan(scenarios: Sequence[str], seeds: Sequence[int], configs: Sequence[str] 
     ``data_root`` is one folder for every scenario or a mapping scenario -> folder (or None).
     Runs of one (scenario, seed) are adjacent so a worker's scenario cache keeps hitting.
     """
-    from sim_cluster.topology import orderings as topo_orderings
-
     if orderings < 1:
         raise AblationError(f"--orderings must be >= 1, got {orderings}")
     tasks: list[Task] = []
     for scenario in scenarios:
         n = cameras[scenario]
-        orders = {t: topo_orderings(t, n, orderings) for t in topologies if t in ORDERED}
+        orders = {t: topo.orderings(t, n, orderings) for t in topologies if t in ORDERED}
         root = data_root.get(scenario) if isinstance(data_root, Mapping) else data_root
         for seed in seeds:
             for config in configs:
@@ -169,16 +172,11 @@ def plan(scenarios: Sequence[str], seeds: Sequence[int], configs: Sequence[str] 
 @functools.lru_cache(maxsize=2)
 def _load(scenario: str, seed: int, frames: int | None, data_root: str | None):
     """The scenario, once per worker process (runs of one scenario and seed are adjacent)."""
-    from sim_cluster.scenario import load_scenario
-
     return load_scenario(scenario, seed=seed, frames=frames, data_root=data_root)
 
 
 def run_task(task: Task) -> dict:
     """Run one task; returns ``{"task": {...}, "summary": {...}}`` (no tracks: small to pickle)."""
-    from edge_node.core.config import TrackerConfig
-    from sim_cluster.cli import run_once
-
     data = _load(task.scenario, task.seed, task.frames, task.data_root)
     cfg = TrackerConfig.for_ablation(task.config)
     _, summary = run_once(data, task.topology, cfg, order=task.order, show_progress=False)
@@ -201,12 +199,7 @@ class _Progress:
         self.bar = None
         self.next_pct = 10
         if self.enabled and self.stream.isatty():
-            try:
-                from tqdm import tqdm
-            except ImportError:  # not a declared dependency: fall back to plain lines
-                tqdm = None
-            if tqdm is not None:
-                self.bar = tqdm(total=total, desc="ablation", unit="run", file=self.stream)
+            self.bar = tqdm(total=total, desc="ablation", unit="run", file=self.stream)
 
     def step(self, label: str = "") -> None:
         self.done += 1
@@ -502,10 +495,10 @@ _CONFIG_COLORS = {"dkf": "#9ecae1", "dkf+lda": "#4292c6", "dkf+lda+dtm": "#08306
 def plot(path: Path, agg: Mapping, meta: Mapping) -> None:
     """``ablation.png``: rows scenarios, columns ground MOTA / IDF1; groups topologies, one bar
     per config, error bars the std over seeds (the paper's Fig. 3)."""
-    import matplotlib
+    import matplotlib  # plotting only here: keeps matplotlib out of every other command
 
     matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    import matplotlib.pyplot as plt  # after use("Agg"): no display needed
 
     scenarios = list(agg["cells"])
     cols = (("ground_mota", "ground MOTA"), ("ground_idf1", "ground IDF1"))
@@ -566,8 +559,6 @@ def write_outputs(out: Path, rows: Sequence[Mapping], agg: Mapping, meta: Mappin
 def _uses_data_root(scenario: str) -> bool:
     """Whether ``--data-root`` applies: only dataset kinds take it (``load_scenario`` puts it in
     ``[source]``, which a synthetic scenario rejects as an unknown field)."""
-    from sim_cluster.scenario import ScenarioError, read_scenario_toml, resolve_scenario_path
-
     candidate = Path(scenario)
     if candidate.is_dir() or candidate.suffix == ".json":  # an exported detections folder
         return False
@@ -585,9 +576,6 @@ def probe(scenarios: Sequence[str], seed: int, data_root: str | None,
 
     An unknown or invalid scenario raises ``AblationError``.
     """
-    from sim_cluster.scenario import ScenarioError, load_scenario
-    from sim_cluster.topology import build
-
     log = log or sys.stderr
     info: dict[str, dict] = {}
     skipped: dict[str, str] = {}
@@ -605,7 +593,7 @@ def probe(scenarios: Sequence[str], seed: int, data_root: str | None,
         info[sc] = {"cameras": n, "data_root": root,
                     "image_streaming_bytes_per_frame":
                         sum(3 * int(c.image_size[0]) * int(c.image_size[1]) for c in d.cameras),
-                    "ring_is_complete": n > 1 and build("ring", n) == build("complete", n)}
+                    "ring_is_complete": n > 1 and topo.build("ring", n) == topo.build("complete", n)}
     return info, skipped
 
 

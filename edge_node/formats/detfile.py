@@ -1,18 +1,29 @@
-"""The det-file format's reader: MOTChallenge ``det.txt`` (+ descriptors ``.npy``), ``gt.txt``,
-``gt_ground.csv`` and the cameras of ``calibration.json`` (layout: ``sim_cluster/detfiles.py``,
-which writes it). It lives in ``edge_node`` because camera processes read it (a det-file
-source) and ``edge_node`` does not import ``sim_cluster``; both use this one reader.
+"""The det-file format: MOTChallenge ``det.txt`` (+ descriptors ``.npy``), ``gt.txt`` and
+``gt_ground.csv``, read and written here. A det-files directory ties them together with a
+``calibration.json`` (:mod:`edge_node.formats.calibration`, where the layout is described).
+Camera processes read one camera's files (a det-file source), the simulator reads and writes
+whole directories (``sim_cluster export-detections``); both use this module.
+
+Frames are 1-based in every file (MOTChallenge); frame ``k`` of a run is file frame ``k + 1``.
+Boxes are pixels, top-left corner and size::
+
+    det.txt        frame,id,x,y,w,h,conf,-1,-1,-1   (id: -1, or the true person id when known)
+    det.npy        optional: (rows, D) descriptors, row i for det.txt's data row i; an all-NaN
+                   row means "no descriptor"
+    gt.txt         frame,id,x,y,w,h,consider,class,vis (rows with consider = 0 or a class other
+                   than 1, pedestrian, are skipped, as MOTChallenge evaluation does)
+    gt_ground.csv  frame,id,x,y,w,h in ground units (may start with # comment lines)
 """
 from __future__ import annotations
 
 import os
 from pathlib import Path
-from typing import Any
 
 import numpy as np
 
 from edge_node.core.types import Detection
-from edge_node.geometry import Camera, GeometryError
+
+BOX_FMT = "%.4f"  # 1e-4 px: round trips well inside 1e-3 px
 
 
 class DetFilesError(ValueError):
@@ -126,20 +137,62 @@ def last_frame(path: Path) -> int:
     return int(t[:, 0].max()) if len(t) else 0
 
 
-def camera_from_entry(c: int, entry: dict[str, Any], path: Path, fps: float) -> Camera:
-    try:
-        size = entry.get("image_size")
-        if size is None or len(size) != 2:
-            raise DetFilesError(f"{path}: cameras[{c}].image_size must be [width, height]")
-        P = entry.get("P")
-        return Camera(id=int(entry.get("id", c)), image_size=(int(size[0]), int(size[1])),
-                      G=np.asarray(entry["G"], dtype=float),
-                      P=None if P is None else np.asarray(P, dtype=float),
-                      pixel_scale=float(entry.get("pixel_scale", 1.0)),
-                      fps=float(entry.get("fps", fps)))
-    except KeyError as exc:
-        raise DetFilesError(f"{path}: cameras[{c}] lacks field {exc.args[0]!r}") from exc
-    except (GeometryError, TypeError, ValueError) as exc:
-        if isinstance(exc, DetFilesError):
-            raise
-        raise DetFilesError(f"{path}: cameras[{c}]: {exc}") from exc
+# -- writing ----------------------------------------------------------------------------------------
+def write_rows(path: Path, rows: list[str], header: str | None = None) -> None:
+    """Text rows, ``\\n`` line ends, the parent folder made when missing."""
+    path.parent.mkdir(parents=True, exist_ok=True)
+    with path.open("w", encoding="utf-8", newline="\n") as fh:
+        if header:
+            fh.write(header + "\n")
+        fh.write("\n".join(rows) + ("\n" if rows else ""))
+
+
+def _f(v: float) -> str:
+    return BOX_FMT % float(v)
+
+
+def write_det(path: Path, detections: list[list[Detection]], true_ids: list[np.ndarray],
+              descriptors: Path, descriptor_dtype: str = "float16") -> bool:
+    """One camera's ``det.txt`` (boxes to 1e-4 px, scores, ``true_ids`` in the id column) and its
+    descriptors ``.npy`` of ``descriptor_dtype`` (an all-NaN row for a detection without one).
+    No ``.npy`` is written (an old one is removed) when no detection has a descriptor; returns
+    whether one was written."""
+    if np.dtype(descriptor_dtype).kind != "f":
+        raise DetFilesError(f"descriptor_dtype must be a float type, got {descriptor_dtype!r}")
+    rows, descs, have = [], [], False
+    for k, (dets, ids) in enumerate(zip(detections, true_ids)):
+        for d, tid in zip(dets, ids):
+            b = np.asarray(d.box, dtype=float)
+            rows.append(f"{k + 1},{int(tid)},{_f(b[0])},{_f(b[1])},{_f(b[2])},{_f(b[3])},"
+                        f"{float(d.score):.6g},-1,-1,-1")
+            descs.append(d.descriptor)
+            have = have or d.descriptor is not None
+    write_rows(path, rows)
+    if have:
+        dim = next(len(x) for x in descs if x is not None)
+        arr = np.stack([np.full(dim, np.nan) if x is None else np.asarray(x, float)
+                        for x in descs]) if descs else np.zeros((0, dim))
+        np.save(descriptors, arr.astype(descriptor_dtype))
+    elif descriptors.exists():
+        descriptors.unlink()
+    return have
+
+
+def write_gt(path: Path, truth: list[tuple[np.ndarray, np.ndarray]]) -> None:
+    """One camera's ``gt.txt`` from ``(ids, boxes)`` per frame (every row considered, class 1)."""
+    rows = []
+    for k, (ids, boxes) in enumerate(truth):
+        for i, b in zip(np.asarray(ids).ravel(), np.asarray(boxes, float).reshape(-1, 4)):
+            rows.append(f"{k + 1},{int(i)},{_f(b[0])},{_f(b[1])},{_f(b[2])},{_f(b[3])},1,1,1")
+    write_rows(path, rows)
+
+
+def write_gt_ground(path: Path, ids: list[np.ndarray], xy: list[np.ndarray],
+                    wh: list[np.ndarray]) -> None:
+    """``gt_ground.csv`` from ``(ids, xy, wh)`` per frame."""
+    rows = []
+    for k in range(len(ids)):
+        for i, p, s in zip(np.asarray(ids[k]).ravel(), np.asarray(xy[k]).reshape(-1, 2),
+                           np.asarray(wh[k]).reshape(-1, 2)):
+            rows.append(f"{k + 1},{int(i)},{p[0]:.6f},{p[1]:.6f},{s[0]:.6f},{s[1]:.6f}")
+    write_rows(path, rows, header="# frame,id,x,y,w,h (ground units, 1-based frames)")

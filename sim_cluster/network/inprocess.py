@@ -21,8 +21,8 @@ from edge_node.outbox import Outbox, OutboxCounters
 from edge_node.core.types import Track
 from protocol import codec
 from protocol.messages import FrameMessage
-from sim_cluster.data import ScenarioData
-from sim_cluster.topology import Adjacency
+from sim_cluster.scenarios.data import ScenarioData
+from sim_cluster.network.topology import Adjacency
 
 CENTRALIZED = "centralized"
 

@@ -1,9 +1,4 @@
-"""Scenario files: TOML schema, validation and loading.
-
-A scenario is a TOML file. Presets ship in ``sim_cluster/presets/`` (``list_presets()``); a user
-can pass the path of their own file. ``[source] kind`` selects how the file becomes a
-:class:`~sim_cluster.data.ScenarioData`; it defaults to ``"synthetic"`` (the seeded world of
-:mod:`sim_cluster.world`). Other kinds register a loader in :data:`SCENARIO_KINDS`.
+"""The synthetic scenario kind: its TOML schema, read into a :class:`WorldConfig`.
 
 Synthetic schema (metres, degrees, pixels; see the presets for commented examples)::
 
@@ -39,179 +34,30 @@ Synthetic schema (metres, degrees, pixels; see the presets for commented example
                  distances same_camera_distance, cross_camera_distance, different_person_distance
     [truth]      min_visible                         (world module docstring)
 
-Every error is a :class:`ScenarioError` naming the file and the field, e.g.
-``terrace-sim.toml: cameras[2].fov_deg must be in (0, 180), got 200``. Unknown fields are errors
-(a typo must not silently fall back to a default).
+Every error is a :class:`~sim_cluster.scenarios.files.ScenarioError` naming the file and the
+field, e.g. ``terrace-sim.toml: cameras[2].fov_deg must be in (0, 180), got 200``. Unknown
+fields are errors (a typo must not silently fall back to a default). ``[detector]`` and
+``[appearance]`` are read the same way by the other kinds that simulate detections (EPFL).
 """
 from __future__ import annotations
 
-from dataclasses import fields
-import importlib
+from dataclasses import MISSING, fields
 import math
 from pathlib import Path
-import tomllib
-from typing import Any, Callable
+from typing import Any
 
 import numpy as np
 
 from edge_node.geometry import Camera, GeometryError
-from sim_cluster.appearance import AppearanceError, AppearanceParams
-from sim_cluster.data import ScenarioData
-from sim_cluster.detector_model import DetectorParams, DetectorParamsError
-from sim_cluster.world import PeopleParams, WorldConfig, WorldError, generate
+from edge_node.settings import Table
+from sim_cluster.scenarios.data import ScenarioData
+from sim_cluster.scenarios.files import ScenarioError, scenario_table
+from sim_cluster.scenarios.synthetic.appearance import AppearanceError, AppearanceParams
+from sim_cluster.scenarios.synthetic.detector_model import DetectorParams, DetectorParamsError
+from sim_cluster.scenarios.synthetic.world import PeopleParams, WorldConfig, WorldError, generate
 
-PRESET_DIR = Path(__file__).resolve().parent / "presets"
-
-_REQUIRED = object()
-
-
-class ScenarioError(ValueError):
-    """A scenario that cannot be loaded; the message names the file and the field."""
-
-    def __init__(self, file: str, field: str | None, message: str):
-        self.file = file
-        self.field = field
-        super().__init__(f"{file}: {field} {message}" if field else f"{file}: {message}")
-
-
-# -- a small validating reader for TOML tables ------------------------------------------------
-
-
-class Table:
-    """Typed, range-checked access to one TOML table; errors name ``file`` and ``where.key``.
-
-    Call :meth:`finish` after reading to reject unknown keys. Reusable by other scenario kinds.
-    """
-
-    def __init__(self, data: Any, file: str, where: str = ""):
-        if not isinstance(data, dict):
-            raise ScenarioError(file, where or None, f"must be a table, got {type(data).__name__}")
-        self.data = data
-        self.file = file
-        self.where = where
-        self._used: set[str] = set()
-
-    def name(self, key: str) -> str:
-        return f"{self.where}.{key}" if self.where else key
-
-    def error(self, key: str | None, message: str) -> ScenarioError:
-        """An error about ``key`` of this table, or about the whole table when ``key`` is None."""
-        if key:
-            return ScenarioError(self.file, self.name(key), message)
-        return ScenarioError(self.file, None, f"{self.where}: {message}" if self.where else message)
-
-    def has(self, key: str) -> bool:
-        return key in self.data
-
-    def raw(self, key: str, default: Any = _REQUIRED) -> Any:
-        self._used.add(key)
-        if key not in self.data:
-            if default is _REQUIRED:
-                raise self.error(key, "is required")
-            return default
-        return self.data[key]
-
-    def number(self, key: str, default: Any = _REQUIRED, *, lo: float | None = None,
-               hi: float | None = None, lo_open: bool = False, hi_open: bool = False) -> float:
-        if not self.has(key) and default is not _REQUIRED:
-            self._used.add(key)
-            return default
-        v = self.raw(key)
-        return self._check_number(key, v, lo, hi, lo_open, hi_open)
-
-    def _check_number(self, key: str, v: Any, lo: float | None, hi: float | None,
-                      lo_open: bool, hi_open: bool, label: str | None = None) -> float:
-        label = label or key
-        if isinstance(v, bool) or not isinstance(v, (int, float)):
-            raise self.error(label, f"must be a number, got {v!r}")
-        if not math.isfinite(v):
-            raise self.error(label, f"must be finite, got {v!r}")
-        bad = (lo is not None and (v <= lo if lo_open else v < lo)) or (
-            hi is not None and (v >= hi if hi_open else v > hi))
-        if bad:
-            if lo is not None and hi is not None:
-                rng = f"{'(' if lo_open else '['}{lo:g}, {hi:g}{')' if hi_open else ']'}"
-                raise self.error(label, f"must be in {rng}, got {v!r}")
-            if lo is not None:
-                raise self.error(label, f"must be {'>' if lo_open else '>='} {lo:g}, got {v!r}")
-            raise self.error(label, f"must be {'<' if hi_open else '<='} {hi:g}, got {v!r}")
-        return float(v)
-
-    def integer(self, key: str, default: Any = _REQUIRED, *, lo: int | None = None,
-                hi: int | None = None) -> int:
-        if not self.has(key) and default is not _REQUIRED:
-            self._used.add(key)
-            return default
-        v = self.raw(key)
-        if isinstance(v, bool) or not isinstance(v, int):
-            raise self.error(key, f"must be an integer, got {v!r}")
-        if (lo is not None and v < lo) or (hi is not None and v > hi):
-            if hi is None:
-                raise self.error(key, f"must be >= {lo}, got {v!r}")
-            raise self.error(key, f"must be in [{lo}, {hi}], got {v!r}")
-        return v
-
-    def string(self, key: str, default: Any = _REQUIRED) -> str:
-        if not self.has(key) and default is not _REQUIRED:
-            self._used.add(key)
-            return default
-        v = self.raw(key)
-        if not isinstance(v, str):
-            raise self.error(key, f"must be a string, got {v!r}")
-        return v
-
-    def vector(self, key: str, n: int, default: Any = _REQUIRED, *, lo: float | None = None,
-               lo_open: bool = False) -> np.ndarray:
-        if not self.has(key) and default is not _REQUIRED:
-            self._used.add(key)
-            return default
-        v = self.raw(key)
-        if not isinstance(v, list) or len(v) != n:
-            raise self.error(key, f"must be a list of {n} numbers, got {v!r}")
-        return np.array([self._check_number(key, x, lo, None, lo_open, False, f"{key}[{i}]")
-                         for i, x in enumerate(v)])
-
-    def span(self, key: str, default: Any = _REQUIRED, *, lo: float = 0.0, lo_open: bool = False,
-             hi: float | None = None) -> tuple[float, float]:
-        """A range ``[lo, hi]`` (or a single number meaning ``[x, x]``), ``lo <= hi``."""
-        if not self.has(key) and default is not _REQUIRED:
-            self._used.add(key)
-            return default
-        v = self.raw(key)
-        if not isinstance(v, list):
-            x = self._check_number(key, v, lo, hi, lo_open, False)
-            return (x, x)
-        if len(v) != 2:
-            raise self.error(key, f"must be a number or a range [lo, hi], got {v!r}")
-        a = self._check_number(key, v[0], lo, hi, lo_open, False, f"{key}[0]")
-        b = self._check_number(key, v[1], lo, hi, lo_open, False, f"{key}[1]")
-        if a > b:
-            raise self.error(key, f"must have lo <= hi, got {v!r}")
-        return (a, b)
-
-    def matrix(self, key: str, rows: int, cols: int) -> np.ndarray:
-        v = self.raw(key)
-        ok = isinstance(v, list) and len(v) == rows and all(
-            isinstance(r, list) and len(r) == cols for r in v)
-        if not ok:
-            raise self.error(key, f"must be a {rows}x{cols} list of lists, got {v!r}")
-        return np.array([[self._check_number(key, x, None, None, False, False, f"{key}[{i}][{j}]")
-                          for j, x in enumerate(r)] for i, r in enumerate(v)])
-
-    def table(self, key: str) -> "Table":
-        """A sub-table (an empty one when absent)."""
-        return Table(self.raw(key, {}), self.file, self.name(key))
-
-    def tables(self, key: str) -> list["Table"]:
-        v = self.raw(key)
-        if not isinstance(v, list) or not v:
-            raise self.error(key, "must be a non-empty array of tables ([[...]])")
-        return [Table(t, self.file, f"{self.name(key)}[{i}]") for i, t in enumerate(v)]
-
-    def finish(self) -> None:
-        unknown = sorted(set(self.data) - self._used)
-        if unknown:
-            raise self.error(unknown[0], f"is not a known field (known: {', '.join(sorted(self._used))})")
+CAMERA_KEYS = ("image_size", "homography", "pixel_scale", "projection", "position", "look_at",
+               "yaw_deg", "pitch_deg", "roll_deg", "fov_deg", "focal_px", "principal_point")
 
 
 # -- cameras ----------------------------------------------------------------------------------
@@ -269,6 +115,7 @@ def camera_from_pose(
 
 
 def _camera(t: Table, cid: int, fps: float) -> Camera:
+    t.declare(*CAMERA_KEYS)  # a homography and a pose exclude each other; both are known
     size = t.raw("image_size")
     if (not isinstance(size, list) or len(size) != 2
             or not all(isinstance(v, int) and not isinstance(v, bool) and v > 0 for v in size)):
@@ -321,15 +168,14 @@ def _camera(t: Table, cid: int, fps: float) -> Camera:
 def _dataclass_from(t: Table, cls: type, spans: dict[str, dict], numbers: dict[str, dict],
                     ints: dict[str, dict]) -> Any:
     kwargs: dict[str, Any] = {}
-    for f in fields(cls):
-        if not t.has(f.name):
-            continue
+    for f in fields(cls):  # every field read (its default when absent): all known to finish()
+        default = f.default if f.default is not MISSING else f.default_factory()
         if f.name in spans:
-            kwargs[f.name] = t.span(f.name, **spans[f.name])
+            kwargs[f.name] = t.span(f.name, default, **spans[f.name])
         elif f.name in ints:
-            kwargs[f.name] = t.integer(f.name, **ints[f.name])
+            kwargs[f.name] = t.integer(f.name, default, **ints[f.name])
         elif f.name in numbers:
-            kwargs[f.name] = t.number(f.name, **numbers[f.name])
+            kwargs[f.name] = t.number(f.name, default, **numbers[f.name])
     t.finish()
     return cls(**kwargs)
 
@@ -337,7 +183,7 @@ def _dataclass_from(t: Table, cls: type, spans: dict[str, dict], numbers: dict[s
 def parse_synthetic(raw: dict, path: Path, seed: int, frames: int | None = None) -> WorldConfig:
     """Validate a synthetic scenario's TOML (already parsed) into a :class:`WorldConfig`."""
     file = path.name
-    top = Table(raw, file)
+    top = scenario_table(raw, file)
     src = top.table("source")
     src.string("kind", "synthetic")
     src.finish()
@@ -399,6 +245,7 @@ def appearance_params_from_table(t: Table) -> AppearanceParams:
     dim = t.integer("dim", 512, lo=2, hi=65536)
     weights = ("identity", "view", "noise", "shared")
     dists = ("same_camera_distance", "cross_camera_distance", "different_person_distance")
+    t.declare(*weights, *dists)  # one set or the other; both are known
     has_w = [k for k in weights if t.has(k)]
     has_d = [k for k in dists if t.has(k)]
     try:
@@ -421,9 +268,6 @@ def appearance_params_from_table(t: Table) -> AppearanceParams:
     return params
 
 
-_appearance = appearance_params_from_table  # older private name, used by sibling loaders
-
-
 def detector_params_from_table(t: Table) -> DetectorParams:
     """``DetectorParams`` from a ``[detector]`` table (every field optional, range-checked)."""
     unit = {"lo": 0.0, "hi": 1.0}
@@ -441,93 +285,6 @@ def detector_params_from_table(t: Table) -> DetectorParams:
         raise t.error(None, str(e)) from None
 
 
-def _load_synthetic(raw: dict, path: Path, seed: int, frames: int | None) -> ScenarioData:
+def load_synthetic(raw: dict, path: Path, seed: int, frames: int | None) -> ScenarioData:
+    """The scenario loader of kind ``synthetic`` (``SCENARIO_KINDS["synthetic"]``)."""
     return generate(parse_synthetic(raw, path, seed, frames))
-
-
-# -- registry and entry points ----------------------------------------------------------------
-
-ScenarioLoader = Callable[[dict, Path, int, "int | None"], ScenarioData]
-
-
-def lazy_loader(module: str, attr: str) -> ScenarioLoader:
-    """A loader imported on first use (``SCENARIO_KINDS["x"] = lazy_loader("pkg.mod", "fn")``),
-    so optional kinds cost nothing and cannot create import cycles."""
-
-    def load(raw: dict, path: Path, seed: int, frames: int | None) -> ScenarioData:
-        return getattr(importlib.import_module(module), attr)(raw, path, seed, frames)
-
-    load.__qualname__ = f"lazy_loader({module}.{attr})"
-    return load
-
-
-#: ``[source] kind`` -> loader ``(raw toml dict, file path, resolved seed, frames override or
-#: None) -> ScenarioData``. A loader validates its own fields (see :class:`Table`) and raises
-#: :class:`ScenarioError`.
-SCENARIO_KINDS: dict[str, ScenarioLoader] = {
-    "synthetic": _load_synthetic,
-    "epfl-gt": lazy_loader("sim_cluster.epfl", "scenario_from_table"),
-    "det-files": lazy_loader("sim_cluster.detfiles", "scenario_from_table"),
-}
-
-
-def list_presets() -> list[str]:
-    """Names of the scenario presets shipped with the package."""
-    return sorted(p.stem for p in PRESET_DIR.glob("*.toml"))
-
-
-def resolve_scenario_path(name_or_path: str | Path) -> Path:
-    """A preset name -> ``presets/<name>.toml``; anything path-like -> that file."""
-    s = str(name_or_path)
-    p = Path(s)
-    if p.suffix == ".toml" or "/" in s or "\\" in s or p.exists():
-        if not p.is_file():
-            raise ScenarioError(p.name or s, None, f"no such scenario file: {s}")
-        return p
-    preset = PRESET_DIR / f"{s}.toml"
-    if not preset.is_file():
-        raise ScenarioError(s, None, f"unknown scenario preset (presets: {', '.join(list_presets())})")
-    return preset
-
-
-def read_scenario_toml(path: Path) -> dict:
-    """Parse a scenario file, turning I/O and syntax errors into :class:`ScenarioError`."""
-    try:
-        with open(path, "rb") as fh:
-            return tomllib.load(fh)
-    except tomllib.TOMLDecodeError as e:
-        raise ScenarioError(path.name, None, f"invalid TOML: {e}") from None
-    except OSError as e:
-        raise ScenarioError(path.name, None, f"cannot read: {e.strerror or e}") from None
-
-
-def load_scenario(name_or_path: str | Path, seed: int | None = None,
-                  frames: int | None = None, data_root: str | Path | None = None) -> ScenarioData:
-    """Load a scenario by preset name or file path. ``seed`` / ``frames`` override the file's.
-
-    Same file + same seed gives identical detections. A folder written by
-    ``sim_cluster export-detections`` (or its ``calibration.json``) is a scenario too.
-    """
-    candidate = Path(str(name_or_path))
-    if candidate.is_dir() or candidate.suffix == ".json":
-        from sim_cluster.detfiles import load_det_files
-
-        return load_det_files(candidate, frames=frames, seed=seed)
-    path = resolve_scenario_path(name_or_path)
-    raw = read_scenario_toml(path)
-    file = path.name
-    top = Table(raw, file)
-    if seed is None:
-        seed = top.integer("seed", 0, lo=0)
-    elif isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or seed < 0:
-        raise ScenarioError(file, "seed", f"must be an integer >= 0, got {seed!r}")
-    if frames is not None and (isinstance(frames, bool) or not isinstance(frames, (int, np.integer))
-                               or frames < 1):
-        raise ScenarioError(file, "frames", f"must be an integer >= 1, got {frames!r}")
-    src = top.table("source")
-    kind = src.raw("kind", "synthetic")
-    if kind not in SCENARIO_KINDS:
-        raise src.error("kind", f"must be one of {sorted(SCENARIO_KINDS)}, got {kind!r}")
-    if data_root is not None and kind == "epfl-gt":  # --data-root beats the file and $DMTT_DATA
-        raw.setdefault("source", {})["data_root"] = str(Path(data_root).expanduser().resolve())
-    return SCENARIO_KINDS[kind](raw, path, int(seed), None if frames is None else int(frames))

@@ -1,0 +1,12 @@
+"""The file formats of the project, read and written in one place.
+
+Camera processes (``edge_node``) and the simulator (``sim_cluster``) both use these modules, so a
+file one of them writes is read by the other with the same code:
+
+``detfile``      MOTChallenge ``det.txt`` (+ descriptors ``.npy``), ``gt.txt`` and
+                 ``gt_ground.csv``: reading and writing
+``calibration``  ``calibration.json`` of a det-files directory: its cameras, frame count, units
+                 and each camera's files; reading and writing
+``tracks``       a node's track file ``tracks_node<id>.csv``: reading and writing
+``homographies`` EPFL's ``homographies.json``: the cameras of a sequence
+"""

@@ -1,0 +1,137 @@
+"""``sim_cluster up`` and the commands that act on a running cluster: ``status``, ``kill``,
+``restart``, ``down`` (the :class:`~sim_cluster.cluster.launcher.Cluster` does the work).
+
+``up`` starts one ``edge_node`` process per camera, shows progress, waits, gathers every node's
+tracks and wire counters, and evaluates them like ``sim_cluster run``. With ``--detach`` it
+returns once the processes run; the other commands then reach the cluster through its state
+file ``<out>/cluster.json``.
+"""
+from __future__ import annotations
+
+import json
+import sys
+from pathlib import Path
+
+from edge_node.faults import FaultPlan
+from sim_cluster.cluster.configs import video_source_toml
+from sim_cluster.cluster.launcher import Cluster
+from sim_cluster.cluster.state import ClusterError, node_status
+from sim_cluster.evaluation.report import run_table
+from sim_cluster.progress import progress_bar
+from sim_cluster.scenarios.loader import scenario_from_args
+from sim_cluster.scenarios.synthetic.render import RenderError, ensure_rendered
+from sim_cluster.viz import ClusterViz, spec_from_args
+
+
+def up(args) -> int:
+    data = scenario_from_args(args)
+    n = data.num_cameras if args.nodes is None else args.nodes
+    if not 1 <= n <= data.num_cameras:
+        raise ClusterError(f"--nodes {n}: scenario {data.name} has {data.num_cameras} cameras")
+    if n < data.num_cameras:
+        data.cameras = data.cameras[:n]
+        data.detections = [d[:n] for d in data.detections]
+        data.truth.boxes = data.truth.boxes[:n]
+    cluster = Cluster.create(args.out, network=args.network, scenario=args.scenario,
+                             seed=args.seed, frames=args.frames, mode=args.mode,
+                             topology=args.topology, nodes=n, data_root=args.data_root)
+    out = cluster.out
+    viz = ClusterViz(spec_from_args(getattr(args, "rerun", None)), out, n, data,
+                     detach=bool(getattr(args, "detach", False)))  # --rerun (sim_cluster/viz.py)
+    plan = None
+    faults_file = None
+    if getattr(args, "faults", None):
+        faults_file = Path(args.faults).resolve()
+        plan = FaultPlan.load(faults_file)
+    # Pacing: a synchronous cluster runs in lock-step as fast as it can; an asynchronous one
+    # never waits, so it plays frames at the cameras' rate (as real cameras deliver them).
+    # Crashes and restarts happen in wall-clock time too (a process takes a second or two to
+    # start), so a cluster whose fault plan kills nodes also plays at camera rate.
+    realtime = args.mode == "async" or (plan is not None and bool(plan.nodes))
+    fps = args.fps if args.fps is not None else (data.fps if realtime else 0.0)
+    cluster.write_configs(config=args.config, sync_timeout_s=args.sync_timeout,
+                          startup_timeout_s=args.startup_timeout, fps=fps, faults=faults_file,
+                          sources=video_sources(args, data, out, n), extra=viz.node_toml)
+    try:
+        viz.open()  # spawn / serve: the viewer or server the nodes connect to
+        cluster.start()
+        viz.log_truth(data.frames)
+        if args.detach:
+            viz.close()
+            print(f"started {n} nodes ({args.topology}, {args.mode}) in {out}")
+            print(f"  sim_cluster status --out {args.out}   |   sim_cluster down --out {args.out}")
+            cluster.detach()  # they are the cluster's now, not this launcher's
+            return 0
+        frames = data.frames
+        update, close = progress_bar(f"cluster {args.topology}", frames, not args.quiet)
+
+        def progress(running: list[int]) -> None:
+            done = [node_status(cluster.state, i).get("frames_done", 0) for i in running]
+            update(min(done or [frames]), frames)
+
+        try:
+            cluster.wait(plan=plan, on_poll=progress)
+        finally:
+            close()
+        summary = cluster.gather(data, frames, args.config)
+        (out / "summary.json").write_text(json.dumps(summary, indent=2, sort_keys=True))
+        print(run_table(summary))
+        lat = [v.get("median_ms") for v in (p["latency"] or {} for p in
+                                             summary["processes"].values()) if v]
+        if lat:
+            print(f"one-hop latency: median of node medians {sorted(lat)[len(lat) // 2]:.2f} ms")
+        print(f"wrote {out}/summary.json, tracks and logs under {out}")
+        viz.finish(frames)
+        return 0
+    except KeyboardInterrupt:
+        print("sim_cluster: interrupted: stopping the cluster", file=sys.stderr)
+        return 130
+    finally:
+        viz.close()
+        cluster.stop()  # anything still running that this launcher owns: end it
+
+
+def video_sources(args, data, out: Path, n: int) -> dict[int, str] | None:
+    """``up --source video``: render each camera's video into ``out/video`` (reused when
+    already there) and return each node's source TOML; ``None`` for ``--source scenario``."""
+    if getattr(args, "source", "scenario") != "video":
+        return None
+    detector = getattr(args, "detector", "mog2") or "mog2"
+    reid = getattr(args, "reid", "histogram") or "histogram"
+    if reid.startswith("osnet_") and not getattr(args, "reid_weights", None):
+        raise RenderError(f"--reid {reid} needs --reid-weights (a torchreid checkpoint)")
+    if detector == "onnx" and not getattr(args, "onnx_model", None):
+        raise RenderError("--detector onnx needs --onnx-model (an ONNX person detector)")
+    if not getattr(args, "quiet", False):
+        print(f"rendering {n} camera videos of {data.name} ({data.frames} frames) into {out / 'video'}")
+    info = ensure_rendered(args.scenario, out / "video", args.seed, data.frames,
+                           cameras=list(range(n)))
+    return {i: video_source_toml(data.cameras[i], info["cameras"][str(i)]["frames"],
+                                 info["cameras"][str(i)]["background"], detector=detector,
+                                 reid=reid, reid_weights=getattr(args, "reid_weights", None),
+                                 onnx_model=getattr(args, "onnx_model", None),
+                                 units_per_metre=data.units_per_metre)
+            for i in range(n)}
+
+
+def status(args) -> int:
+    print(Cluster.attach(args.out).status_table())
+    return 0
+
+
+def kill(args) -> int:
+    pid = Cluster.attach(args.out).kill(args.node)
+    print(f"killed node {args.node} (pid {pid})")
+    return 0
+
+
+def restart(args) -> int:
+    pid = Cluster.attach(args.out).restart_node(args.node)
+    print(f"restarted node {args.node} (pid {pid})")
+    return 0
+
+
+def down(args) -> int:
+    stopped = Cluster.attach(args.out).down()
+    print(f"stopped {stopped} node(s) of {args.out}")
+    return 0

@@ -1,0 +1,105 @@
+"""The camera configs of a cluster's nodes (``edge_node/runtime/config.py`` schema), as
+``sim_cluster up`` and the cluster benchmark write them: one listen endpoint per node and
+connects on both ends of every link, the scenario (or a det-files folder, or a rendered video)
+as the source, the tracker configuration and the output folder.
+"""
+from __future__ import annotations
+
+import json
+from collections.abc import Sequence
+from pathlib import Path
+
+import numpy as np
+
+from edge_node.geometry import Camera
+from sim_cluster.cluster.state import ClusterState
+
+
+def _toml_str(v: str) -> str:
+    return json.dumps(v)  # a JSON string is a valid TOML basic string
+
+
+def node_config(i: int, state: ClusterState, ports: dict[int, int], *, config: str,
+                sync_timeout_s: float, startup_timeout_s: float, fps: float = 0.0,
+                faults: Path | None = None, source_toml: str | None = None,
+                connect_first: Sequence[str] = ()) -> str:
+    """The TOML of node ``i`` (schema: ``edge_node/runtime/config.py``). ``source_toml``: its
+    ``[source]`` body and further tables (frames rendered for its camera), instead of the
+    scenario; ``connect_first``: endpoints connected before the neighbours' (a monitor)."""
+    neighbours = state.adjacency[str(i)]
+    listen = [f"tcp/127.0.0.1:{ports[i]}"]
+    connect = [*connect_first, *(f"tcp/127.0.0.1:{ports[j]}" for j in neighbours)]
+    scenario = state.scenario
+    src = Path(scenario)
+    lines = [
+        f"# node {i} of a {len(ports)}-node {state.topology} cluster (written by sim_cluster up)",
+        f"node = {i}",
+        f"network = {_toml_str(state.network)}",
+        f"neighbours = {neighbours}",
+        "",
+        "[zenoh]",
+        f"listen = {json.dumps(listen)}",
+        f"connect = {json.dumps(connect)}",
+        "lease_ms = 1000",
+        "",
+        "[runtime]",
+        f"mode = {_toml_str(state.mode)}",
+        f"sync_timeout_s = {sync_timeout_s}",
+        f"startup_timeout_s = {startup_timeout_s}",
+        f"fps = {float(fps)}",
+        "",
+        "[source]",
+    ]
+    if state.frames is not None:
+        lines.insert(lines.index("[source]") - 1, f"frames = {state.frames}")
+    if source_toml is not None:  # frames rendered for this camera (video_source_toml)
+        lines += source_toml.splitlines()
+    elif src.is_dir() or src.suffix == ".json":  # an exported detections folder
+        lines += ['kind = "det-file"', f"path = {_toml_str(str(src.resolve()))}", f"camera = {i}"]
+    else:  # the scenario itself, regenerated in the process: identical detections
+        name = str(src.resolve()) if src.suffix == ".toml" else scenario
+        lines += ['kind = "scenario"', f"scenario = {_toml_str(name)}", f"seed = {state.seed}",
+                  f"camera = {i}"]
+        if state.frames is not None:
+            lines.append(f"frames = {state.frames}")
+        if state.data_root:
+            lines.append(f"data_root = {_toml_str(state.data_root)}")
+    if faults is not None:
+        lines += ["", "[faults]", f"file = {_toml_str(str(faults))}"]
+    lines += ["", "[tracker]", f"ablation = {_toml_str(config)}", "", "[output]",
+              f"dir = {_toml_str(str(Path(state.out) / 'nodes'))}", "status_interval_s = 0.5", ""]
+    return "\n".join(lines)
+
+
+def _toml_matrix(m) -> str:
+    return "[" + ", ".join("[" + ", ".join(repr(float(v)) for v in row) + "]"
+                           for row in np.asarray(m, float)) + "]"
+
+
+def video_source_toml(camera: Camera, video: str | Path, background: str | Path | None, *,
+                      detector: str = "mog2", reid: str = "histogram",
+                      reid_weights: str | Path | None = None, onnx_model: str | Path | None = None,
+                      units_per_metre: float = 1.0) -> str:
+    """The ``[source]`` body, ``[camera]`` and ``[perception]`` tables of a node that runs from a
+    rendered video (what ``sim_cluster up --source video`` writes; schema in
+    ``edge_node/perception/settings.py``)."""
+    lines = ['kind = "video"', f"path = {json.dumps(str(Path(video).resolve()))}", "",
+             "[camera]",
+             f"homography = {_toml_matrix(camera.G)}"]
+    if camera.P is not None:
+        lines.append(f"projection = {_toml_matrix(camera.P)}")
+    lines += [f"image_size = [{int(camera.image_size[0])}, {int(camera.image_size[1])}]",
+              f"pixel_scale = {float(camera.pixel_scale)!r}", f"fps = {float(camera.fps)!r}",
+              f"units_per_metre = {float(units_per_metre)!r}", "",
+              "[perception]", f"detector = {json.dumps(detector)}", f"reid = {json.dumps(reid)}"]
+    if detector == "mog2":
+        lines += ["", "[perception.mog2]", "learning_rate = 0.001  # people who pause stay foreground"]
+        if background is not None:
+            lines.append(f"background = {json.dumps(str(Path(background).resolve()))}")
+    if detector == "onnx":
+        lines += ["", "[perception.onnx]", f"model = {json.dumps(str(Path(onnx_model).resolve()))}"]
+    if reid.startswith("osnet_"):
+        lines += ["", "[perception.osnet]", "threads = 1"]
+        if reid_weights is not None:
+            lines.append(f"weights = {json.dumps(str(Path(reid_weights).resolve()))}")
+    return "\n".join(lines)

@@ -1,0 +1,101 @@
+"""A cluster's state file (``<out>/cluster.json``: its nodes, their configs, logs, ports and
+process ids) and what its nodes write beside it (status and counters files, read back here).
+``status``, ``kill``, ``restart`` and ``down`` act on a detached cluster through this file.
+"""
+from __future__ import annotations
+
+import json
+import os
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+
+from edge_node.runtime.output import counters_path, status_path
+from sim_cluster.cluster.processes import alive
+
+STATE = "cluster.json"
+
+
+class ClusterError(Exception):
+    """A cluster that cannot be started or acted on; the message says why."""
+
+
+@dataclass
+class NodeProc:
+    node: int
+    config: str
+    log: str
+    port: int
+    pid: int | None = None
+    restarts: int = 0
+
+
+@dataclass
+class ClusterState:
+    out: str
+    network: str
+    scenario: str
+    seed: int
+    frames: int | None
+    mode: str
+    topology: str
+    adjacency: dict[str, list[int]]
+    nodes: dict[str, NodeProc] = field(default_factory=dict)
+    started_at: float = 0.0
+    data_root: str | None = None
+
+    def save(self) -> None:
+        path = Path(self.out) / STATE
+        tmp = path.with_suffix(".tmp")
+        tmp.write_text(json.dumps(asdict(self), indent=2))
+        os.replace(tmp, path)
+
+    @classmethod
+    def load(cls, out: str | Path) -> "ClusterState":
+        path = Path(out) / STATE
+        try:
+            d = json.loads(path.read_text())
+        except FileNotFoundError:
+            raise ClusterError(f"no cluster at {out} (no {STATE}); start one with "
+                               f"'sim_cluster up --out {out}'") from None
+        except json.JSONDecodeError as e:
+            raise ClusterError(f"{path}: not a cluster state file ({e})") from None
+        d["nodes"] = {k: NodeProc(**v) for k, v in d["nodes"].items()}
+        return cls(**d)
+
+
+# -- what the nodes write ----------------------------------------------------------------------
+def node_status(state: ClusterState, node: int) -> dict:
+    """Node ``node``'s live status file (``{}`` while it has none)."""
+    try:
+        return json.loads(status_path(Path(state.out) / "nodes", node).read_text())
+    except (OSError, json.JSONDecodeError):
+        return {}
+
+
+def node_counters(state: ClusterState, node: int) -> dict:
+    """Node ``node``'s wire counters, written when it exits (``{}`` before)."""
+    try:
+        return json.loads(counters_path(Path(state.out) / "nodes", node).read_text())
+    except (OSError, json.JSONDecodeError):
+        return {}
+
+
+def status_table(state: ClusterState) -> str:
+    """``sim_cluster status``: one row per node, then the reasons of rejected messages."""
+    rows = [f"cluster {state.out}: {len(state.nodes)} nodes, {state.topology}, {state.mode}, "
+            f"scenario {state.scenario} seed {state.seed}",
+            f"{'node':>4} {'pid':>7} {'alive':>5} {'frame':>6} {'trackers':>8} {'bytes sent':>11} "
+            f"{'rejected':>8} {'late':>5} {'timeouts':>8} {'phase':>9}"]
+    reasons = []  # hostile or broken input, by ProtocolError reason (protocol/errors.py)
+    for key, p in sorted(state.nodes.items(), key=lambda kv: int(kv[0])):
+        st = node_status(state, p.node)
+        rejected = sum((st.get("rejected") or {}).values())
+        if rejected:
+            reasons.append(f"node {p.node} rejected: " + ", ".join(
+                f"{r} {n}" for r, n in sorted(st["rejected"].items())))
+        frame = st.get("frame")
+        rows.append(f"{p.node:>4} {p.pid or '-':>7} {'yes' if alive(p.pid) else 'no':>5} "
+                    f"{'-' if frame is None else frame:>6} {st.get('trackers', '-'):>8} "
+                    f"{st.get('bytes_sent', '-'):>11} {rejected:>8} {st.get('late', '-'):>5} "
+                    f"{st.get('timeouts', '-'):>8} {st.get('phase', '-'):>9}")
+    return "\n".join(rows + reasons)

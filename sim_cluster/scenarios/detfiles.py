@@ -1,0 +1,116 @@
+"""Bring your own detections: a scenario read from a det-files directory (kind ``det-files``),
+and a scenario written as one (``sim_cluster export-detections``).
+
+The files and ``calibration.json`` are described in :mod:`edge_node.formats.calibration` and
+:mod:`edge_node.formats.detfile`, which read and write them for camera processes and for this
+module alike. In ``det.txt`` the ``id`` column is ``-1`` in MOTChallenge files; files written by
+:func:`export_detections` put the true person id there (``-1`` for false positives), read back
+as ``ScenarioData.detection_truth`` (diagnostics only, the tracker never sees it). Without ground
+truth files the scenario's ground truth is empty and metrics are undefined.
+"""
+from __future__ import annotations
+
+import os
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from edge_node.formats.calibration import (GT_GROUND, camera_entry, read_calibration,
+                                           write_calibration)
+from edge_node.formats.detfile import (DetFilesError, read_det, read_gt, read_gt_ground,
+                                       write_det, write_gt, write_gt_ground)
+from sim_cluster.scenarios.data import GroundTruth, ScenarioData
+from sim_cluster.scenarios.files import ScenarioError, scenario_table
+
+
+def load_det_files(directory: str | os.PathLike[str], frames: int | None = None,
+                   name: str | None = None, seed: int | None = None) -> ScenarioData:
+    """Read a det-files directory (or its ``calibration.json``) into a ``ScenarioData``.
+
+    ``seed`` (for the tracker's own randomness) defaults to the one recorded by the export.
+    """
+    cal = read_calibration(directory)
+    cams = cal.cameras
+    frames = cal.frame_count() if frames is None else int(frames)
+    if frames <= 0:
+        raise DetFilesError(f"{cal.path}: no frames (frames={frames})")
+    per_cam = [read_det(f.det, frames, f.descriptors, f.descriptors_required) for f in cal.files]
+    detections = [[per_cam[c][0][k] for c in range(len(cams))] for k in range(frames)]
+    det_truth = [[per_cam[c][1][k] for c in range(len(cams))] for k in range(frames)]
+    empty = (np.zeros(0, np.int64), np.zeros((0, 4)))
+    boxes = [read_gt(f.gt, frames) if f.gt.is_file() else [empty] * frames for f in cal.files]
+    if cal.gt_ground.is_file():
+        ids, xy, wh = read_gt_ground(cal.gt_ground, frames)
+    else:
+        ids = [np.zeros(0, np.int64)] * frames
+        xy = wh = [np.zeros((0, 2))] * frames
+    area = cal.area
+    if area is None:
+        allxy = np.vstack([a for a in xy if len(a)] or [np.zeros((1, 2))])
+        area = (float(allxy[:, 0].min()), float(allxy[:, 0].max()),
+                float(allxy[:, 1].min()), float(allxy[:, 1].max()))
+    return ScenarioData(
+        name=name or str(cal.name if cal.name is not None else cal.path.parent.name),
+        cameras=cams, frames=frames, fps=cal.fps, units_per_metre=cal.units_per_metre,
+        detections=detections, truth=GroundTruth(ids=ids, xy=xy, wh=wh, boxes=boxes),
+        detection_truth=det_truth, area=tuple(float(v) for v in area),
+        seed=int((cal.seed or 0) if seed is None else seed))
+
+
+def scenario_from_table(raw: dict[str, Any], path: Path, seed: int,
+                        frames: int | None) -> ScenarioData:
+    """The scenario loader of kind ``det-files`` (``loader.SCENARIO_KINDS``).
+
+    Top level: ``name``, ``description``, ``seed``, ``frames`` (the ``frames`` argument overrides
+    it). ``[source]``: ``kind`` and ``path``, a det-files directory or its ``calibration.json``,
+    relative to the scenario file. Errors are ``ScenarioError`` naming the file and field.
+    """
+    file = Path(path).name
+    top = scenario_table(raw, file)
+    name = top.string("name", None)
+    top.string("description", "")
+    top.integer("seed", 0, lo=0)
+    n = top.integer("frames", None, lo=1)
+    n = frames if frames is not None else n
+    src = top.table("source")
+    src.string("kind")
+    d = Path(src.string("path")).expanduser()
+    src.finish()
+    top.finish()
+    if not d.is_absolute():
+        d = Path(path).parent / d
+    try:
+        return load_det_files(d, n, name=name, seed=seed)
+    except DetFilesError as exc:
+        raise ScenarioError(file, None, str(exc)) from None
+
+
+# -- export -----------------------------------------------------------------------------------------
+def export_detections(scenario: ScenarioData, out_dir: str | os.PathLike[str],
+                      descriptor_dtype: str = "float16") -> Path:
+    """Write ``scenario`` as a det-files directory; returns the ``calibration.json`` path.
+
+    Every camera's detections (boxes to 1e-4 px, scores, true ids), descriptors as ``.npy`` of
+    ``descriptor_dtype`` (``float16`` halves the size; ``float32`` for exact copies; no file when
+    no detection has one), image ground truth, ground-plane ground truth and calibration.
+    Loading the result with :func:`load_det_files` gives back the same detections.
+    """
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    n = scenario.frames
+    entries = []
+    for c, cam in enumerate(scenario.cameras):
+        dets = [scenario.detections[k][c] for k in range(n)]
+        truth = [scenario.detection_truth[k][c]
+                 if scenario.detection_truth and len(scenario.detection_truth[k][c]) == len(d)
+                 else np.full(len(d), -1) for k, d in enumerate(dets)]
+        det_rel, npy_rel, gt_rel = f"c{c}/det.txt", f"c{c}/det.npy", f"c{c}/gt.txt"
+        have = write_det(out / det_rel, dets, truth, out / npy_rel, descriptor_dtype)
+        write_gt(out / gt_rel, [scenario.truth.boxes[c][k] for k in range(n)])
+        entries.append(camera_entry(cam, det_rel, gt_rel, npy_rel if have else None))
+    t = scenario.truth
+    write_gt_ground(out / GT_GROUND, t.ids[:n], t.xy[:n], t.wh[:n])
+    return write_calibration(out, name=scenario.name, frames=n, fps=scenario.fps,
+                             units_per_metre=scenario.units_per_metre, area=scenario.area,
+                             seed=scenario.seed, cameras=entries)

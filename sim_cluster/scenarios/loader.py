@@ -1,0 +1,72 @@
+"""Loading a scenario: a preset name, a scenario file or a det-files folder -> ``ScenarioData``.
+
+A scenario is a TOML file (:mod:`sim_cluster.scenarios.files`: presets, paths, errors).
+``[source] kind`` selects how it becomes a :class:`~sim_cluster.scenarios.data.ScenarioData`:
+
+``synthetic`` (the default)  the seeded world (:mod:`sim_cluster.scenarios.synthetic`)
+``epfl-gt``                  EPFL ground truth replayed (:mod:`sim_cluster.scenarios.epfl`)
+``det-files``                your own detections (:mod:`sim_cluster.scenarios.detfiles`)
+
+A folder written by ``sim_cluster export-detections`` (or its ``calibration.json``) is a scenario
+too. Same file + same seed gives identical detections.
+"""
+from __future__ import annotations
+
+from collections.abc import Callable
+from pathlib import Path
+
+import numpy as np
+
+from sim_cluster.scenarios import detfiles, epfl
+from sim_cluster.scenarios.data import ScenarioData
+from sim_cluster.scenarios.detfiles import load_det_files
+from sim_cluster.scenarios.files import (ScenarioError, read_scenario_toml, resolve_scenario_path,
+                                         scenario_table)
+from sim_cluster.scenarios.synthetic.schema import load_synthetic
+
+ScenarioLoader = Callable[[dict, Path, int, "int | None"], ScenarioData]
+
+#: ``[source] kind`` -> loader ``(raw toml dict, file path, resolved seed, frames override or
+#: None) -> ScenarioData``. A loader validates its own fields (``files.scenario_table``) and
+#: raises ``ScenarioError``.
+SCENARIO_KINDS: dict[str, ScenarioLoader] = {
+    "synthetic": load_synthetic,
+    "epfl-gt": epfl.scenario_from_table,
+    "det-files": detfiles.scenario_from_table,
+}
+
+
+def load_scenario(name_or_path: str | Path, seed: int | None = None,
+                  frames: int | None = None, data_root: str | Path | None = None) -> ScenarioData:
+    """Load a scenario by preset name or file path. ``seed`` / ``frames`` override the file's.
+
+    Same file + same seed gives identical detections. A folder written by
+    ``sim_cluster export-detections`` (or its ``calibration.json``) is a scenario too.
+    """
+    candidate = Path(str(name_or_path))
+    if candidate.is_dir() or candidate.suffix == ".json":
+        return load_det_files(candidate, frames=frames, seed=seed)
+    path = resolve_scenario_path(name_or_path)
+    raw = read_scenario_toml(path)
+    file = path.name
+    top = scenario_table(raw, file)
+    if seed is None:
+        seed = top.integer("seed", 0, lo=0)
+    elif isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or seed < 0:
+        raise ScenarioError(file, "seed", f"must be an integer >= 0, got {seed!r}")
+    if frames is not None and (isinstance(frames, bool) or not isinstance(frames, (int, np.integer))
+                               or frames < 1):
+        raise ScenarioError(file, "frames", f"must be an integer >= 1, got {frames!r}")
+    src = top.table("source")
+    kind = src.raw("kind", "synthetic")
+    if kind not in SCENARIO_KINDS:
+        raise src.error("kind", f"must be one of {sorted(SCENARIO_KINDS)}, got {kind!r}")
+    if data_root is not None and kind == "epfl-gt":  # --data-root beats the file and $DMTT_DATA
+        raw.setdefault("source", {})["data_root"] = str(Path(data_root).expanduser().resolve())
+    return SCENARIO_KINDS[kind](raw, path, int(seed), None if frames is None else int(frames))
+
+
+def scenario_from_args(args) -> ScenarioData:
+    """The scenario of a command line: ``--scenario``, ``--seed``, ``--frames``, ``--data-root``."""
+    return load_scenario(args.scenario, seed=args.seed, frames=args.frames,
+                         data_root=getattr(args, "data_root", None))

@@ -1,0 +1,105 @@
+"""A camera process's config (``edge_node/runtime/config.py``): errors name the file and the
+field, defaults and relative paths, ``edge_node check``."""
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import pytest
+
+from edge_node.runtime.config import NodeConfigError, load_node_config
+from edge_node.runtime.sources import open_source
+from tests.loopback import export_scenario
+
+FRAMES = 40
+
+
+@pytest.fixture(scope="module")
+def export_dir(tmp_path_factory) -> Path:
+    return export_scenario(tmp_path_factory.mktemp("export"), FRAMES)
+
+
+BASE = """node = 0
+network = "net"
+neighbours = [1]
+[zenoh]
+listen = ["tcp/127.0.0.1:7447"]
+connect = ["tcp/127.0.0.1:7448"]
+[source]
+kind = "det-file"
+path = "EXPORT"
+"""
+
+
+@pytest.mark.parametrize("edit, expected", [
+    (("tcp/127.0.0.1:7447", "x"),
+     "cam0.toml: zenoh.listen[0] must be an endpoint like tcp/127.0.0.1:7447, got 'x'"),
+    (("tcp/127.0.0.1:7448", "tcp/127.0.0.1:99999"), "cam0.toml: zenoh.connect[0] must be an endpoint"),
+    (('network = "net"', 'network = "a/b"'), "cam0.toml: network must be a non-empty name"),
+    (("neighbours = [1]", "neighbours = [0]"), "cam0.toml: neighbours[0] is this node itself"),
+    (("neighbours = [1]", "neighbours = [1, 1]"), "cam0.toml: neighbours[1] repeats neighbour 1"),
+    (("node = 0", "node = -1"), "cam0.toml: node must be a non-negative integer"),
+    (("[zenoh]", "[zenoh]\nlissen = []"), "cam0.toml: zenoh.lissen is not a known field"),
+    (("[source]", "[runtime]\nmode = \"fast\"\n[source]"),
+     "cam0.toml: runtime.mode must be one of 'sync', 'async', got 'fast'"),
+    (("[source]", "[runtime]\nsync_timeout_s = 0\n[source]"), "cam0.toml: runtime.sync_timeout_s must be > 0"),
+    (('kind = "det-file"', 'kind = "hologram"'), "cam0.toml: source.kind must be one of"),
+    (('path = "EXPORT"', 'path = "nowhere"'), "cam0.toml: source.path does not exist"),
+    (("[source]", "[tracker]\ntau = -1\n[source]"), "cam0.toml: tracker.tau must be a positive number"),
+    (("[source]", "[tracker]\nablation = \"x\"\n[source]"), "cam0.toml: tracker.ablation must be one of"),
+    (("[source]", "[tracker]\ntua = 1\n[source]"), "cam0.toml: tracker: unknown parameter(s) tua"),
+    (("[source]", "[camera]\nhomography = [[1, 0], [0, 1]]\nimage_size = [10, 10]\n[source]"),
+     "cam0.toml: camera.homography must be a 3x3"),
+    (("[source]", "[zenoh2]\n[source]"), "cam0.toml: zenoh2 is not a known field"),
+])
+def test_config_errors_name_file_and_field(tmp_path, export_dir, edit, expected):
+    text = BASE.replace(*edit, 1).replace("EXPORT", str(export_dir))
+    p = tmp_path / "cam0.toml"
+    p.write_text(text)
+    with pytest.raises(NodeConfigError) as e:
+        load_node_config(p)
+    assert str(e.value).startswith(expected), str(e.value)
+
+
+def test_config_missing_source_and_bad_toml(tmp_path):
+    p = tmp_path / "cam0.toml"
+    p.write_text('node = 0\nnetwork = "n"\n')
+    with pytest.raises(NodeConfigError, match=r"^cam0.toml: source is required"):
+        load_node_config(p)
+    p.write_text("node = \n")
+    with pytest.raises(NodeConfigError, match=r"^cam0.toml: not valid TOML"):
+        load_node_config(p)
+    with pytest.raises(NodeConfigError, match="config file not found"):
+        load_node_config(tmp_path / "nope.toml")
+
+
+def test_config_defaults_and_relative_paths(tmp_path, export_dir):
+    (tmp_path / "data").symlink_to(export_dir)
+    p = tmp_path / "cam3.toml"
+    p.write_text('node = 3\nnetwork = "n"\nneighbours = [2, 0]\n[source]\nkind = "det-file"\n'
+                 'path = "data"\ncamera = 1\n[tracker]\nablation = "dkf"\nkappa = 9\n'
+                 '[output]\ndir = "out"\n')
+    cfg = load_node_config(p)
+    assert cfg.neighbours == (0, 2) and cfg.runtime.mode == "sync"
+    assert cfg.runtime.sync_timeout_s == 1.0 and cfg.runtime.startup_timeout_s == 30.0
+    assert cfg.zenoh.scouting is False and cfg.zenoh.listen == ()
+    assert cfg.source.path == tmp_path / "data" / "calibration.json"
+    assert cfg.output.dir == tmp_path / "out"
+    assert cfg.tracker.kappa == 9 and not cfg.tracker.use_manager and cfg.ablation == "dkf"
+    src = open_source(cfg)
+    assert src.camera.id == 3 and src.frames == FRAMES  # camera index 1 played by node 3
+    json.dumps(cfg.to_dict())
+
+
+def test_cli_check(tmp_path, export_dir, capsys):
+    from edge_node.cli import main
+
+    p = tmp_path / "cam0.toml"
+    p.write_text(BASE.replace("EXPORT", str(export_dir)))
+    assert main(["check", "--config", str(p)]) == 0
+    out = json.loads(capsys.readouterr().out)
+    assert out["node"] == 0 and out["resolved"]["frames"] == FRAMES
+    p.write_text(BASE.replace("EXPORT", str(export_dir)).replace("tcp/127.0.0.1:7447", "x"))
+    assert main(["check", "--config", str(p)]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "zenoh.listen[0]" in err
