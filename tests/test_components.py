@@ -196,6 +196,9 @@ class RecordingAssociation(LocalDataAssociation):
         self.calls.append((len(trackers), len(obs)))
         return []
 
+    def recover(self, trackers, obs, taken):
+        return []
+
 
 def test_a_node_runs_with_a_fake_association():
     """Injected components replace the defaults: with an association that never assigns, every

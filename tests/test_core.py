@@ -84,7 +84,8 @@ def test_duplicate_from_neighbour_and_own_camera_merges():
     """Node 1's camera is 0.8 m off from node 0's. Node 1 first holds the person only through
     node 0 (its camera does not see them); when its own camera starts seeing the person it ends
     up with one tracker, the network's id, within a few frames."""
-    cfg = TrackerConfig(calib_sigma=0.05)  # a tight R: the offset detection fails the LDA gate
+    # a tight R and no registration: the offset detection fails the LDA gate
+    cfg = TrackerConfig(calib_sigma=0.05, registration=False, recover=False)
     nodes = make_nodes({0: (1,), 1: (0,)}, cfg, offsets={1: (0.8, 0.0)})
     rng = np.random.default_rng(2)
     counts = []
@@ -101,7 +102,8 @@ def test_duplicate_from_neighbour_and_own_camera_merges():
 
 
 def test_without_manager_duplicates_stay():
-    cfg = TrackerConfig.for_ablation("dkf+lda", calib_sigma=0.05)
+    cfg = TrackerConfig.for_ablation("dkf+lda", calib_sigma=0.05, registration=False,
+                                     recover=False)
     nodes = make_nodes({0: (1,), 1: (0,)}, cfg, offsets={1: (0.8, 0.0)})
     rng = np.random.default_rng(2)
     for k in range(40):

@@ -33,11 +33,13 @@ class Candidate:
 
 @dataclass(frozen=True)
 class Observation:
-    """What the associator needs of one measurement: ``z``, ``R`` and the descriptor."""
+    """What the associator needs of one measurement: ``z``, ``R`` and the descriptor; ``raw``
+    is the camera's uncorrected measurement when registration is on (else ``None``)."""
 
     z: np.ndarray
     R: np.ndarray
     descriptor: np.ndarray | None
+    raw: object = None
 
 
 def mahalanobis_matrix(trackers: Sequence[Candidate], obs: Sequence[Observation]) -> np.ndarray:
@@ -97,6 +99,36 @@ def assign(cost: np.ndarray) -> list[tuple[int, int]]:
     return sorted((int(r), int(c)) for r, c in zip(rows, cols) if cost[r, c] < FORBIDDEN)
 
 
+def recover(trackers: Sequence[Candidate], obs: Sequence[Observation],
+            taken: Sequence[tuple[int, int]], cfg: TrackerConfig) -> list[tuple[int, int]]:
+    """Second stage of the LDA (our addition): a measurement no tracker took, next to a tracker
+    that took none, within the distributed global association's gate ``tau_gda`` (Euclidean,
+    ``V = I``, paper III-C) and looking like it (``s_a <= merge_appearance``), is that tracker.
+
+    Why: a camera's view of a target can disagree with the network's fused estimate by more than
+    ``R`` and ``P`` allow (a fused ``P`` is small; a real calibration can be off by up to 1 m at
+    some places of an image, which no global correction removes). Rejected, such a measurement
+    would start a duplicate tracker every other frame, merged again at once. Without appearance
+    the pair must be within the co-motion gate instead.
+    """
+    rows = sorted(set(range(len(trackers))) - {i for i, _ in taken})
+    cols = sorted(set(range(len(obs))) - {j for _, j in taken})
+    if not rows or not cols:
+        return []
+    sub_t = [trackers[i] for i in rows]
+    sub_o = [obs[j] for j in cols]
+    d = np.linalg.norm(np.stack([o.z[:2] for o in sub_o])[None]
+                       - np.stack([t.x_bar[:2] for t in sub_t])[:, None], axis=2)
+    s_a = appearance_matrix(sub_t, sub_o, np.nan)
+    known = ~np.isnan(s_a)
+    # appearance known: the GDA's gate and threshold; unknown: the co-motion gate, tighter
+    allowed = np.where(known, (d < cfg.m(cfg.tau_gda)) & (s_a <= cfg.merge_appearance),
+                       d < cfg.m(cfg.comotion_gate))
+    s = np.where(known, np.maximum(np.nan_to_num(s_a), 1e-3), cfg.unknown_appearance)
+    cost = np.where(allowed, s * d / cfg.m(cfg.alpha_gda), FORBIDDEN)
+    return [(rows[a], cols[b]) for a, b in assign(cost)]
+
+
 class LocalDataAssociation:
     """LDA of one camera's frame: the optimal tracker-measurement pairs under the cost of eqs.
     5-7. ``appearance=False`` is the paper's ``dkf`` configuration: geometry only, and the node
@@ -113,3 +145,10 @@ class LocalDataAssociation:
     def __call__(self, trackers: Sequence[Candidate], obs: Sequence[Observation]
                  ) -> list[tuple[int, int]]:
         return assign(cost_matrix(trackers, obs, self.cfg, self.appearance))
+
+    def recover(self, trackers: Sequence[Candidate], obs: Sequence[Observation],
+                taken: Sequence[tuple[int, int]]) -> list[tuple[int, int]]:
+        """Pairs of the second stage (:func:`recover`)."""
+        if not self.cfg.recover:
+            return []
+        return recover(trackers, obs, taken, self.cfg)

@@ -18,8 +18,8 @@ from __future__ import annotations
 
 from dataclasses import asdict, dataclass, replace
 
-from edge_node.core.params import (ConfigError, boolean, build, check, integer, nonnegative, pair,
-                                   positive)
+from edge_node.core.params import (ConfigError, boolean, build, check, integer, nonnegative,
+                                   number, pair, positive)
 
 ABLATIONS = ("dkf", "dkf+lda", "dkf+lda+dtm")
 
@@ -44,9 +44,26 @@ class TrackerConfig:
     pixel_sigma: float = positive(2.0, "px, detector noise on box edges, through the homography")
     calib_sigma: float = nonnegative(0.4, "m, per-camera ground offset (calibration + foot point)")
     size_meas_floor: float = positive(0.05, "m, minimum sigma on measured w, h")
+    border_px: float = nonnegative(1.0, "px, a box this close to the image border is cut by it")
     fixed_R: tuple[float, float] | None = pair(
         None, lo=0.0, lo_open=True, optional=True,
         doc="(sigma_xy, sigma_wh) in m: the paper's fixed R instead of the propagated one")
+
+    # --- online registration (edge_node/core/registration.py, DESIGN "Cameras disagree") ----
+    registration: bool = boolean(True, "estimate and correct each camera's ground registration")
+    reg_shift: float = positive(1.0, "m, prior sigma of a camera's ground translation error")
+    reg_rotation: float = positive(3.0, "degrees, prior sigma of its rotation error")
+    reg_scale: float = positive(0.03, "prior sigma of its scale error (a fraction)")
+    reg_foot: float = positive(0.5, "m, prior sigma of its foot-point offset along the viewing ray")
+    reg_drift: float = nonnegative(0.005, "m per frame, random walk of a registration (bumps)")
+    reg_noise: float = positive(0.2, "m, sigma of a corrected foot point's error (stance, sway)")
+    reg_gate: float = positive(13.8, "chi-square gate on a registration residual (2 dof, 99.9%)")
+    reg_anchor: float = number(0.001, lo=0.0, hi=1.0,
+                               doc="per frame, pull of every correction towards zero (common frame)")
+
+    # --- each camera's own view (Track.boxes) ---------------------------------------------
+    view_frames: int = integer(50, lo=0, doc="frames a camera keeps drawing a target it last saw")
+    view_rate: float = number(0.2, lo=0.0, hi=1.0, doc="smoothing of a camera's own box size")
 
     # --- birth prior (a new tracker, identical on every node that adopts it) ----------------
     birth_pos_sigma: float = positive(0.5, "m")
@@ -58,6 +75,7 @@ class TrackerConfig:
     alpha_lda: float = positive(3.0, "s_d = d / alpha_lda")
     unknown_appearance: float = nonnegative(0.5, "s_a when a tracker has no gallery yet")
     appearance_gate: float = nonnegative(0.6, "pairs with s_a above this are never assigned")
+    recover: bool = boolean(True, "second LDA stage: GDA gate and appearance for the left-overs")
 
     # --- gallery ------------------------------------------------------------------------------
     gallery_size: int = integer(20, lo=1)
@@ -75,10 +93,14 @@ class TrackerConfig:
     alpha_gda: float = positive(1.5, "m, s_d normaliser of the global association")
     merge_appearance: float = nonnegative(0.4, "max gallery-to-gallery cosine distance to merge")
     merge_frames: int = integer(3, lo=1, doc="consecutive frames two established trackers must agree to merge")
+    comotion_gate: float = positive(1.0, "m, without appearance: how close two trackers of one target stay")
+    comotion_frames: int = integer(10, lo=1, doc="without appearance: frames they must stay so to merge")
     merge_announce_frames: int = integer(3, lo=1, doc="frames a merge announcement is repeated")
     kappa: int = integer(15, lo=1, doc="drop a tracker when ell exceeds kappa (eq. 8)")
     epsilon: float = nonnegative(0.25, "re-identification threshold on s_a against old trackers")
     max_old_trackers: int = integer(200, lo=1, doc="bounded memory of dropped trackers")
+    reid_frames: int = integer(50, lo=0, doc="without appearance: frames a dropped tracker may be re-identified")
+    reid_gate: float = positive(1.5, "m, without appearance: how near its birth a dropped tracker must be")
     report_coast: int = integer(1, lo=0, doc="frames a tracker nobody sees is still reported")
 
     # --- asynchronous operation (event-triggered consensus) ----------------------------------

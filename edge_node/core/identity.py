@@ -17,6 +17,8 @@ from __future__ import annotations
 
 from collections import OrderedDict
 
+import numpy as np
+
 from edge_node.core.config import TrackerConfig
 from edge_node.core.gallery import Gallery
 from protocol.messages import Merge, TrackerId
@@ -41,6 +43,7 @@ class IdentityBook:
         self.aliases: dict[TrackerId, TrackerId] = {}
         self.born: dict[TrackerId, int] = {}  # birth frame of every id this node has heard of
         self.old: OrderedDict[TrackerId, Gallery] = OrderedDict()  # dropped, for re-id (DTM)
+        self.last: dict[TrackerId, tuple[int, np.ndarray]] = {}  # dropped: frame and where
         self.dropped: OrderedDict[TrackerId, None] = OrderedDict()  # dropped ids (no DTM)
         self._announce: dict[tuple[TrackerId, TrackerId], int] = {}
 
@@ -85,12 +88,17 @@ class IdentityBook:
         return merges
 
     # -- dropped trackers ----------------------------------------------------------------------
-    def retire(self, tid: TrackerId, gallery: Gallery, keep_gallery: bool) -> None:
-        """``tid`` was dropped: keep its gallery for re-identification, or only its id."""
+    def retire(self, tid: TrackerId, gallery: Gallery, keep_gallery: bool,
+               frame: int = 0, xy: np.ndarray | None = None) -> None:
+        """``tid`` was dropped at ``frame`` (estimated at ``xy``): keep its gallery and where it
+        went for re-identification, or only its id."""
         if keep_gallery:
             self.old[tid] = gallery
+            if xy is not None:
+                self.last[tid] = (frame, np.asarray(xy, float).copy())
             while len(self.old) > self.cfg.max_old_trackers:
-                self.old.popitem(last=False)
+                gone, _ = self.old.popitem(last=False)
+                self.last.pop(gone, None)
         else:
             self.dropped[tid] = None
             while len(self.dropped) > 10 * self.cfg.max_old_trackers:

@@ -50,6 +50,7 @@ class MergeView:
     new: bool  # born or adopted this frame (the paper's simultaneous-initialisation case)
     seen_by: frozenset[int]  # cameras of this node that associated a measurement this frame
     born: int = 0  # birth frame at the originating camera: the older tracker survives a merge
+    measured_by: frozenset[int] = frozenset()  # neighbours whose entry carries a measurement
 
     @property
     def rank(self) -> tuple[int, TrackerId]:
@@ -57,12 +58,22 @@ class MergeView:
         return (self.born, self.id)
 
 
-def pair_score(a: MergeView, b: MergeView, cfg: TrackerConfig) -> float | None:
-    """Global association score ``s_a * d / alpha_gda`` (eqs. 5-7 with ``V = I``) or ``None``
-    when the pair cannot be the same target.
+def pair_score(a: MergeView, b: MergeView, cfg: TrackerConfig) -> tuple[float, int] | None:
+    """Global association of two trackers on this node: ``(score, frames)`` when they may be one
+    target, the score ``s_a * d / alpha_gda`` (eqs. 5-7 with ``V = I``) and how many consecutive
+    frames they must agree before they are merged; ``None`` when they cannot be one target.
 
-    Two trackers that this node's camera associated to two different measurements in the same
-    frame are two different targets, whatever they look like.
+    * Two trackers that this node's camera associated to two different measurements in the same
+      frame are two different targets, whatever they look like.
+    * Appearance known on both sides: it must match (``s_a <= merge_appearance``); a pair with a
+      tracker new on this node merges at once (the paper's cases 2 and 3), two established
+      trackers after ``merge_frames`` frames.
+    * Appearance missing (no re-id, or no descriptor yet): co-motion (our addition: without it
+      duplicates are never merged). The two must stay within ``comotion_gate`` of each other for
+      ``comotion_frames`` frames in a row, and no camera may see them as two meanwhile: neither
+      this node's nor a neighbour whose entries of both carry measurement information. (With
+      appearance that stricter test costs merges: a detector that splits one person's blob
+      into two boxes "sees" a duplicate pair as two people.)
     """
     if a.seen_by & b.seen_by:
         return None
@@ -70,21 +81,22 @@ def pair_score(a: MergeView, b: MergeView, cfg: TrackerConfig) -> float | None:
     if d >= cfg.m(cfg.tau_gda):
         return None
     s_a = a.gallery.distance_to(b.gallery)
-    if np.isnan(s_a):
-        s_a = cfg.unknown_appearance
-    if s_a > cfg.merge_appearance:
+    if not np.isnan(s_a):
+        if s_a > cfg.merge_appearance:
+            return None
+        return max(s_a, 1e-3) * d / cfg.m(cfg.alpha_gda), 1 if (a.new or b.new) else cfg.merge_frames
+    if d >= cfg.m(cfg.comotion_gate) or a.measured_by & b.measured_by:
         return None
-    return max(s_a, 1e-3) * d / cfg.m(cfg.alpha_gda)
+    return cfg.unknown_appearance * d / cfg.m(cfg.alpha_gda), cfg.comotion_frames
 
 
 def find_merges(views: Sequence[MergeView], streaks: dict[tuple[TrackerId, TrackerId], int],
                 cfg: TrackerConfig) -> list[tuple[TrackerId, TrackerId]]:
     """Pairs ``(loser, winner)`` to merge this frame; updates ``streaks`` in place.
 
-    A pair involving a new tracker merges at once (the paper's cases 2 and 3); two established
-    trackers must agree for ``merge_frames`` consecutive frames (duplicates that arise later,
-    e.g. one fed by a neighbour and one by the local camera). Each tracker merges at most once
-    per frame, best score first; ties broken by ids, so the outcome is deterministic.
+    A pair merges once it has agreed for the frames :func:`pair_score` asks. Each tracker merges
+    at most once per frame, best score first; ties broken by ids, so the outcome is
+    deterministic.
     """
     scored: list[tuple[float, MergeView, MergeView, bool]] = []
     alive: set[tuple[TrackerId, TrackerId]] = set()
@@ -95,14 +107,14 @@ def find_merges(views: Sequence[MergeView], streaks: dict[tuple[TrackerId, Track
         rows, cols = np.nonzero(np.triu(near, 1))  # only nearby pairs are scored in full
         for i, j in zip(rows.tolist(), cols.tolist()):
             a, b = ordered[i], ordered[j]
-            s = pair_score(a, b, cfg)
-            if s is None:
+            scored_pair = pair_score(a, b, cfg)
+            if scored_pair is None:
                 continue
+            s, frames = scored_pair
             key = (a.id, b.id)
             alive.add(key)
             streaks[key] = streaks.get(key, 0) + 1
-            ready = a.new or b.new or streaks[key] >= cfg.merge_frames
-            scored.append((s, a, b, ready))
+            scored.append((s, a, b, streaks[key] >= frames))
     for key in list(streaks):
         if key not in alive:
             del streaks[key]
@@ -156,8 +168,27 @@ class DistributedTrackerManager:
     def may_adopt(self, tid: TrackerId, dropped: Collection[TrackerId]) -> bool:
         return True
 
-    def reidentify(self, gallery: Gallery, old: Mapping[TrackerId, Gallery]) -> TrackerId | None:
-        return reidentify(gallery, old, self.cfg) if old and len(gallery) else None
+    def reidentify(self, gallery: Gallery, old: Mapping[TrackerId, Gallery],
+                   k: int = 0, xy: np.ndarray | None = None,
+                   last: Mapping[TrackerId, tuple[int, np.ndarray]] | None = None
+                   ) -> TrackerId | None:
+        """A dropped tracker that a new local tracker is (paper III-C): by appearance when the
+        new tracker has a gallery; without appearance (our addition), the one dropped at most
+        ``reid_frames`` ago nearest to where it is born, within ``reid_gate``."""
+        if not old:
+            return None
+        if len(gallery):
+            return reidentify(gallery, old, self.cfg)
+        if xy is None or not last:
+            return None
+        best = None
+        for tid, (frame, where) in last.items():
+            if tid not in old or len(old[tid]) or k - frame > self.cfg.reid_frames:
+                continue
+            d = float(np.linalg.norm(where - xy))
+            if d < self.cfg.m(self.cfg.reid_gate) and (best is None or (d, tid) < best):
+                best = (d, tid)
+        return None if best is None else best[1]
 
 
 class IndependentTrackers:
@@ -181,5 +212,8 @@ class IndependentTrackers:
     def may_adopt(self, tid: TrackerId, dropped: Collection[TrackerId]) -> bool:
         return tid not in dropped  # a camera's drop decision is its own and final
 
-    def reidentify(self, gallery: Gallery, old: Mapping[TrackerId, Gallery]) -> TrackerId | None:
+    def reidentify(self, gallery: Gallery, old: Mapping[TrackerId, Gallery],
+                   k: int = 0, xy: np.ndarray | None = None,
+                   last: Mapping[TrackerId, tuple[int, np.ndarray]] | None = None
+                   ) -> TrackerId | None:
         return None

@@ -1,12 +1,16 @@
 """From a detector box to the measurement ``z = (x, y, w, h)`` and its covariance ``R_i``.
 
 ``R_i`` propagates the detector's pixel noise through the image-to-ground homography (its
-Jacobian at the foot point: far targets are less certain) and adds ``calib_sigma`` on the ground
-position for the per-camera offset that calibration and foot-point error cause (DESIGN.md,
-"What real data does": about 0.8 m between cameras on EPFL Terrace). With ``fixed_R`` set, the
-paper's constant ``R`` is used instead.
+Jacobian at the foot point: far targets are less certain). What the pixel noise does not cover
+is the camera's registration error (calibration, and where on the person the box's bottom edge
+lands): with online registration (``edge_node.core.registration``) it is estimated and corrected
+and only its remaining uncertainty is added; without it, ``calib_sigma`` is added on the ground
+position (DESIGN.md, "What real data does": about 0.8 m between cameras on EPFL Terrace). With
+``fixed_R`` set, the paper's constant ``R`` is used instead.
 """
 from __future__ import annotations
+
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -14,24 +18,73 @@ from edge_node.core.config import TrackerConfig
 from edge_node.geometry import Camera
 
 
-def measure(camera: Camera, box: np.ndarray, cfg: TrackerConfig) -> tuple[np.ndarray, np.ndarray]:
-    """Return ``(z, R)`` for one box ``(x, y, w, h)`` px seen by ``camera``."""
+@dataclass(frozen=True, eq=False)
+class BoxMeasurement:
+    """One box as its camera measures it, before any registration correction.
+
+    ``z`` the cylinder ``(x, y, w, h)`` through the camera's homography; ``R`` its covariance from
+    the pixel noise alone; ``foot`` the box's bottom centre (px); ``away`` the unit ground
+    direction in which the foot point moves when it goes up the image (away from the camera):
+    the direction of the foot-point offset along the viewing ray.
+    """
+
+    z: np.ndarray
+    R: np.ndarray
+    foot: np.ndarray
+    away: np.ndarray
+    size: np.ndarray  # (w, h) of the box in px over px-per-ground-unit at the foot point
+    cut: bool = False  # the image border cuts the box: no use for registration
+
+
+def pixels_per_unit(J: np.ndarray) -> float:
+    """Pixels per ground unit along the image's horizontal axis (``J``: ground per pixel)."""
+    return 1.0 / max(float(np.linalg.norm(J[:, 0])), 1e-12)
+
+
+def away_direction(J: np.ndarray) -> np.ndarray:
+    """Unit ground direction of moving up the image at a point with ground Jacobian ``J``."""
+    d = -J[:, 1]
+    return d / max(float(np.linalg.norm(d)), 1e-12)
+
+
+def box_measurement(camera: Camera, box: np.ndarray, cfg: TrackerConfig) -> BoxMeasurement:
+    """``z`` and the pixel-noise ``R`` of one box ``(x, y, w, h)`` px seen by ``camera``."""
     box = np.asarray(box, dtype=float)
     z = camera.box_to_cylinder(box)
-    if cfg.fixed_R is not None:
-        sxy, swh = (cfg.m(s) for s in cfg.fixed_R)
-        return z, np.diag([sxy**2, sxy**2, swh**2, swh**2])
     bx, by, bw, bh = box
     foot = np.array([bx + bw / 2.0, by + bh])
     J = camera.ground_jacobian(foot)
     s2 = cfg.pixel_sigma**2
     R = np.zeros((4, 4))
     # Foot point (u, v): u is the mean of two noisy edges (var s2/2), v one edge (var s2).
-    R[:2, :2] = J @ np.diag([s2 / 2.0, s2]) @ J.T + np.eye(2) * cfg.m(cfg.calib_sigma) ** 2
+    var_u, var_v = s2 / 2.0, s2
+    # A box cut by the image border does not show where the person stands: the cut side's
+    # edge is the border, not the person's (var of a uniform offset over the hidden part).
+    W, H = camera.image_size
+    cut = cfg.border_px
+    if bx <= cut or bx + bw >= W - cut:
+        var_u += bw**2 / 3.0
+    if by + bh >= H - cut:
+        var_v += (0.5 * bh) ** 2 / 3.0
+    R[:2, :2] = J @ np.diag([var_u, var_v]) @ J.T
     floor = cfg.m(cfg.size_meas_floor)
     # Width and height are differences of two noisy edges: var 2 s2 in pixels, scaled to ground.
     sw = z[2] / max(bw, 1e-9) * cfg.pixel_sigma * np.sqrt(2.0)
     sh = z[3] / max(bh, 1e-9) * cfg.pixel_sigma * np.sqrt(2.0)
     R[2, 2] = sw**2 + floor**2
     R[3, 3] = sh**2 + floor**2
-    return z, R
+    ppu = pixels_per_unit(J)
+    return BoxMeasurement(z, R, foot, away_direction(J), np.array([bw, bh]) / ppu,
+                          var_u > s2 or var_v > s2)
+
+
+def measure(camera: Camera, box: np.ndarray, cfg: TrackerConfig) -> tuple[np.ndarray, np.ndarray]:
+    """Return ``(z, R)`` for one box without registration: ``calib_sigma`` on the position."""
+    box = np.asarray(box, dtype=float)
+    if cfg.fixed_R is not None:
+        sxy, swh = (cfg.m(s) for s in cfg.fixed_R)
+        return camera.box_to_cylinder(box), np.diag([sxy**2, sxy**2, swh**2, swh**2])
+    m = box_measurement(camera, box, cfg)
+    R = m.R.copy()
+    R[:2, :2] = R[:2, :2] + np.eye(2) * cfg.m(cfg.calib_sigma) ** 2
+    return m.z, R

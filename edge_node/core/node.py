@@ -35,9 +35,10 @@ from edge_node.core.gallery import Gallery
 from edge_node.core.identity import IdentityBook
 from edge_node.core.initiator import Initiator, Pending
 from edge_node.core.manager import DistributedTrackerManager, IndependentTrackers, MergeView
-from edge_node.core.measurement import measure
+from edge_node.core.measurement import box_measurement, measure, pixels_per_unit
 from edge_node.core.memory import NeighbourMemory
 from edge_node.core.model import birth_covariance, birth_state, process_noise, quantize, transition
+from edge_node.core.registration import Registration
 from edge_node.core.tracker import LocalInfo, Tracker
 from edge_node.core.types import Detection, Track
 from edge_node.geometry import Camera
@@ -68,16 +69,19 @@ class Components:
     associate: LocalDataAssociation
     manager: Manager
     initiator: Callable[[], Initiator]  # one per camera
+    registration: Callable[[Camera], Registration] | None = None  # one per camera, or none
 
 
 def assemble(cfg: TrackerConfig) -> Components:
     """The paper's configurations (Sec. IV-B): ``dkf`` (geometry only, no manager), ``dkf+lda``
-    (appearance in the association), ``dkf+lda+dtm`` (with the distributed tracker manager)."""
+    (appearance in the association), ``dkf+lda+dtm`` (with the distributed tracker manager);
+    each with or without online registration of the cameras (``cfg.registration``)."""
     appearance = cfg.use_appearance
     return Components(
         associate=LocalDataAssociation(cfg, appearance),
         manager=DistributedTrackerManager(cfg) if cfg.use_manager else IndependentTrackers(cfg),
-        initiator=lambda: Initiator(cfg, appearance))
+        initiator=lambda: Initiator(cfg, appearance),
+        registration=(lambda camera: Registration(camera, cfg)) if cfg.registration else None)
 
 
 class CameraNode:
@@ -98,6 +102,8 @@ class CameraNode:
         self.associate = parts.associate
         self.manager = parts.manager
         self.initiators = {c.id: parts.initiator() for c in self.cameras}
+        self.registrations: dict[int, Registration] = (
+            {c.id: parts.registration(c) for c in self.cameras} if parts.registration else {})
         self.book = IdentityBook(self.id, self.cfg, first_counter)
         self.memory = NeighbourMemory(self.cfg, network)
         self.A = transition(self.cfg.dt)
@@ -154,8 +160,16 @@ class CameraNode:
         return {self.cameras[0].id: detections}
 
     def _observe(self, cam: Camera, det: Detection) -> Observation:
-        z, R = measure(cam, det.box, self.cfg)
-        return Observation(z, R, self.associate.descriptor(det.descriptor))
+        desc = self.associate.descriptor(det.descriptor)
+        reg = self.registrations.get(cam.id)
+        if reg is None:
+            z, R = measure(cam, det.box, self.cfg)
+            return Observation(z, R, desc)
+        raw = box_measurement(cam, det.box, self.cfg)
+        z, R = reg.correct(raw)
+        if self.cfg.fixed_R is not None:
+            R = measure(cam, det.box, self.cfg)[1]
+        return Observation(z, R, desc, raw)
 
     def _associate(self, k: int, cam_id: int, obs: list[Observation]) -> list[Observation]:
         """LDA of one camera's measurements; each pair adds its information (eq. 2) and may
@@ -164,12 +178,31 @@ class CameraNode:
         cands = [Candidate(self.trackers[t].x_bar, self.trackers[t].P, self.trackers[t].gallery)
                  for t in ids]
         assigned = set()
-        for i, j in self.associate(cands, obs):
+        pairs = self.associate(cands, obs)
+        for i, j in pairs:
             tr = self.trackers[ids[i]]
-            tr.local.add(cam_id, *dkf.information(obs[j].z, obs[j].R))
+            tr.local.add(cam_id, *dkf.information(obs[j].z, obs[j].R), obs[j].raw)
+            self._saw(tr, cam_id, k, obs[j])
             tr.gallery.offer(obs[j].descriptor, k, self.cfg.gallery_admit)
             assigned.add(j)
+        for i, j in self.associate.recover(cands, obs, pairs):
+            # outside the gate: R grown until the innovation sits on it; no registration residual
+            tr = self.trackers[ids[i]]
+            tr.local.add(cam_id, *dkf.information(obs[j].z, self._on_gate(tr, obs[j])))
+            self._saw(tr, cam_id, k, obs[j])
+            assigned.add(j)
         return [o for j, o in enumerate(obs) if j not in assigned]
+
+    def _on_gate(self, tr: Tracker, o: Observation) -> np.ndarray:
+        """``R`` of a measurement outside the LDA gate, scaled so that its Mahalanobis distance
+        (eq. 5) equals the gate ``tau``: it counts, but only as much as the gate allows."""
+        e = o.z[:2] - tr.x_bar[:2]
+        V = tr.P[:2, :2] + o.R[:2, :2]
+        d2 = float(e @ np.linalg.solve(V, e))
+        R = o.R.copy()
+        f = max(d2 / self.cfg.tau**2, 1.0)
+        R[:2, :2] = (tr.P[:2, :2] + R[:2, :2]) * f - tr.P[:2, :2]
+        return R
 
     def _birth(self, k: int, cam_id: int, chain: Pending) -> None:
         """Local initialisation from two observations: prior from the first, measurement from
@@ -179,7 +212,8 @@ class CameraNode:
                           [o.descriptor for o in chain.observations if o.descriptor is not None])
         gallery.mark(k)
         born = k
-        tid = self.manager.reidentify(gallery, self.book.old)
+        first, last = chain.observations[0], chain.observations[-1]
+        tid = self.manager.reidentify(gallery, self.book.old, k, last.z[:2], self.book.last)
         if tid is not None:
             old_gallery = self.book.old.pop(tid)
             old_gallery.extend(gallery)
@@ -189,11 +223,11 @@ class CameraNode:
         else:
             tid = self.book.new_id()
             self.stats.births += 1
-        first, last = chain.observations[0], chain.observations[-1]
         tr = Tracker(tid, quantize(birth_state(first.z)), self.P_birth.copy(), gallery,
                      born=born, since=k)
         self.book.born[tid] = born
-        tr.local.add(cam_id, *dkf.information(last.z, last.R))
+        tr.local.add(cam_id, *dkf.information(last.z, last.R), last.raw)
+        self._saw(tr, cam_id, k, last)
         self.trackers[tid] = tr
 
     def _message(self, k: int) -> FrameMessage:
@@ -242,14 +276,17 @@ class CameraNode:
         if stale_ok:
             self.memory.remember(msgs)
             msgs = self.memory.at(k)
-        received = self._received(msgs)
+        received, measured = self._received(msgs)
         for tid in sorted(received):
             if tid not in self.trackers:
                 self._adopt(k, tid, received[tid])
         for tid in sorted(self.trackers):
             self._correct(self.trackers[tid], received.get(tid, []))
+        if self.registrations:
+            self._register(received)
         views = [MergeView(t.id, t.x_hat[:2], t.gallery, t.since == k, frozenset(t.local.seen_by),
-                           t.born) for t in self.trackers.values()]
+                           t.born, measured.get(t.id, frozenset()))
+                 for t in self.trackers.values()]
         for loser, winner in self.manager.merges(views):
             self._merge(loser, winner)
         for tid in sorted(self.trackers):
@@ -271,10 +308,13 @@ class CameraNode:
             msgs.append(m)
         return sorted(msgs, key=lambda m: (m.sender, m.frame))
 
-    def _received(self, msgs: list[FrameMessage]) -> dict[TrackerId, list[TrackerInfo]]:
+    def _received(self, msgs: list[FrameMessage]
+                  ) -> tuple[dict[TrackerId, list[TrackerInfo]], dict[TrackerId, frozenset[int]]]:
         """Neighbours' entries per surviving id (merge aliases followed); one entry per sender,
-        the one under the surviving id itself when a sender still names both."""
+        the one under the surviving id itself when a sender still names both. Also, per id, the
+        senders whose entry carries measurement information (their camera saw the target)."""
         received: dict[TrackerId, list[TrackerInfo]] = {}
+        measured: dict[TrackerId, frozenset[int]] = {}
         for m in msgs:
             mine: dict[TrackerId, TrackerInfo] = {}
             for t in m.trackers:
@@ -283,7 +323,9 @@ class CameraNode:
                     mine[rid] = t
             for rid, t in mine.items():
                 received.setdefault(rid, []).append(t)
-        return received
+                if t.U[0, 0] > 0:
+                    measured[rid] = measured.get(rid, frozenset()) | {m.sender}
+        return received, measured
 
     def _correct(self, tr: Tracker, got: list[TrackerInfo]) -> None:
         """Eqs. 3-4 for one tracker with its neighbours' entries, then ``ell`` (eq. 8)."""
@@ -294,6 +336,27 @@ class CameraNode:
         ell_before = tr.ell
         tr.ell = self.manager.ell(tr.local.ell_sent, [t.ell for t in got])
         tr.coast = tr.coast + 1 if tr.ell > ell_before else 0
+
+    def _register(self, received: dict[TrackerId, list[TrackerInfo]]) -> None:
+        """Registration residuals of this frame (``registration``, R2-R3): each of this node's
+        cameras against what the other cameras measured of the same targets in the same frame:
+        the neighbours' ``u, U`` and this node's other cameras."""
+        for tid in sorted(self.trackers):
+            mine = self.trackers[tid].local.per_camera
+            if not mine:
+                continue
+            theirs = [(t.u, t.U) for t in received.get(tid, ()) if t.U[0, 0] > 0]
+            for cam_id in sorted(mine):
+                raw = mine[cam_id][2]
+                others = theirs + [(u, U) for c, (u, U, _) in sorted(mine.items()) if c != cam_id]
+                if raw is None or not others:
+                    continue
+                U_o = sum(U[:2, :2] for _, U in others)
+                V_o = np.linalg.inv(U_o)
+                z_o = V_o @ sum(u[:2] for u, _ in others)
+                self.registrations[cam_id].observe(raw, z_o, V_o)
+        for cam_id in sorted(self.registrations):
+            self.registrations[cam_id].end_frame()
 
     def _adopt(self, k: int, tid: TrackerId, infos: list[TrackerInfo]) -> None:
         """A tracker heard of from neighbours but not held here (paper III-C, case 1)."""
@@ -351,7 +414,8 @@ class CameraNode:
     def _drop(self, tid: TrackerId) -> None:
         tr = self.trackers.pop(tid)
         self.stats.dropped += 1
-        self.book.retire(tid, tr.gallery, self.manager.keeps_galleries)
+        self.book.retire(tid, tr.gallery, self.manager.keeps_galleries, self._frame,
+                         None if tr.x_hat is None else tr.x_hat[:2])
 
     # ------------------------------------------------------------------------------------
     @property
@@ -365,9 +429,32 @@ class CameraNode:
 
     def tracks(self) -> list[Track]:
         """The current estimates (after the last ``update``): the trackers it reports."""
-        return [Track(t.id, self._frame, t.x_hat.copy(), t.M.copy(), bool(t.local.seen_by), t.ell)
+        return [Track(t.id, self._frame, t.x_hat.copy(), t.M.copy(), bool(t.local.seen_by), t.ell,
+                      self.view(t))
                 for _, t in sorted(self.trackers.items())
                 if t.x_hat is not None and self._reported(t)]
+
+    def _saw(self, tr: Tracker, cam_id: int, k: int, obs: Observation) -> None:
+        if obs.raw is not None:
+            tr.saw(cam_id, k, obs.raw.size, self.cfg.view_rate)
+
+    def view(self, tr: Tracker) -> dict[int, np.ndarray]:
+        """The tracker in this node's own image(s): for every camera that measured it within
+        ``view_frames``, the estimate's ground point mapped back through the camera's own
+        registration (where its box's bottom edge lies) with the box size the camera itself
+        measures, smoothed (``Track.boxes``)."""
+        out = {}
+        for cam in self.cameras:
+            seen = tr.views.get(cam.id)
+            reg = self.registrations.get(cam.id)
+            if seen is None or reg is None or self._frame - seen[0] > self.cfg.view_frames:
+                continue
+            foot = cam.to_image(reg.to_camera(tr.x_hat[:2])[None])[0]
+            if not np.all(np.isfinite(foot)):
+                continue
+            w, h = seen[1] * pixels_per_unit(cam.ground_jacobian(foot))
+            out[cam.id] = np.array([foot[0] - w / 2.0, foot[1] - h, w, h])
+        return out
 
     def _reported(self, tr: Tracker) -> bool:
         """A tracker is reported (returned by ``update``, written, drawn, evaluated) unless it

@@ -36,11 +36,14 @@ class LocalInfo:
     seen_by: set[int] = field(default_factory=set)  # this node's cameras that associated it
     ell_sent: int = 0  # eq. 8 as this node reports it
     x_bar_sent: np.ndarray | None = None  # x_bar as the neighbours receive it (wire precision)
+    # per camera of this node: its (u, U) and the uncorrected measurement (registration)
+    per_camera: dict[int, tuple[np.ndarray, np.ndarray, object]] = field(default_factory=dict)
 
-    def add(self, camera: int, u: np.ndarray, U: np.ndarray) -> None:
+    def add(self, camera: int, u: np.ndarray, U: np.ndarray, raw: object = None) -> None:
         """Several cameras of one node add up (eq. 3)."""
         self.u, self.U = self.u + u, self.U + U
         self.seen_by.add(camera)
+        self.per_camera[camera] = (u, U, raw)
 
 
 @dataclass
@@ -57,6 +60,15 @@ class Tracker:
     x_hat: np.ndarray | None = None  # estimate of the last update (eq. 4)
     M: np.ndarray | None = None  # its covariance
     local: LocalInfo = field(default_factory=LocalInfo)
+    # per camera of this node: (last frame it measured the target, its box size in ground units
+    # along the image axes, smoothed): what that camera's own view draws
+    views: dict[int, tuple[int, np.ndarray]] = field(default_factory=dict)
+
+    def saw(self, camera: int, k: int, size: np.ndarray, rate: float) -> None:
+        """Camera ``camera`` measured the target at frame ``k`` with box size ``size``."""
+        old = self.views.get(camera)
+        size = np.asarray(size, float)
+        self.views[camera] = (k, size if old is None else old[1] + rate * (size - old[1]))
 
     def certainty(self) -> float:
         return float(np.trace(self.P))
@@ -78,3 +90,6 @@ class Tracker:
         self.coast = min(self.coast, other.coast)
         self.local.ell_sent = min(self.local.ell_sent, other.local.ell_sent)
         self.since = min(self.since, other.since)
+        for cam, (k, size) in other.views.items():
+            if cam not in self.views or self.views[cam][0] < k:
+                self.views[cam] = (k, size)

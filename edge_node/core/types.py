@@ -25,6 +25,12 @@ class Track:
     ``x`` is the corrected state ``x_hat = (x, y, w, h, vx, vy)``; ``P`` its covariance (the
     information-form ``M`` of eq. 4); ``observed`` is whether this node's own camera associated
     a detection to it this frame; ``ell`` the drop counter of eq. 8.
+
+    ``boxes``: the target in this node's own image(s), ``{camera: (x, y, w, h) px}``, for the
+    cameras that saw it recently (``TrackerConfig.view_frames``): the network's estimate mapped
+    back through the camera's own registration, at the size the camera itself measures the
+    target (``CameraNode.view``). Empty for targets a camera has not seen: they are not in its
+    view. ``None`` when unknown (tracks read back from files without boxes).
     """
 
     id: TrackerId
@@ -33,3 +39,4 @@ class Track:
     P: np.ndarray
     observed: bool
     ell: int
+    boxes: dict[int, np.ndarray] | None = None

@@ -2,10 +2,13 @@
 
 Two views, both computed with ``motmetrics.MOTAccumulator`` and ``motmetrics.metrics``:
 
-``image`` (the paper's protocol, Section IV): node ``c``'s tracks are projected into node ``c``'s own
-    camera as boxes (``Camera.cylinder_to_box`` of the state's cylinder ``x[:4]``), those in front of
-    the camera and overlapping the image are kept and clipped to it (ground-truth boxes are clipped
-    to the image too), and matched to that camera's ground-truth boxes at IoU >= 0.5. MOTP is the
+``image`` (the paper's protocol, Section IV): node ``c``'s tracks in node ``c``'s own camera as
+    boxes: a track's own-view box ``Track.boxes[c]`` when the node reports boxes (its estimate
+    through the camera's own registration, at the camera's own box size; tracks the camera has not
+    seen recently have none and are not in its view), else the projection of the state's cylinder
+    ``x[:4]`` (``Camera.cylinder_to_box``; tracks read back from files without boxes). Boxes in
+    front of the camera and overlapping the image are kept and clipped to it (ground-truth boxes
+    are clipped to the image too), and matched to that camera's ground-truth boxes at IoU >= 0.5. MOTP is the
     mean IoU of the matches (a fraction, higher is better). The result per camera and the median
     over cameras are reported.
 ``ground``: each node's whole track set against every person in the monitored area, matched by
@@ -109,18 +112,25 @@ def ground_distances(gt_xy: np.ndarray, hyp_xy: np.ndarray, units_per_metre: flo
 
 
 # -- input normalisation --------------------------------------------------------------------------
-def _entry(t: TrackEntry) -> tuple[Any, np.ndarray]:
+NO_BOXES = None  # an entry that carries no own-view boxes: project its cylinder
+
+
+def _entry(t: TrackEntry) -> tuple[Any, np.ndarray, Mapping[int, np.ndarray] | None]:
+    boxes = getattr(t, "boxes", NO_BOXES)
     if hasattr(t, "id") and hasattr(t, "x"):
         tid, x = t.id, t.x
     else:
         try:
-            tid, x = t  # type: ignore[misc]
+            if len(t) == 3:  # already normalised: (id, x, boxes)
+                tid, x, boxes = t  # type: ignore[misc]
+            else:
+                tid, x = t  # type: ignore[misc]
         except (TypeError, ValueError) as exc:
             raise EvaluationError(f"track entry {t!r} is neither a Track nor a (id, x) pair") from exc
     x = np.asarray(x, dtype=float).ravel()
     if x.shape[0] < 4:
         raise EvaluationError(f"track {tid!r}: state must hold at least (x, y, w, h), got {x.shape}")
-    return tid, x
+    return tid, x, boxes
 
 
 class _IdMap:
@@ -242,17 +252,46 @@ def visible_box(camera: Camera, x: np.ndarray, clip: bool = True) -> np.ndarray 
     return b[0] if ok[0] else None
 
 
-def image_accumulator(frames: Mapping[int, list[tuple[Any, np.ndarray]]], scenario: ScenarioData,
-                      camera_index: int, num_frames: int, iou_threshold: float = 0.5,
-                      clip: bool = True, start: int = 0) -> mm.MOTAccumulator:
+def own_boxes(camera: Camera, boxes: np.ndarray, clip: bool = True) -> tuple[np.ndarray, np.ndarray]:
+    """Own-view boxes ``(n, 4)``: usable when finite, positive and overlapping the image;
+    clipped to it with ``clip``. Returns ``(boxes, ok)`` like :func:`visible_boxes`."""
+    b = np.asarray(boxes, dtype=float).reshape(-1, 4)
+    W, H = camera.image_size
+    with np.errstate(invalid="ignore"):
+        x0, y0, x1, y1 = b[:, 0], b[:, 1], b[:, 0] + b[:, 2], b[:, 1] + b[:, 3]
+        ok = np.all(np.isfinite(b), axis=1) & (b[:, 2] > 0) & (b[:, 3] > 0)
+        ok &= (x1 > 0) & (y1 > 0) & (x0 < W) & (y0 < H)
+    if clip:
+        x0, y0 = np.maximum(x0, 0.0), np.maximum(y0, 0.0)
+        x1, y1 = np.minimum(x1, float(W)), np.minimum(y1, float(H))
+        b = np.stack([x0, y0, x1 - x0, y1 - y0], axis=1)
+    b = b.copy()
+    b[~ok] = np.nan
+    return b, ok
+
+
+def image_accumulator(frames: Mapping[int, list[tuple[Any, np.ndarray, Any]]],
+                      scenario: ScenarioData, camera_index: int, num_frames: int,
+                      iou_threshold: float = 0.5, clip: bool = True,
+                      start: int = 0) -> mm.MOTAccumulator:
     """Events of one node's tracks against its camera's ground-truth boxes, frames
     ``start..num_frames-1``."""
     camera = scenario.cameras[camera_index]
     gt_cam = scenario.truth.boxes[camera_index]
     acc = mm.MOTAccumulator(auto_id=False)
     hid = _IdMap()
-    rows = [(k, tid, x[:4]) for k in range(start, num_frames) for tid, x in frames.get(k, ())]
+    rows, own = [], []
+    for k in range(start, num_frames):
+        for tid, x, bx in frames.get(k, ()):
+            if bx is NO_BOXES:
+                rows.append((k, tid, x[:4]))
+            elif camera.id in bx or camera_index in bx:
+                own.append((k, tid, bx.get(camera.id, bx.get(camera_index))))
     boxes, ok = visible_boxes(camera, np.array([r[2] for r in rows]).reshape(-1, 4), clip)
+    if own:
+        ob, ook = own_boxes(camera, np.array([r[2] for r in own]), clip)
+        rows += own
+        boxes, ok = np.vstack([boxes, ob]), np.concatenate([ok, ook])
     per_frame: list[list[int]] = [[] for _ in range(num_frames)]
     for r, (k, _, _) in enumerate(rows):
         if ok[r]:
@@ -277,8 +316,8 @@ def ground_accumulator(frames: Mapping[int, list[tuple[Any, np.ndarray]]], scena
     hid = _IdMap()
     for k in range(start, num_frames):
         ts = frames.get(k, ())
-        hids = [hid(tid) for tid, _ in ts]
-        hxy = np.array([x[:2] for _, x in ts]).reshape(-1, 2)
+        hids = [hid(tid) for tid, _, _ in ts]
+        hxy = np.array([x[:2] for _, x, _ in ts]).reshape(-1, 2)
         d2 = ground_distances(truth.xy[k], hxy, scenario.units_per_metre, threshold_m)
         acc.update([int(i) for i in np.asarray(truth.ids[k]).ravel()], hids, d2, frameid=k)
     return acc

@@ -69,6 +69,8 @@ class RunResult:
     data: ScenarioData | None = None
     mode: str = "sync"
     sends: dict[int, tuple[int, int]] = field(default_factory=dict)  # async: entries (sent, skipped)
+    # node -> frame -> {camera: Registration}, a copy after the frame's update (registration on)
+    registration: dict[int, list[dict]] = field(default_factory=dict)
 
     def bandwidth(self) -> dict:
         """Measured bandwidth, beside nothing assumed: bytes the codec produced."""
@@ -83,6 +85,16 @@ class RunResult:
             "messages": w.messages,
         }
 
+    def registration_summary(self) -> dict:
+        """Each camera's registration correction at the end of the run: translation at its
+        reference point (m), rotation (degrees), scale, foot-point offset (m)."""
+        upm = self.data.units_per_metre if self.data is not None else 1.0
+        out = {}
+        for n, frames in sorted(self.registration.items()):
+            if frames and frames[-1]:
+                out[str(n)] = {str(c): r.summary(upm) for c, r in sorted(frames[-1].items())}
+        return out
+
     def summary(self) -> dict:
         ids = {str(n): len({t.id for frame in fr for t in frame}) for n, fr in self.tracks.items()}
         return {
@@ -96,6 +108,7 @@ class RunResult:
             "tracks": {"ids_per_node": ids},
             "manager": {str(n): vars(s) for n, s in sorted(self.stats.items())},
             "mode": self.mode,
+            "registration": self.registration_summary(),
         }
 
 
@@ -147,6 +160,7 @@ def run_network(data: ScenarioData, adjacency: Adjacency | str, cfg: TrackerConf
     next_counter: dict[int, int] = {}  # a restarted node never reuses an id
     resync: dict[int, set[int]] = {i: set() for i in range(n)}  # sender -> rejoined neighbours
     tracks: dict[int, list[list[Track]]] = {i: [] for i in range(n)}
+    registration: dict[int, list[dict]] = {i: [] for i in range(n)}
     for k in range(frames):
         for i in range(n):  # crashes and restarts
             node = nodes[i]
@@ -184,6 +198,7 @@ def run_network(data: ScenarioData, adjacency: Adjacency | str, cfg: TrackerConf
                 tracks[i].append(node.update(arrived[i], stale_ok=True))
             else:
                 tracks[i].append(node.update(arrived[i]))
+            registration[i].append({c: r.snapshot() for c, r in node.registrations.items()})
         if progress:
             progress(k + 1, frames)
     stats = {i: _add_stats(retired.get(i), nodes[i].stats if nodes[i] else None) for i in range(n)}
@@ -191,7 +206,8 @@ def run_network(data: ScenarioData, adjacency: Adjacency | str, cfg: TrackerConf
                             for i in range(n)})
     result = RunResult(data.name, topology_name or "custom", cfg.ablation, data.seed, frames,
                        adjacency, tracks, wire, stats, data, mode=mode,
-                       sends={i: _sends(outboxes[i], retired_sends.get(i)) for i in range(n)})
+                       sends={i: _sends(outboxes[i], retired_sends.get(i)) for i in range(n)},
+                       registration=registration)
     return result
 
 
