@@ -13,7 +13,7 @@ from __future__ import annotations
 import argparse
 import sys
 
-from edge_node.core.config import ABLATIONS, ConfigError
+from edge_node.core.config import ABLATIONS, CONFIG_NAMES, ConfigError
 from edge_node.formats.detfile import DetFilesError
 from edge_node.geometry import GeometryError
 from edge_node.runtime.sources import SourceError
@@ -65,7 +65,9 @@ def build_parser() -> argparse.ArgumentParser:
 
     def scenario_args(sp, frames_help="frames to run (default: the scenario's)"):
         sp.add_argument("--scenario", default="terrace-sim",
-                        help="preset name (sim_cluster scenarios) or path to a scenario TOML")
+                        help="preset name (sim_cluster scenarios), path to a scenario TOML, or a "
+                             "det-file folder with calibration.json (export-detections writes "
+                             "one; without descriptors .npy the run tracks by geometry only)")
         sp.add_argument("--seed", type=int, default=0)
         sp.add_argument("--frames", type=int, default=None, help=frames_help)
         sp.add_argument("--data-root", default=None,
@@ -75,7 +77,7 @@ def build_parser() -> argparse.ArgumentParser:
     scenario_args(r)
     r.add_argument("--topology", default="ring",
                    help="complete | ring | chain | disconnected | star | centralized | edge-list file")
-    r.add_argument("--config", default="dkf+lda+dtm", choices=ABLATIONS)
+    r.add_argument("--config", default="dkf+lda+dtm", choices=CONFIG_NAMES)
     r.add_argument("--tracker-config", default=None, help="TOML file overriding tracker parameters")
     r.add_argument("--ground-threshold", type=float, default=1.0,
                    help="ground matching threshold in metres (default 1)")
@@ -94,7 +96,7 @@ def build_parser() -> argparse.ArgumentParser:
     u.add_argument("-n", "--nodes", type=int, default=None,
                    help="number of nodes (default: one per camera of the scenario)")
     u.add_argument("--mode", default="sync", choices=("sync", "async"))
-    u.add_argument("--config", default="dkf+lda+dtm", choices=ABLATIONS)
+    u.add_argument("--config", default="dkf+lda+dtm", choices=CONFIG_NAMES)
     u.add_argument("--network", default="sim", help="network name (a Zenoh key chunk)")
     u.add_argument("--out", default="runs/cluster")
     u.add_argument("--detach", action="store_true", help="return once the processes run")
@@ -134,6 +136,8 @@ def build_parser() -> argparse.ArgumentParser:
     scenario_args(e)
     e.add_argument("--out", required=True, help="folder to write (one c<i>/ per camera)")
     e.add_argument("--float32", action="store_true", help="descriptors as float32 (default float16)")
+    e.add_argument("--no-descriptors", action="store_true",
+                   help="no appearance: the detections of a detector without re-id")
     e.set_defaults(func=scenarios.export)
 
     rd = sub.add_parser("render", help="render each camera's frames of a synthetic scenario "
@@ -173,7 +177,8 @@ def build_parser() -> argparse.ArgumentParser:
                    help="comma-separated presets or scenario files (missing data: skipped)")
     a.add_argument("--seeds", default="0-4", help="e.g. 0-4 or 0,2,5 (default 0-4)")
     a.add_argument("--configs", default=",".join(ABLATIONS),
-                   help=f"comma-separated, from {', '.join(ABLATIONS)} (default: all)")
+                   help=f"comma-separated, from {', '.join(CONFIG_NAMES)} (default: the paper's "
+                        f"{', '.join(ABLATIONS)})")
     a.add_argument("--topologies", default="complete,ring,chain,disconnected,centralized",
                    help="comma-separated: complete, ring, chain, disconnected, star, centralized")
     a.add_argument("--orderings", type=int, default=3,

@@ -212,7 +212,7 @@ class ClusterViz:
         for i in range(self.n):
             path = tracks_path(self.out / "nodes", i)
             if path.exists():
-                tracks[i] = read_tracks(path, frames)
+                tracks[i] = read_tracks(path, frames, camera=i)
         log_disagreement(self.sink, tracks, frames)
         self.sink.close()
         if self.spec.kind == "save":

@@ -202,3 +202,33 @@ def test_restarted_node_is_resynced_with_the_networks_ids(terrace):
     r = run_network(terrace, build("ring", 4), TrackerConfig(), faults=plan)
     assert max(_agreement(r.tracks, 2, (1, 3), k) for k in range(150, 175)) >= 0.95
     assert np.mean([_agreement(r.tracks, 2, (1, 3), k) for k in range(175, FRAMES)]) >= 0.95
+
+
+def test_a_det_file_folder_without_descriptors_runs_by_geometry(tmp_path):
+    """A detector without re-id: ``export-detections --no-descriptors`` writes no ``.npy``;
+    ``run`` on that folder says it tracks by geometry only, and gives what the manager without
+    appearance (``dkf+dtm``) gives on the same detections in process. Without co-motion merging
+    every camera would keep its own tracker of each person: the network keeps about one id per
+    person instead."""
+    exe = os.path.join(os.path.dirname(sys.executable), "sim_cluster")
+    subprocess.run([exe, "export-detections", "--scenario", "lab-sim", "--frames", "150",
+                    "--no-descriptors", "--out", str(tmp_path / "det")], check=True,
+                   capture_output=True)
+    assert not list((tmp_path / "det").rglob("*.npy"))
+    out = subprocess.run([exe, "run", "--scenario", str(tmp_path / "det"), "--topology",
+                          "complete", "--quiet", "--out", str(tmp_path / "b")],
+                         capture_output=True, text=True)
+    assert out.returncode == 0, out.stderr
+    assert "no appearance descriptors" in out.stdout and "geometry only" in out.stdout
+    summary = json.loads((tmp_path / "b" / "summary.json").read_text())
+    data = load_scenario("lab-sim", frames=150).without_descriptors()
+    ref = run_network(data, build("complete", 4), TrackerConfig.for_ablation("dkf+dtm"))
+    assert summary["tracks"]["ids_per_node"] == ref.summary()["tracks"]["ids_per_node"]
+    ids = max(summary["tracks"]["ids_per_node"].values())
+    with_reid = run_network(load_scenario("lab-sim", frames=150), build("complete", 4),
+                            TrackerConfig())
+    no_merging = run_network(data, build("complete", 4),
+                             TrackerConfig.for_ablation("dkf+dtm", comotion_gate=0.01))
+    assert ids <= max(with_reid.summary()["tracks"]["ids_per_node"].values()) + 2
+    assert ids < max(no_merging.summary()["tracks"]["ids_per_node"].values()) - 3
+    assert summary["metrics"]["ground"]["median"]["mota"] > 0.9

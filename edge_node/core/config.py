@@ -21,9 +21,13 @@ from dataclasses import asdict, dataclass, replace
 from edge_node.core.params import (ConfigError, boolean, build, check, integer, nonnegative,
                                    number, pair, positive)
 
-ABLATIONS = ("dkf", "dkf+lda", "dkf+lda+dtm")
+ABLATIONS = ("dkf", "dkf+lda", "dkf+lda+dtm")  # the paper's three (Sec. IV-B)
+# ours: the manager without appearance (what a detector without re-id gives), and every
+# configuration without online registration (":noreg", the paper's exact homographies)
+CONFIGS = ABLATIONS + ("dkf+dtm",)
+CONFIG_NAMES = CONFIGS + tuple(f"{c}:noreg" for c in CONFIGS)
 
-__all__ = ["ABLATIONS", "ConfigError", "TrackerConfig"]
+__all__ = ["ABLATIONS", "CONFIGS", "CONFIG_NAMES", "ConfigError", "TrackerConfig"]
 
 
 @dataclass(frozen=True)
@@ -123,21 +127,27 @@ class TrackerConfig:
     @property
     def ablation(self) -> str:
         if self.use_manager:
-            return "dkf+lda+dtm" if self.use_appearance else "dkf+dtm"
-        return "dkf+lda" if self.use_appearance else "dkf"
+            name = "dkf+lda+dtm" if self.use_appearance else "dkf+dtm"
+        else:
+            name = "dkf+lda" if self.use_appearance else "dkf"
+        return name if self.registration else name + ":noreg"
 
     @classmethod
     def for_ablation(cls, name: str, **overrides) -> "TrackerConfig":
-        """The paper's three configurations: ``dkf``, ``dkf+lda``, ``dkf+lda+dtm``."""
+        """The paper's three configurations ``dkf``, ``dkf+lda``, ``dkf+lda+dtm``; ``dkf+dtm``
+        (the manager without appearance); each with ``:noreg`` for no online registration."""
         switches = {
             "dkf": dict(use_appearance=False, use_manager=False),
             "dkf+lda": dict(use_appearance=True, use_manager=False),
             "dkf+lda+dtm": dict(use_appearance=True, use_manager=True),
+            "dkf+dtm": dict(use_appearance=False, use_manager=True),
         }
-        if name not in switches:
+        base, _, suffix = name.partition(":")
+        if base not in switches or suffix not in ("", "noreg"):
             raise ConfigError("config", f"unknown configuration {name!r}; choose one of "
-                              f"{', '.join(ABLATIONS)}")
-        return cls.from_dict({**switches[name], **overrides})
+                              f"{', '.join(CONFIG_NAMES)}")
+        reg = {"registration": False} if suffix == "noreg" else {}
+        return cls.from_dict({**switches[base], **reg, **overrides})
 
     @classmethod
     def from_dict(cls, d: dict, where: str = "tracker") -> "TrackerConfig":

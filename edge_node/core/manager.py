@@ -68,9 +68,11 @@ def pair_score(a: MergeView, b: MergeView, cfg: TrackerConfig) -> tuple[float, i
     * Appearance known on both sides: it must match (``s_a <= merge_appearance``); a pair with a
       tracker new on this node merges at once (the paper's cases 2 and 3), two established
       trackers after ``merge_frames`` frames.
-    * Appearance missing (no re-id, or no descriptor yet): co-motion (our addition: without it
-      duplicates are never merged). The two must stay within ``comotion_gate`` of each other for
-      ``comotion_frames`` frames in a row, and no camera may see them as two meanwhile: neither
+    * Appearance missing (no re-id, or no descriptor yet): place and co-motion (our addition:
+      without it duplicates are never merged). A tracker new on this node within half the
+      ``comotion_gate`` of another merges at once; otherwise the two must stay within
+      ``comotion_gate`` of each other for ``comotion_frames`` frames in a row. In both cases no
+      camera may see them as two: neither
       this node's nor a neighbour whose entries of both carry measurement information. (With
       appearance that stricter test costs merges: a detector that splits one person's blob
       into two boxes "sees" a duplicate pair as two people.)
@@ -87,7 +89,9 @@ def pair_score(a: MergeView, b: MergeView, cfg: TrackerConfig) -> tuple[float, i
         return max(s_a, 1e-3) * d / cfg.m(cfg.alpha_gda), 1 if (a.new or b.new) else cfg.merge_frames
     if d >= cfg.m(cfg.comotion_gate) or a.measured_by & b.measured_by:
         return None
-    return cfg.unknown_appearance * d / cfg.m(cfg.alpha_gda), cfg.comotion_frames
+    # a tracker new on this node, right on top of another: the paper's cases 2 and 3 by place
+    at_once = (a.new or b.new) and d < cfg.m(cfg.comotion_gate) / 2.0
+    return cfg.unknown_appearance * d / cfg.m(cfg.alpha_gda), 1 if at_once else cfg.comotion_frames
 
 
 def find_merges(views: Sequence[MergeView], streaks: dict[tuple[TrackerId, TrackerId], int],

@@ -1,10 +1,13 @@
 """Track files: one MOTChallenge-style CSV per node, written by camera processes and by the
 in-process simulator, read back for evaluation and viewing.
 
-Columns: ``frame,id,camera,counter,x,y,w,h,vx,vy,observed,ell`` — ``id`` is the integer
-``camera * 1_000_000 + counter`` for tools that want one number; ``(camera, counter)`` is the
-tracker id of the paper; ``x..vy`` the corrected state in the scenario's ground units, written
-as ``f"{v:.6f}"``; rows end with the csv module's default ``\\r\\n``.
+Columns: ``frame,id,camera,counter,x,y,w,h,vx,vy,observed,ell,bx,by,bw,bh``: ``id`` is the
+integer ``camera * 1_000_000 + counter`` for tools that want one number; ``(camera, counter)`` is
+the tracker id of the paper; ``x..vy`` the corrected state in the scenario's ground units, written
+as ``f"{v:.6f}"``; ``bx..bh`` the track in the node's own image (``Track.boxes``: top-left corner
+and size in pixels, ``f"{v:.3f}"``), empty when that camera has not seen the target recently.
+Rows end with the csv module's default CRLF. Files of the earlier 12-column form (no boxes) are
+still read.
 """
 from __future__ import annotations
 
@@ -17,24 +20,30 @@ import numpy as np
 
 from edge_node.core.types import Track
 
-HEADER = ["frame", "id", "camera", "counter", "x", "y", "w", "h", "vx", "vy", "observed", "ell"]
+HEADER = ["frame", "id", "camera", "counter", "x", "y", "w", "h", "vx", "vy", "observed", "ell",
+          "bx", "by", "bw", "bh"]
+_BOX = ("bx", "by", "bw", "bh")
 ID_BASE = 1_000_000
 
 __all__ = ["HEADER", "ID_BASE", "TrackWriter", "read_tracks", "track_row", "write_tracks"]
 
 
-def track_row(t: Track) -> list[Any]:
+def track_row(t: Track, camera: int | None = None) -> list[Any]:
+    """One row; the box columns hold ``t.boxes[camera]`` (the node's own camera)."""
     cam, cnt = t.id
+    box = (t.boxes or {}).get(camera) if camera is not None else None
     return [t.frame, cam * ID_BASE + cnt, cam, cnt, *(f"{v:.6f}" for v in t.x), int(t.observed),
-            t.ell]
+            t.ell, *((f"{v:.3f}" for v in box) if box is not None else ("",) * 4)]
 
 
 class TrackWriter:
     """Appends one frame's tracks at a time; ``flush`` is cheap enough to call once a second."""
 
-    def __init__(self, path: Path | None, append: bool = False):
-        """``append``: a restarted node continues its earlier life's file."""
+    def __init__(self, path: Path | None, append: bool = False, camera: int | None = None):
+        """``append``: a restarted node continues its earlier life's file. ``camera``: the
+        node's own camera, whose view the box columns hold."""
         self.path = path
+        self.camera = camera
         self._f = None
         self._w = None
         if path is not None:
@@ -47,7 +56,7 @@ class TrackWriter:
 
     def write(self, tracks: Iterable[Track]) -> None:
         if self._w is not None:
-            self._w.writerows(track_row(t) for t in tracks)
+            self._w.writerows(track_row(t, self.camera) for t in tracks)
 
     def flush(self) -> None:
         if self._f is not None:
@@ -66,25 +75,32 @@ class TrackWriter:
         self.close()
 
 
-def write_tracks(path: Path, frames: list[list[Track]]) -> None:
+def write_tracks(path: Path, frames: list[list[Track]], camera: int | None = None) -> None:
     """A whole run's track file at once (the file a camera process writes frame by frame)."""
-    with TrackWriter(Path(path)) as w:
+    with TrackWriter(Path(path), camera=camera) as w:
         for tracks in frames:
             w.write(tracks)
 
 
-def read_tracks(path: Path, frames: int | None = None) -> list[list[Track]]:
-    """Read a track file back into ``frame -> [Track]`` (covariances are not stored: zeros)."""
+def read_tracks(path: Path, frames: int | None = None, camera: int = 0) -> list[list[Track]]:
+    """Read a track file back into ``frame -> [Track]`` (covariances are not stored: zeros).
+
+    ``camera``: the node's own camera, the key of the boxes read (``Track.boxes``); files without
+    box columns give ``boxes = None`` (unknown)."""
     rows: dict[int, list[Track]] = {}
     with open(path, newline="") as f:
         r = csv.DictReader(f)
-        if r.fieldnames != HEADER:
+        if r.fieldnames not in (HEADER, HEADER[:-4]):
             raise ValueError(f"{path}: not a track file (header {r.fieldnames})")
+        with_boxes = r.fieldnames == HEADER
         for row in r:
             k = int(row["frame"])
             x = np.array([float(row[c]) for c in ("x", "y", "w", "h", "vx", "vy")])
+            boxes = None
+            if with_boxes:
+                boxes = {} if row["bx"] == "" else {camera: np.array([float(row[c]) for c in _BOX])}
             rows.setdefault(k, []).append(Track((int(row["camera"]), int(row["counter"])), k, x,
                                                 np.zeros((6, 6)), row["observed"] == "1",
-                                                int(row["ell"])))
+                                                int(row["ell"]), boxes))
     n = (max(rows) + 1 if rows else 0) if frames is None else frames
     return [rows.get(k, []) for k in range(n)]

@@ -82,7 +82,7 @@ from typing import Any
 
 import numpy as np
 
-from edge_node.core.config import ABLATIONS, TrackerConfig
+from edge_node.core.config import CONFIG_NAMES, TrackerConfig
 from edge_node.core.params import build
 from edge_node.core.trigger import TriggerConfig
 from edge_node.faults import FaultPlan, FaultPlanError
@@ -406,7 +406,7 @@ def _camera(t: Table | None) -> CameraSettings | None:
 def _tracker(t: Table | None) -> tuple[TrackerConfig, str, frozenset[str]]:
     if t is None:
         return TrackerConfig.for_ablation("dkf+lda+dtm"), "dkf+lda+dtm", frozenset()
-    ablation = t.string("ablation", "dkf+lda+dtm", choices=ABLATIONS)
+    ablation = t.string("ablation", "dkf+lda+dtm", choices=CONFIG_NAMES)
     rest = {k: v for k, v in t.data.items() if k != "ablation"}
     try:  # the parameters' own rules (core/config.py) check the rest, unknown names too
         cfg = t.built(lambda: TrackerConfig.for_ablation(ablation, **rest))

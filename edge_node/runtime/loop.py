@@ -445,7 +445,8 @@ def run_node(cfg: NodeConfig, *, frames: int | None = None, mode: str | None = N
                                       keep_existing=join)
             except SinkError as e:
                 raise NodeConfigError(cfg.name, "viz.rerun", str(e)) from None
-            writer = TrackWriter(tracks_path(out, cfg.node) if out else None, append=join)
+            writer = TrackWriter(tracks_path(out, cfg.node) if out else None, append=join,
+                                 camera=source.camera.id)
             loop = FrameLoop(cfg, node, source, transport, mode=mode, frames=total,
                              writer=writer, status=status, stop=shutdown.event,
                              faults=faults, state_file=state_file, sink=sink)

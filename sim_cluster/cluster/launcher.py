@@ -231,7 +231,7 @@ class Cluster:
 def gather(state: ClusterState, data, frames: int, config: str = "") -> dict:
     """Every node's tracks and counters, evaluated like an in-process run: ``summary.json``."""
     out = Path(state.out)
-    tracks = {p.node: read_tracks(tracks_path(out / "nodes", p.node), frames)
+    tracks = {p.node: read_tracks(tracks_path(out / "nodes", p.node), frames, camera=p.node)
               for p in state.nodes.values()}
     counters = {p.node: node_counters(state, p.node) for p in state.nodes.values()}
     per_link: dict[str, float] = {}

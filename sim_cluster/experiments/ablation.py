@@ -41,7 +41,7 @@ from typing import Any
 
 from tqdm import tqdm
 
-from edge_node.core.config import ABLATIONS, TrackerConfig
+from edge_node.core.config import ABLATIONS, CONFIG_NAMES, TrackerConfig
 from sim_cluster.experiments.run import run_once
 from sim_cluster.network import topology as topo
 from sim_cluster.network.inprocess import CENTRALIZED
@@ -342,24 +342,26 @@ def aggregate(rows: Sequence[Mapping]) -> dict:
     ``{"cells": {scenario: {topology: {config: {column: {"mean", "std", "n"}}}}},
     "ratios": {scenario: {topology: {"ground_mota" | "ground_idf1": {...}}}}}``; ratios are the
     full configuration's distributed / centralized value, per seed then over seeds (only where
-    both were run and the centralized value is > 0).
+    both were run and the centralized value is > 0). ``ratios_by_config`` has the same for every
+    configuration (``{scenario: {config: {topology: {...}}}}``).
     """
     cells: dict[str, dict[str, dict[str, dict]]] = {}
     for col in METRIC_COLS:
         for (sc, topo, cfg), seeds in per_seed(rows, col).items():
             cells.setdefault(sc, {}).setdefault(topo, {}).setdefault(cfg, {})[col] = \
                 stats(seeds.values())
-    ratios: dict[str, dict[str, dict]] = {}
+    by_config: dict[str, dict[str, dict[str, dict]]] = {}
     for col in ("ground_mota", "ground_idf1"):
         ps = per_seed(rows, col)
-        for (sc, topo, cfg), seeds in ps.items():
-            if cfg != FULL or topo == CENTRALIZED or (sc, CENTRALIZED, FULL) not in ps:
+        for (sc, t, cfg), seeds in ps.items():
+            if t == CENTRALIZED or (sc, CENTRALIZED, cfg) not in ps:
                 continue
-            cent = ps[(sc, CENTRALIZED, FULL)]
+            cent = ps[(sc, CENTRALIZED, cfg)]
             r = [v / cent[s] for s, v in seeds.items()
                  if v is not None and cent.get(s) is not None and cent[s] > 0]
-            ratios.setdefault(sc, {}).setdefault(topo, {})[col] = stats(r)
-    return {"cells": cells, "ratios": ratios}
+            by_config.setdefault(sc, {}).setdefault(cfg, {}).setdefault(t, {})[col] = stats(r)
+    ratios = {sc: d[FULL] for sc, d in by_config.items() if FULL in d}
+    return {"cells": cells, "ratios": ratios, "ratios_by_config": by_config}
 
 
 # -- outputs ------------------------------------------------------------------------------------------
@@ -489,7 +491,8 @@ def markdown(agg: Mapping, meta: Mapping) -> str:
     return "\n".join(lines)
 
 
-_CONFIG_COLORS = {"dkf": "#9ecae1", "dkf+lda": "#4292c6", "dkf+lda+dtm": "#08306b"}
+_CONFIG_COLORS = {"dkf": "#9ecae1", "dkf+lda": "#4292c6", "dkf+lda+dtm": "#08306b",
+                  "dkf+dtm": "#fdae6b", "dkf+lda+dtm:noreg": "#a1d99b", "dkf+dtm:noreg": "#e6550d"}
 
 
 def plot(path: Path, agg: Mapping, meta: Mapping) -> None:
@@ -602,7 +605,7 @@ def main(args) -> int:
     t0 = time.monotonic()
     scenarios = parse_list(args.scenarios, None, "scenario")
     seeds = parse_seeds(args.seeds)
-    configs = parse_list(args.configs, ABLATIONS, "config")
+    configs = parse_list(args.configs, CONFIG_NAMES, "config")
     topologies = parse_list(args.topologies, TOPOLOGY_NAMES, "topology")
     if args.orderings < 1:
         raise AblationError(f"--orderings must be >= 1, got {args.orderings}")

@@ -69,13 +69,16 @@ def main(args) -> int:
     data = scenario_from_args(args)
     cfg = tracker_config(args.config, getattr(args, "tracker_config", None))
     faults = FaultPlan.load(args.faults) if args.faults else None
+    if not data.has_descriptors():
+        print(f"{data.name}: no appearance descriptors in the detections: tracking by geometry "
+              "only (duplicates merged by co-motion, re-identification by place)")
     result, summary = run_once(data, args.topology, cfg, show_progress=not args.quiet,
                                ground_threshold_m=args.ground_threshold, mode=args.mode,
                                faults=faults)
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     for node, frames in result.tracks.items():
-        write_tracks(out / f"tracks_node{node}.csv", frames)
+        write_tracks(out / f"tracks_node{node}.csv", frames, camera=node)
     (out / "summary.json").write_text(json.dumps(summary, indent=2, sort_keys=True))
     print(run_table(summary))
     print(f"wrote {out}/summary.json and {len(result.tracks)} track files")

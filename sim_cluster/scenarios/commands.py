@@ -18,6 +18,8 @@ def scenarios(args) -> int:
 
 def export(args) -> int:
     data = scenario_from_args(args)
+    if getattr(args, "no_descriptors", False):
+        data = data.without_descriptors()
     path = export_detections(data, Path(args.out),
                              descriptor_dtype="float32" if args.float32 else "float16")
     print(f"wrote {data.num_cameras} cameras x {data.frames} frames to {args.out} "

@@ -1,7 +1,7 @@
 """What a scenario gives the network: cameras, per-frame detections, and the ground truth."""
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
@@ -50,3 +50,13 @@ class ScenarioData:
     @property
     def num_cameras(self) -> int:
         return len(self.cameras)
+
+    def has_descriptors(self) -> bool:
+        """Whether any detection carries an appearance descriptor (a detector with re-id)."""
+        return any(d.descriptor is not None for frame in self.detections for cam in frame
+                   for d in cam)
+
+    def without_descriptors(self) -> "ScenarioData":
+        """The same detections without appearance: what a detector without re-id gives."""
+        return replace(self, detections=[[[replace(d, descriptor=None) for d in cam]
+                                          for cam in frame] for frame in self.detections])

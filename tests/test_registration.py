@@ -1,0 +1,182 @@
+"""Online registration (edge_node/core/registration.py), each camera's own view (Track.boxes),
+and the manager without appearance (co-motion merging, re-identification by place)."""
+import numpy as np
+import pytest
+
+from edge_node.core import Detection, TrackerConfig
+from edge_node.core.measurement import box_measurement
+from edge_node.core.registration import Registration
+from fakes import box_at, det, graph, make_nodes, step, topdown_camera
+
+
+def walk(k, lane):
+    """A person walking a slow loop in lane ``lane`` (metres)."""
+    t = k / 25.0
+    return 2.0 + 0.3 * lane + 1.5 * np.sin(0.4 * t + lane), 2.0 + 1.2 * lane + 1.0 * np.cos(0.3 * t)
+
+
+def undetected(x, y):
+    return Detection(box_at(x, y), None)
+
+
+def test_two_cameras_learn_their_relative_offset_and_keep_the_mean_at_zero():
+    """Camera 1 believes everything is 0.8 m further along x than camera 0 does. Shared targets
+    teach the pair their difference; the common frame is the cameras' mean, so each camera ends
+    up corrected by half the offset, in opposite directions, and their corrected measurements
+    agree."""
+    offset = 0.8
+    nodes = make_nodes({0: (1,), 1: (0,)}, TrackerConfig(), offsets={1: (offset, 0.0)})
+    rng = np.random.default_rng(0)
+    for k in range(400):
+        dets = [det(*walk(k, lane), pid=lane, rng=rng) for lane in range(3)]
+        step(nodes, k, {0: dets, 1: dets})
+    p = np.array([3.0, 3.5])
+    c0 = nodes[0].registrations[0].correction_at(p)
+    c1 = nodes[1].registrations[1].correction_at(p)
+    np.testing.assert_allclose(c0 - c1, [offset, 0.0], atol=0.05)  # they agree after correction
+    np.testing.assert_allclose(c0 + c1, [0.0, 0.0], atol=0.05)  # the mean correction is zero
+    # the network holds one tracker per person, at the cameras' mean
+    assert len(nodes[0].trackers) == 3
+    xs = sorted(t.x_hat[0] for t in nodes[0].trackers.values())
+    truth = sorted(walk(399, lane)[0] + offset / 2 for lane in range(3))
+    np.testing.assert_allclose(xs, truth, atol=0.15)
+
+
+def test_without_registration_the_offset_stays_between_the_cameras():
+    nodes = make_nodes({0: (1,), 1: (0,)}, TrackerConfig(registration=False), offsets={1: (0.8, 0.0)})
+    rng = np.random.default_rng(0)
+    for k in range(100):
+        dets = [det(*walk(k, 0), pid=0, rng=rng)]
+        step(nodes, k, {0: dets, 1: dets})
+    assert nodes[0].registrations == {}
+
+
+def test_a_camera_nobody_else_sees_keeps_its_own_map():
+    nodes = make_nodes({0: (), 1: ()}, TrackerConfig(), offsets={1: (0.8, 0.0)})
+    for k in range(100):
+        step(nodes, k, {0: [det(*walk(k, 0), pid=0)], 1: [det(*walk(k, 0), pid=0)]})
+    for i in (0, 1):
+        assert nodes[i].registrations[i].residuals == 0
+        np.testing.assert_allclose(nodes[i].registrations[i].theta, 0.0)
+
+
+def test_the_common_frame_does_not_drift():
+    """Four cameras with offsets that average to zero: over a long run the corrections settle at
+    minus each camera's own offset and their mean stays at zero (no common drift)."""
+    offsets = {0: (0.5, 0.0), 1: (-0.5, 0.3), 2: (0.2, -0.6), 3: (-0.2, 0.3)}
+    adj = graph("complete", 4)
+    nodes = make_nodes(adj, TrackerConfig(), offsets=offsets)
+    rng = np.random.default_rng(1)
+    p = np.array([3.0, 3.5])
+    means = []
+    for k in range(1500):
+        dets = [det(*walk(k, lane), pid=lane, rng=rng) for lane in range(3)]
+        step(nodes, k, {i: dets for i in adj})
+        if k % 100 == 99:
+            means.append(np.mean([nodes[i].registrations[i].correction_at(p) for i in adj], axis=0))
+    for i in adj:
+        np.testing.assert_allclose(nodes[i].registrations[i].correction_at(p),
+                                   -np.array(offsets[i]), atol=0.06)
+    assert max(np.linalg.norm(m) for m in means[3:]) < 0.03
+
+
+def test_registration_ignores_boxes_cut_by_the_image_border():
+    cam = topdown_camera(0)
+    reg = Registration(cam, TrackerConfig())
+    inside = box_measurement(cam, box_at(5.0, 5.0), TrackerConfig())
+    cut = box_measurement(cam, np.array([-10.0, 300.0, 50.0, 170.0]), TrackerConfig())
+    assert not inside.cut and cut.cut
+    assert cut.R[0, 0] > 10 * inside.R[0, 0]  # the hidden side: the foot point is uncertain
+    assert not reg.observe(cut, cut.z[:2] + 0.1, np.eye(2) * 0.01)
+    assert reg.observe(inside, inside.z[:2] + 0.1, np.eye(2) * 0.01)
+
+
+def test_own_view_box_sits_on_the_cameras_detection():
+    """Camera 1 is 0.5 m off. Its own view of the person (the network's estimate mapped back
+    through its own registration, at its own box size) lands on its own detections, not where
+    the network's mean frame would put them."""
+    nodes = make_nodes({0: (1,), 1: (0,)}, TrackerConfig(), offsets={1: (0.5, 0.0)})
+    rng = np.random.default_rng(3)
+    for k in range(300):
+        dets = [det(*walk(k, 0), pid=0, rng=rng)]
+        out = step(nodes, k, {0: dets, 1: dets})
+    t = out[1][0]
+    want = box_at(*walk(299, 0))  # what camera 1 detects (pixels are the same for both cameras)
+    np.testing.assert_allclose(t.boxes[1], want, atol=4.0)  # px, detector noise is 0.05 m = 5 px
+    naive = nodes[1].cameras[0].to_image(t.x[None, :2])[0]  # the mean frame through camera 1
+    assert abs(naive[0] - (want[0] + want[2] / 2)) > 15  # 0.25 m = 25 px off
+
+
+def test_a_target_a_camera_has_not_seen_is_not_in_its_view():
+    nodes = make_nodes({0: (1,), 1: (0,)}, TrackerConfig())
+    for k in range(30):
+        out = step(nodes, k, {0: [det(3.0, 3.0, 1)], 1: []})
+    assert out[1] and out[1][0].boxes == {}
+    assert set(out[0][0].boxes) == {0}
+    cfg = TrackerConfig()
+    for k in range(30, 30 + cfg.view_frames + 2):  # camera 0 stops seeing it; the network not
+        out = step(nodes, k, {0: [], 1: []})
+    assert all(t.boxes == {} for t in out[0])
+
+
+# -- without appearance ---------------------------------------------------------------------------
+def test_co_motion_merges_duplicates_without_appearance():
+    """No descriptors, and camera 1's map 0.7 m off (no registration to correct it): both
+    cameras start their own tracker of the person in the same frame, 0.7 m apart, too far to be
+    taken for one at once. They move together; after ``comotion_frames`` frames they are merged:
+    one id, on both nodes, for good."""
+    cfg = TrackerConfig(registration=False)
+    nodes = make_nodes({0: (1,), 1: (0,)}, cfg, offsets={1: (0.7, 0.0)})
+    rng = np.random.default_rng(5)
+    counts = []
+    for k in range(60):
+        p = walk(k, 0)
+        d = [Detection(det(*p, pid=0, rng=rng).box, None)]
+        out = step(nodes, k, {0: d, 1: d})
+        counts.append(len(out[0]))
+    assert counts[1:cfg.comotion_frames] == [2] * (cfg.comotion_frames - 1)  # the duplicate...
+    assert counts[cfg.comotion_frames + 1:] == [1] * (59 - cfg.comotion_frames)  # ...merged
+    assert [t.id for t in out[0]] == [t.id for t in out[1]] == [(0, 0)]
+
+
+def test_simultaneous_births_on_top_of_each_other_merge_at_once_without_appearance():
+    nodes = make_nodes({0: (1,), 1: (0,)}, TrackerConfig())
+    rng = np.random.default_rng(5)
+    for k in range(10):
+        d = [Detection(det(*walk(k, 0), pid=0, rng=rng).box, None)]
+        out = step(nodes, k, {0: d, 1: d})
+        assert len(out[0]) <= 1
+    assert [t.id for t in out[0]] == [t.id for t in out[1]] == [(0, 0)]
+
+
+def test_two_people_side_by_side_are_never_merged():
+    """Two people walking 0.6 m apart: co-motion alone would say one target, but a camera sees
+    them as two detections every frame."""
+    nodes = make_nodes({0: (1,), 1: (0,)}, TrackerConfig())
+    for k in range(80):
+        x, y = walk(k, 0)
+        pair = [undetected(x, y), undetected(x + 0.6, y)]
+        out = step(nodes, k, {0: pair, 1: pair})
+    assert len(out[0]) == 2 and len(out[1]) == 2
+    assert {t.id for t in out[0]} == {t.id for t in out[1]}
+    # each node merged its own and its neighbour's birth of each person, nothing more
+    assert nodes[0].stats.merged == nodes[1].stats.merged == 2
+
+
+def test_a_person_back_after_an_occlusion_gets_the_old_id_without_appearance():
+    cfg = TrackerConfig()
+    nodes = make_nodes({0: ()}, cfg)
+    ids = []
+    for k in range(90):
+        hidden = 30 <= k < 30 + cfg.kappa + 10  # longer than kappa: the tracker is dropped
+        out = step(nodes, k, {0: [] if hidden else [undetected(3.0 + 0.01 * k, 3.0)]})
+        ids.append({t.id for t in out[0]})
+    assert ids[20] == {(0, 0)} and ids[-1] == {(0, 0)}
+    assert nodes[0].stats.dropped == 1 and nodes[0].stats.reidentified == 1
+    # somebody else, far from where the person was lost, is somebody new
+    nodes = make_nodes({0: ()}, cfg)
+    for k in range(90):
+        hidden = 30 <= k < 30 + cfg.kappa + 10
+        x = 3.0 if k < 30 else 7.0
+        out = step(nodes, k, {0: [] if hidden else [undetected(x, 3.0)]})
+    assert {t.id for t in out[0]} == {(0, 1)}
