@@ -34,7 +34,7 @@ class Candidate:
 @dataclass(frozen=True)
 class Observation:
     """What the associator needs of one measurement: ``z``, ``R`` and the descriptor; ``raw``
-    is the camera's uncorrected measurement when registration is on (else ``None``)."""
+    is the camera's own measurement before any registration correction."""
 
     z: np.ndarray
     R: np.ndarray

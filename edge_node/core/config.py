@@ -66,8 +66,9 @@ class TrackerConfig:
                                doc="per frame, pull of every correction towards zero (common frame)")
 
     # --- each camera's own view (Track.boxes) ---------------------------------------------
-    view_frames: int = integer(50, lo=0, doc="frames a camera keeps drawing a target it last saw")
+    view_frames: int = integer(100, lo=0, doc="frames a camera keeps drawing a target it last saw")
     view_rate: float = number(0.2, lo=0.0, hi=1.0, doc="smoothing of a camera's own box size")
+    view_unseen: bool = boolean(False, "draw targets a camera has not seen (at the network's size)")
 
     # --- birth prior (a new tracker, identical on every node that adopts it) ----------------
     birth_pos_sigma: float = positive(0.5, "m")

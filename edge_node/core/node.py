@@ -161,11 +161,11 @@ class CameraNode:
 
     def _observe(self, cam: Camera, det: Detection) -> Observation:
         desc = self.associate.descriptor(det.descriptor)
+        raw = box_measurement(cam, det.box, self.cfg)
         reg = self.registrations.get(cam.id)
         if reg is None:
             z, R = measure(cam, det.box, self.cfg)
-            return Observation(z, R, desc)
-        raw = box_measurement(cam, det.box, self.cfg)
+            return Observation(z, R, desc, raw)
         z, R = reg.correct(raw)
         if self.cfg.fixed_R is not None:
             R = measure(cam, det.box, self.cfg)[1]
@@ -447,9 +447,12 @@ class CameraNode:
         for cam in self.cameras:
             seen = tr.views.get(cam.id)
             reg = self.registrations.get(cam.id)
-            if seen is None or reg is None or self._frame - seen[0] > self.cfg.view_frames:
-                continue
-            foot = cam.to_image(reg.to_camera(tr.x_hat[:2])[None])[0]
+            if seen is None or self._frame - seen[0] > self.cfg.view_frames:
+                if not self.cfg.view_unseen:
+                    continue
+                seen = (self._frame, tr.x_hat[2:4])
+            g = tr.x_hat[:2] if reg is None else reg.to_camera(tr.x_hat[:2])
+            foot = cam.to_image(g[None])[0]
             if not np.all(np.isfinite(foot)):
                 continue
             w, h = seen[1] * pixels_per_unit(cam.ground_jacobian(foot))

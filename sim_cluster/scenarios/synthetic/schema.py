@@ -34,6 +34,15 @@ Synthetic schema (metres, degrees, pixels; see the presets for commented example
                  distances same_camera_distance, cross_camera_distance, different_person_distance
     [truth]      min_visible                         (world module docstring)
 
+    [calibration_error]        # optional: known registration errors (calibration module)
+    shift_m = [[dx, dy], ...]  # per camera (file order): the believed ground map's shift, metres
+    rotation_deg = [r, ...]    # per camera: its rotation about the camera's reference point
+    [calibration_error.bump]   # optional: the true camera moves mid-run
+    camera = 2                 # which camera
+    frame = 300                # from this frame on
+    shift_m = [dx, dy]         # it sees at p what it saw at B(p): B = this shift ...
+    rotation_deg = 1.0         # ... and rotation about its reference point
+
 Every error is a :class:`~sim_cluster.scenarios.files.ScenarioError` naming the file and the
 field, e.g. ``terrace-sim.toml: cameras[2].fov_deg must be in (0, 180), got 200``. Unknown
 fields are errors (a typo must not silently fall back to a default). ``[detector]`` and
@@ -53,6 +62,7 @@ from edge_node.settings import Table
 from sim_cluster.scenarios.data import ScenarioData
 from sim_cluster.scenarios.files import ScenarioError, scenario_table
 from sim_cluster.scenarios.synthetic.appearance import AppearanceError, AppearanceParams
+from sim_cluster.scenarios.synthetic.calibration import CalibrationBump, CalibrationError
 from sim_cluster.scenarios.synthetic.detector_model import DetectorParams, DetectorParamsError
 from sim_cluster.scenarios.synthetic.world import PeopleParams, WorldConfig, WorldError, generate
 
@@ -229,13 +239,57 @@ def parse_synthetic(raw: dict, path: Path, seed: int, frames: int | None = None)
     tt = top.table("truth")
     min_visible = tt.number("min_visible", 0.1, lo=0.0, hi=1.0)
     tt.finish()
+    ct = top.optional_table("calibration_error")
+    calibration = None if ct is None else calibration_error_from_table(ct, len(cameras))
     top.finish()
     try:
         return WorldConfig(name=name, area=(xmin, xmax, ymin, ymax), cameras=cameras,
                            frames=n_frames, fps=fps, seed=seed, people=people, detector=detector,
-                           appearance=appearance, min_visible=min_visible)
+                           appearance=appearance, min_visible=min_visible,
+                           calibration=calibration)
     except WorldError as e:
         raise ScenarioError(file, None, str(e)) from None
+
+
+_MAX_ROTATION_DEG = 45.0  # a registration error, not a different camera
+
+
+def _shift(t: Table, label: str, v: object) -> tuple[float, float]:
+    if not isinstance(v, list) or len(v) != 2:
+        raise t.error(label, f"must be [dx, dy] in metres, got {v!r}")
+    return (t.check_number(f"{label}[0]", v[0]), t.check_number(f"{label}[1]", v[1]))
+
+
+def calibration_error_from_table(t: Table, n_cameras: int) -> CalibrationError:
+    """``CalibrationError`` from a ``[calibration_error]`` table: ``shift_m`` (one ``[dx, dy]``
+    per camera, metres) and ``rotation_deg`` (one per camera), each defaulting to zeros, and an
+    optional ``[calibration_error.bump]`` (``camera``, ``frame``, ``shift_m``, ``rotation_deg``)."""
+    rot = {"lo": -_MAX_ROTATION_DEG, "hi": _MAX_ROTATION_DEG}
+    shifts: list[tuple[float, float]] = [(0.0, 0.0)] * n_cameras
+    if t.has("shift_m"):
+        v = t.raw("shift_m")
+        if not isinstance(v, list) or len(v) != n_cameras:
+            raise t.error("shift_m", f"must list one [dx, dy] per camera ({n_cameras}), got {v!r}")
+        shifts = [_shift(t, f"shift_m[{i}]", s) for i, s in enumerate(v)]
+    rotations: list[float] = [0.0] * n_cameras
+    if t.has("rotation_deg"):
+        v = t.raw("rotation_deg")
+        if not isinstance(v, list) or len(v) != n_cameras:
+            raise t.error("rotation_deg", f"must list one angle per camera ({n_cameras}), got {v!r}")
+        rotations = [t.check_number(f"rotation_deg[{i}]", r, **rot) for i, r in enumerate(v)]
+    t.declare("shift_m", "rotation_deg")
+    bump = None
+    bt = t.optional_table("bump")
+    if bt is not None:
+        camera = bt.integer("camera", lo=0, hi=n_cameras - 1)
+        frame = bt.integer("frame", lo=0)
+        shift = _shift(bt, "shift_m", bt.raw("shift_m")) if bt.has("shift_m") else (0.0, 0.0)
+        bt.declare("shift_m")
+        rotation = bt.number("rotation_deg", 0.0, **rot)
+        bt.finish()
+        bump = CalibrationBump(camera=camera, frame=frame, shift=shift, rotation_deg=rotation)
+    t.finish()
+    return CalibrationError(shifts=tuple(shifts), rotations_deg=tuple(rotations), bump=bump)
 
 
 def appearance_params_from_table(t: Table) -> AppearanceParams:

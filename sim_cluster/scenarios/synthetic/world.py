@@ -27,6 +27,12 @@ Per frame and camera:
   image, occlusion ignored (an occluded person is still in the monitored area).
 * **Detections** come from :func:`sim_cluster.detector_model.detect` for every person whose box
   is in front and at least partly in the image.
+* **Calibration errors** (``WorldConfig.calibration``, a scenario's ``[calibration_error]``;
+  :mod:`~sim_cluster.scenarios.synthetic.calibration`): everything above uses the TRUE cameras;
+  ``ScenarioData.cameras`` are the believed ones, whose ground map is off by a known similarity.
+  A bumped camera is projected, from the bump's frame on, through the moved true camera
+  (boxes, visibility, occlusion order and image ground truth all from it); only its false
+  positives keep the camera before the bump for their sizes (random boxes either way).
 
 All randomness derives from the scenario seed with one independent stream per purpose: people
 (``[seed, 1]``), each camera's detector (``[seed, 2, camera]``), appearance identities and views
@@ -47,6 +53,8 @@ from edge_node.core.types import Detection
 from edge_node.geometry import Camera
 from sim_cluster.scenarios.data import GroundTruth, ScenarioData
 from sim_cluster.scenarios.synthetic.appearance import AppearanceModel, AppearanceParams
+from sim_cluster.scenarios.synthetic.calibration import (CalibrationError, believed_camera,
+                                                         moved_camera)
 from sim_cluster.scenarios.synthetic.detector_model import (DetectorParams, detect_frames,
                                                             in_image_fraction)
 
@@ -110,6 +118,7 @@ class WorldConfig:
     detector: DetectorParams = field(default_factory=DetectorParams)
     appearance: AppearanceParams = field(default_factory=AppearanceParams)
     min_visible: float = 0.1  # ground-truth visibility threshold (see module docstring)
+    calibration: CalibrationError | None = None  # known registration errors (calibration module)
 
     def __post_init__(self) -> None:
         xmin, xmax, ymin, ymax = self.area
@@ -121,6 +130,16 @@ class WorldConfig:
             raise WorldError("min_visible must be in [0, 1]")
         if [c.id for c in self.cameras] != list(range(len(self.cameras))):
             raise WorldError("camera ids must be 0..N-1 in order")
+        cal = self.calibration
+        if cal is not None:
+            if len(cal.shifts) != len(self.cameras) or len(cal.rotations_deg) != len(self.cameras):
+                raise WorldError(f"calibration error: one shift and one rotation per camera "
+                                 f"({len(self.cameras)}), got {len(cal.shifts)} and "
+                                 f"{len(cal.rotations_deg)}")
+            if cal.bump is not None and not (0 <= cal.bump.camera < len(self.cameras)
+                                             and cal.bump.frame >= 0):
+                raise WorldError(f"calibration bump: camera must be in [0, {len(self.cameras) - 1}] "
+                                 f"and frame >= 0, got {cal.bump}")
 
 
 @dataclass
@@ -422,21 +441,30 @@ def generate(config: WorldConfig) -> ScenarioData:
     thr = max(config.min_visible, 1e-12)
 
     # Project everybody in every camera at once: boxes, in-image fraction, depth (C, F, N, ...).
+    # A bumped camera is a moved true camera from the bump's frame on (calibration module).
     kk, ii = np.nonzero(present)
     boxes = np.full((C, F, N, 4), np.nan)
     inimg = np.zeros((C, F, N))
     depth = np.full((C, F, N), np.inf)
+    bump = config.calibration.bump if config.calibration is not None else None
     for c, cam in enumerate(cams):
-        b, front = project_people(cam, traj.xy[kk, ii], traj.wh[ii])
-        fr = np.zeros(len(kk))
-        fr[front] = in_image_fraction(b[front], cam.image_size)
-        boxes[c, kk, ii] = b
-        inimg[c, kk, ii] = fr
-        centre = cam.center()
-        if centre is not None:
-            depth[c, kk, ii] = np.hypot(traj.xy[kk, ii, 0] - centre[0], traj.xy[kk, ii, 1] - centre[1])
-        else:
-            depth[c, kk, ii] = -(b[:, 1] + b[:, 3])  # lower foot row = nearer
+        views = [(cam, None)]
+        if bump is not None and bump.camera == c and bump.frame < F:
+            moved = moved_camera(cam, config.calibration.bump_map(cams))
+            views = [(cam, kk < bump.frame), (moved, kk >= bump.frame)]
+        for view, sel in views:
+            fk, fi = (kk, ii) if sel is None else (kk[sel], ii[sel])
+            b, front = project_people(view, traj.xy[fk, fi], traj.wh[fi])
+            fr = np.zeros(len(fk))
+            fr[front] = in_image_fraction(b[front], view.image_size)
+            boxes[c, fk, fi] = b
+            inimg[c, fk, fi] = fr
+            centre = view.center()
+            if centre is not None:
+                depth[c, fk, fi] = np.hypot(traj.xy[fk, fi, 0] - centre[0],
+                                            traj.xy[fk, fi, 1] - centre[1])
+            else:
+                depth[c, fk, fi] = -(b[:, 1] + b[:, 3])  # lower foot row = nearer
 
     truth_mask = np.any(inimg >= thr, axis=0)  # (F, N)
     truth = GroundTruth(ids=[], xy=[], wh=[], boxes=[])
@@ -468,9 +496,12 @@ def generate(config: WorldConfig) -> ScenarioData:
             detections[k][c] = dets
             det_truth[k][c] = ids
 
+    believed = list(cams)
+    if config.calibration is not None:  # what the user believes (calibration module)
+        believed = [believed_camera(cam, E) for cam, E in zip(cams, config.calibration.errors(cams))]
     return ScenarioData(
         name=config.name,
-        cameras=list(cams),
+        cameras=believed,
         frames=F,
         fps=config.fps,
         units_per_metre=1.0,
