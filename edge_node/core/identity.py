@@ -26,6 +26,11 @@ from protocol.messages import Merge, TrackerId
 UNKNOWN_BIRTH = 2**62  # ranks an id whose birth frame this node never heard after every known one
 
 
+def rank(born: int, tid: TrackerId) -> tuple[int, TrackerId]:
+    """Merge order ``(born, id)``: the older tracker survives, ties to the smaller id."""
+    return (born, tid)
+
+
 def resolve(tid: TrackerId, aliases: dict[TrackerId, TrackerId]) -> TrackerId:
     """Follow merge announcements ``loser -> winner`` to the surviving id."""
     seen = set()
@@ -61,8 +66,8 @@ class IdentityBook:
         return self.born.setdefault(tid, born)
 
     def rank(self, tid: TrackerId) -> tuple[int, TrackerId]:
-        """Merge order ``(born, id)``: the older tracker survives, ties to the smaller id."""
-        return (self.born.get(tid, UNKNOWN_BIRTH), tid)
+        """:func:`rank` of ``tid`` (an id whose birth this node never heard of ranks last)."""
+        return rank(self.born.get(tid, UNKNOWN_BIRTH), tid)
 
     # -- merges -------------------------------------------------------------------------------
     def alias(self, loser: TrackerId, winner: TrackerId, winner_born: int | None = None

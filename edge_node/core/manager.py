@@ -21,6 +21,7 @@ import numpy as np
 
 from edge_node.core.config import TrackerConfig
 from edge_node.core.gallery import Gallery
+from edge_node.core.identity import rank
 from protocol.messages import TrackerId
 
 
@@ -54,8 +55,7 @@ class MergeView:
 
     @property
     def rank(self) -> tuple[int, TrackerId]:
-        """Merge order (``IdentityBook.rank``): the older survives, ties to the smaller id."""
-        return (self.born, self.id)
+        return rank(self.born, self.id)
 
 
 def pair_score(a: MergeView, b: MergeView, cfg: TrackerConfig) -> tuple[float, int] | None:
