@@ -123,8 +123,10 @@ def test_detached_cluster_life_cycle(tmp_path):
 def test_ctrl_c_and_dying_node_leave_no_orphans(tmp_path):
     # Ctrl-C: the launcher ends every node it started.
     out = tmp_path / "i"
+    # paced at 25 fps: lab-sim's 600 frames last 24 s, so the signal lands mid-run however fast
+    # the machine (unpaced, an idle machine finished before it)
     pr = subprocess.Popen([EXE, "up", "--scenario", "lab-sim", "--frames", "2000", "--nodes",
-                           "2", "--topology", "chain", "--out", str(out), "--quiet"],
+                           "2", "--topology", "chain", "--fps", "25", "--out", str(out), "--quiet"],
                           stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     pids = []
     try:
@@ -141,8 +143,9 @@ def test_ctrl_c_and_dying_node_leave_no_orphans(tmp_path):
         # A node that dies: the launcher reports it and stops the others.
         out2 = tmp_path / "d"
         pr2 = subprocess.Popen([EXE, "up", "--scenario", "lab-sim", "--frames", "2000",
-                                "--nodes", "2", "--topology", "chain", "--out", str(out2),
-                                "--quiet"], stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                                "--nodes", "2", "--topology", "chain", "--fps", "25",
+                                "--out", str(out2), "--quiet"],
+                               stdout=subprocess.PIPE, stderr=subprocess.PIPE,
                                text=True)
         deadline = time.time() + 60
         while time.time() < deadline and not (out2 / "cluster.json").exists():
