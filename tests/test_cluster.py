@@ -125,9 +125,12 @@ def test_ctrl_c_and_dying_node_leave_no_orphans(tmp_path):
     out = tmp_path / "i"
     # paced at 25 fps: lab-sim's 600 frames last 24 s, so the signal lands mid-run however fast
     # the machine (unpaced, an idle machine finished before it)
+    # and with SIGINT at its default in the launcher, as in a terminal (a shell running the suite
+    # in the background makes its children ignore SIGINT, and Python keeps ignoring it)
     pr = subprocess.Popen([EXE, "up", "--scenario", "lab-sim", "--frames", "2000", "--nodes",
                            "2", "--topology", "chain", "--fps", "25", "--out", str(out), "--quiet"],
-                          stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+                          stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                          preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
     pids = []
     try:
         deadline = time.time() + 60

@@ -9,7 +9,7 @@ are written once, here, beside the fields.
 from __future__ import annotations
 
 import math
-from dataclasses import MISSING, Field, dataclass, field, fields
+from dataclasses import Field, dataclass, field, fields
 from typing import Any
 
 
@@ -135,6 +135,3 @@ def build(cls: type, values: dict, section: str) -> Any:
             values[f.name] = tuple(values[f.name])
     return cls(**values)
 
-
-def defaults(cls: type) -> dict[str, Any]:
-    return {f.name: f.default for f in fields(cls) if f.default is not MISSING}
