@@ -110,7 +110,8 @@ def _angle(M: np.ndarray) -> float:
 def _run(anchor: float | None = None):
     data = load_scenario(PRESET, frames=Truth().bump_frame + RECOVERY + 1)
     cfg = TrackerConfig() if anchor is None else TrackerConfig(reg_anchor=anchor)
-    return data, run_network(data, build("complete", data.num_cameras), cfg)
+    return data, run_network(data, build("complete", data.num_cameras), cfg,
+                             registration_history=True)
 
 
 def _seen(data, c: int, k: int) -> list[np.ndarray]:
@@ -121,7 +122,7 @@ def _seen(data, c: int, k: int) -> list[np.ndarray]:
 
 def _errors(data, result, truth: Truth, c: int, k: int) -> np.ndarray:
     """``correction_at(T_c(p)) - (F(p) - T_c(p))`` for the people camera ``c`` sees."""
-    reg = result.registration[c][k][c]
+    reg = result.registration_history[c][k][c]
     F, Tc = truth.F(k), truth.T(c, k)
     out = []
     for p in _seen(data, c, k):
@@ -143,13 +144,13 @@ def relative_error(data, result, truth: Truth, c: int, k: int) -> float:
         errs = []
         for o in range(truth.n):
             g = _apply(truth.T(o, k), p)
-            errs.append(result.registration[o][k][o].correction_at(g) - (_apply(F, p) - g))
+            errs.append(result.registration_history[o][k][o].correction_at(g) - (_apply(F, p) - g))
         out.append(np.linalg.norm(errs[c] - np.mean(errs, axis=0)))
     return float(np.median(out))
 
 
 def rotation_error(result, truth: Truth, c: int, k: int) -> float:
-    reg = result.registration[c][k][c]
+    reg = result.registration_history[c][k][c]
     expected = _angle(truth.F(k) @ np.linalg.inv(truth.T(c, k)))
     return math.degrees(float(reg.theta[2])) - expected
 
@@ -162,7 +163,7 @@ def common_offset(result, truth: Truth, k: int) -> float:
     for x in np.linspace(2.0, 8.0, 4):
         for y in np.linspace(2.0, 8.0, 4):
             g = np.array([x, y])
-            est = np.mean([result.registration[c][k][c].correction_at(g)
+            est = np.mean([result.registration_history[c][k][c].correction_at(g)
                            for c in range(truth.n)], axis=0)
             exp = np.mean([_apply(F @ np.linalg.inv(truth.T(c, k)), g) - g
                            for c in range(truth.n)], axis=0)

@@ -78,13 +78,22 @@ def box_measurement(camera: Camera, box: np.ndarray, cfg: TrackerConfig) -> BoxM
                           var_u > s2 or var_v > s2)
 
 
-def measure(camera: Camera, box: np.ndarray, cfg: TrackerConfig) -> tuple[np.ndarray, np.ndarray]:
-    """Return ``(z, R)`` for one box without registration: ``calib_sigma`` on the position."""
-    box = np.asarray(box, dtype=float)
+def fixed_R(cfg: TrackerConfig) -> np.ndarray:
+    """The paper's constant ``R`` (``cfg.fixed_R`` = sigmas of position and size, metres)."""
+    sxy, swh = (cfg.m(s) for s in cfg.fixed_R)
+    return np.diag([sxy**2, sxy**2, swh**2, swh**2])
+
+
+def uncorrected(m: BoxMeasurement, cfg: TrackerConfig) -> tuple[np.ndarray, np.ndarray]:
+    """``(z, R)`` of a box measurement without registration: ``calib_sigma`` on the position
+    (or the paper's fixed ``R``)."""
     if cfg.fixed_R is not None:
-        sxy, swh = (cfg.m(s) for s in cfg.fixed_R)
-        return camera.box_to_cylinder(box), np.diag([sxy**2, sxy**2, swh**2, swh**2])
-    m = box_measurement(camera, box, cfg)
+        return m.z, fixed_R(cfg)
     R = m.R.copy()
     R[:2, :2] = R[:2, :2] + np.eye(2) * cfg.m(cfg.calib_sigma) ** 2
     return m.z, R
+
+
+def measure(camera: Camera, box: np.ndarray, cfg: TrackerConfig) -> tuple[np.ndarray, np.ndarray]:
+    """Return ``(z, R)`` for one box without registration: ``calib_sigma`` on the position."""
+    return uncorrected(box_measurement(camera, box, cfg), cfg)

@@ -35,7 +35,7 @@ from edge_node.core.gallery import Gallery
 from edge_node.core.identity import IdentityBook
 from edge_node.core.initiator import Initiator, Pending
 from edge_node.core.manager import DistributedTrackerManager, IndependentTrackers, MergeView
-from edge_node.core.measurement import box_measurement, measure, pixels_per_unit
+from edge_node.core.measurement import box_measurement, fixed_R, pixels_per_unit, uncorrected
 from edge_node.core.memory import NeighbourMemory
 from edge_node.core.model import birth_covariance, birth_state, process_noise, quantize, transition
 from edge_node.core.registration import Registration
@@ -164,11 +164,10 @@ class CameraNode:
         raw = box_measurement(cam, det.box, self.cfg)
         reg = self.registrations.get(cam.id)
         if reg is None:
-            z, R = measure(cam, det.box, self.cfg)
-            return Observation(z, R, desc, raw)
+            return Observation(*uncorrected(raw, self.cfg), desc, raw)
         z, R = reg.correct(raw)
         if self.cfg.fixed_R is not None:
-            R = measure(cam, det.box, self.cfg)[1]
+            R = fixed_R(self.cfg)
         return Observation(z, R, desc, raw)
 
     def _associate(self, k: int, cam_id: int, obs: list[Observation]) -> list[Observation]:

@@ -232,16 +232,8 @@ def visible_boxes(camera: Camera, cyl: np.ndarray, clip: bool = True) -> tuple[n
     ok[idx[~front]] = False
     idx = idx[front]
     boxes[idx] = project_boxes(camera, c[idx])
-    W, H = camera.image_size
-    with np.errstate(invalid="ignore"):
-        b = boxes
-        x0, y0, x1, y1 = b[:, 0], b[:, 1], b[:, 0] + b[:, 2], b[:, 1] + b[:, 3]
-        ok &= np.all(np.isfinite(b), axis=1) & (b[:, 2] > 0) & (b[:, 3] > 0)
-        ok &= (x1 > 0) & (y1 > 0) & (x0 < W) & (y0 < H)
-    if clip:
-        x0, y0 = np.maximum(x0, 0.0), np.maximum(y0, 0.0)
-        x1, y1 = np.minimum(x1, float(W)), np.minimum(y1, float(H))
-        boxes = np.stack([x0, y0, x1 - x0, y1 - y0], axis=1)
+    boxes, usable = own_boxes(camera, boxes, clip)
+    ok &= usable
     boxes[~ok] = np.nan
     return boxes, ok
 

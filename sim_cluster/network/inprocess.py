@@ -69,8 +69,10 @@ class RunResult:
     data: ScenarioData | None = None
     mode: str = "sync"
     sends: dict[int, tuple[int, int]] = field(default_factory=dict)  # async: entries (sent, skipped)
-    # node -> frame -> {camera: Registration}, a copy after the frame's update (registration on)
-    registration: dict[int, list[dict]] = field(default_factory=dict)
+    # node -> {camera: Registration} at the end of the run (registration on)
+    registration: dict[int, dict] = field(default_factory=dict)
+    # node -> frame -> {camera: Registration}: a copy after every frame, when asked for
+    registration_history: dict[int, list[dict]] = field(default_factory=dict)
 
     def bandwidth(self) -> dict:
         """Measured bandwidth, beside nothing assumed: bytes the codec produced."""
@@ -90,9 +92,9 @@ class RunResult:
         reference point (m), rotation (degrees), scale, foot-point offset (m)."""
         upm = self.data.units_per_metre if self.data is not None else 1.0
         out = {}
-        for n, frames in sorted(self.registration.items()):
-            if frames and frames[-1]:
-                out[str(n)] = {str(c): r.summary(upm) for c, r in sorted(frames[-1].items())}
+        for n, regs in sorted(self.registration.items()):
+            if regs:
+                out[str(n)] = {str(c): r.summary(upm) for c, r in sorted(regs.items())}
         return out
 
     def summary(self) -> dict:
@@ -125,7 +127,8 @@ def run_network(data: ScenarioData, adjacency: Adjacency | str, cfg: TrackerConf
                 topology_name: str | None = None, network: str = "sim",
                 frames: int | None = None, mode: str = "sync",
                 faults: FaultPlan = NO_FAULTS, trigger: TriggerConfig | None = None,
-                progress: Callable[[int, int], None] | None = None) -> RunResult:
+                progress: Callable[[int, int], None] | None = None,
+                registration_history: bool = False) -> RunResult:
     """Run ``data`` through the network ``adjacency`` (or ``"centralized"``) with ``cfg``.
 
     ``mode="sync"``: every node fuses its neighbours' frame-``k`` messages at frame ``k`` (a
@@ -133,6 +136,9 @@ def run_network(data: ScenarioData, adjacency: Adjacency | str, cfg: TrackerConf
     event-triggered variant: a node sends only when ``EventTrigger`` says so, and fuses each
     neighbour's latest message whatever its frame. ``faults`` loses, delays, duplicates and cuts
     messages and crashes / restarts nodes, deterministically from its seed.
+    ``registration_history``: keep a copy of every camera's registration after every frame
+    (``RunResult.registration_history``; memory grows with the frames); the final state is
+    always in ``RunResult.registration``.
     """
     if mode not in ("sync", "async"):
         raise ValueError(f"mode must be 'sync' or 'async', got {mode!r}")
@@ -160,7 +166,7 @@ def run_network(data: ScenarioData, adjacency: Adjacency | str, cfg: TrackerConf
     next_counter: dict[int, int] = {}  # a restarted node never reuses an id
     resync: dict[int, set[int]] = {i: set() for i in range(n)}  # sender -> rejoined neighbours
     tracks: dict[int, list[list[Track]]] = {i: [] for i in range(n)}
-    registration: dict[int, list[dict]] = {i: [] for i in range(n)}
+    history: dict[int, list[dict]] = {i: [] for i in range(n)} if registration_history else {}
     for k in range(frames):
         for i in range(n):  # crashes and restarts
             node = nodes[i]
@@ -198,7 +204,8 @@ def run_network(data: ScenarioData, adjacency: Adjacency | str, cfg: TrackerConf
                 tracks[i].append(node.update(arrived[i], stale_ok=True))
             else:
                 tracks[i].append(node.update(arrived[i]))
-            registration[i].append({c: r.snapshot() for c, r in node.registrations.items()})
+            if registration_history:
+                history[i].append({c: r.snapshot() for c, r in node.registrations.items()})
         if progress:
             progress(k + 1, frames)
     stats = {i: _add_stats(retired.get(i), nodes[i].stats if nodes[i] else None) for i in range(n)}
@@ -207,7 +214,9 @@ def run_network(data: ScenarioData, adjacency: Adjacency | str, cfg: TrackerConf
     result = RunResult(data.name, topology_name or "custom", cfg.ablation, data.seed, frames,
                        adjacency, tracks, wire, stats, data, mode=mode,
                        sends={i: _sends(outboxes[i], retired_sends.get(i)) for i in range(n)},
-                       registration=registration)
+                       registration={i: dict(nodes[i].registrations) for i in range(n)
+                                     if nodes[i] is not None},
+                       registration_history=history)
     return result
 
 
