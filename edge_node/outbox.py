@@ -5,7 +5,8 @@ Every frame the node's message goes through the same steps, in one process or in
 1. event-triggered operation only: ``EventTrigger.filter`` keeps the tracker entries the
    neighbours need, or says to stay silent this frame;
 2. the message is encoded once; a neighbour that came back (restart, late join) gets the
-   resync message instead: every tracker with its appearance;
+   resync message instead: every tracker of the frame (also those the trigger withheld) with
+   its appearance;
 3. the fault plan (``edge_node.faults``) decides per link whether the message is lost, late by
    some frames or duplicated; late ones wait here until their frame;
 4. what was handed to each link is counted: bytes, tracker entries, appearance.
@@ -82,30 +83,40 @@ class Outbox:
             return []
         c = self.counters
         full = msg
+        resync = set(resync) & set(self.neighbours) if resync_message is not None else set()
         if self.trigger is not None:
             msg = self.trigger.filter(full)
             if msg is None:
                 c.frames_skipped += 1
                 self._count_saved(full, 0)
-                return []
         if sent_at is not None:
-            msg = replace(msg, sent_at=sent_at)
-        payload = self._encode(msg)
-        if payload is None:
-            return []
-        if self.trigger is not None and len(msg.trackers) < len(full.trackers):
-            self._count_saved(full, len(payload))
-        resync = set(resync) & set(self.neighbours)
+            full = replace(full, sent_at=sent_at)
+            msg = None if msg is None else replace(msg, sent_at=sent_at)
+        plain = None  # (message, payload) for the neighbours that stayed
+        if msg is not None:
+            payload = self._encode(msg)
+            if payload is None:
+                return []
+            plain = (msg, payload)
+            if self.trigger is not None and len(msg.trackers) < len(full.trackers):
+                self._count_saved(full, len(payload))
         special = None
-        if resync and resync_message is not None:
-            special_msg = resync_message(msg)
+        if resync:
+            # the whole frame, not what the trigger kept: a neighbour that came back with an
+            # empty state needs every tracker now (with its appearance), not at its heartbeat;
+            # also in a frame the trigger keeps silent
+            special_msg = resync_message(full)
             special_payload = self._encode(special_msg)
             special = (special_msg, special_payload) if special_payload is not None else None
         now: list[Delivery] = []
-        k = msg.frame
-        c.frames_sent += 1
+        k = full.frame
+        if plain is not None:
+            c.frames_sent += 1
         for dst in self.neighbours:
-            m, p = (special if (dst in resync and special is not None) else (msg, payload))
+            pair = special if (dst in resync and special is not None) else plain
+            if pair is None:
+                continue
+            m, p = pair
             c.bytes_per_link[dst] = c.bytes_per_link.get(dst, 0) + len(p)
             c.messages += 1
             c.tracker_entries += len(m.trackers)

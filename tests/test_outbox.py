@@ -65,3 +65,39 @@ def test_a_message_that_breaks_the_wire_rules_is_counted_not_sent():
     ob = Outbox(0, (1,))
     assert ob.send(bad) == []
     assert ob.counters.encode_errors == 1 and "non_finite" in ob.last_error
+
+
+def test_async_resync_sends_the_trackers_the_trigger_withheld():
+    """Event-triggered: a neighbour that came back with an empty state gets every tracker of
+    the frame at once, also in a frame the trigger keeps silent, each tracker with its
+    appearance; the neighbour that stayed gets only what the trigger keeps (here nothing)."""
+    from dataclasses import replace
+
+    from edge_node.core.trigger import EventTrigger, TriggerConfig
+
+    ob = Outbox(0, (1, 2), trigger=EventTrigger(TriggerConfig(heartbeat_frames=5), dt=0.04))
+    ob.send(msg(0))  # both trackers are news once
+    quiet = FrameMessage("net", 0, 1, tuple(
+        TrackerInfo(t.id, t.x_bar, np.zeros(6), np.zeros((6, 6)), 1, None, 0)
+        for t in msg(1).trackers))
+
+    def with_appearance(m):
+        return replace(m, trackers=tuple(replace(t, appearance=np.ones((2, 8)))
+                                         for t in m.trackers))
+    out = dict(ob.send(quiet, resync={2}, resync_message=with_appearance))
+    assert sorted(out) == [2]  # the stayer: nothing (the trigger keeps this frame silent)
+    got = codec.decode(out[2]).trackers
+    assert [t.id for t in got] == [(0, 0), (0, 1)]
+    assert all(t.appearance is not None for t in got)
+
+
+def test_a_heartbeat_as_long_as_kappa_is_refused():
+    """A receiver forgets an entry kappa frames after it: heartbeats must come sooner."""
+    import pytest
+
+    from edge_node.core.params import ConfigError
+    from edge_node.core.trigger import EventTrigger, TriggerConfig
+
+    EventTrigger(TriggerConfig(heartbeat_frames=14), dt=0.04, kappa=15)
+    with pytest.raises(ConfigError, match="heartbeat_frames must be below tracker.kappa"):
+        EventTrigger(TriggerConfig(heartbeat_frames=15), dt=0.04, kappa=15)

@@ -108,6 +108,11 @@ class TrackerConfig:
     reid_gate: float = positive(1.5, "m, without appearance: how near its birth a dropped tracker must be")
     report_coast: int = integer(1, lo=0, doc="frames a tracker nobody sees is still reported")
 
+    # --- trust boundary (edge_node/core/screen.py): what a neighbour's entry may claim -----
+    world_radius: float = positive(1000.0, "m, states farther than this from every camera of the node are implausible")
+    max_size: float = positive(20.0, "m, largest plausible target width or height")
+    max_speed: float = positive(150.0, "m/s, largest plausible speed of an estimate (honest coasting estimates in a ring reached 103)")
+
     # --- asynchronous operation (event-triggered consensus) ----------------------------------
     staleness_frames: int = integer(2, lo=0, doc="a neighbour's u, U older than this is ignored")
 

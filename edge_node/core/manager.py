@@ -98,9 +98,12 @@ def find_merges(views: Sequence[MergeView], streaks: dict[tuple[TrackerId, Track
                 cfg: TrackerConfig) -> list[tuple[TrackerId, TrackerId]]:
     """Pairs ``(loser, winner)`` to merge this frame; updates ``streaks`` in place.
 
-    A pair merges once it has agreed for the frames :func:`pair_score` asks. Each tracker merges
-    at most once per frame, best score first; ties broken by ids, so the outcome is
-    deterministic.
+    A pair merges once it has agreed for the frames :func:`pair_score` asks. The paper merges
+    "two or more" trackers of one target at once (three cameras that start the same person in
+    the same frame): pairs join groups, best score first (ties broken by ids, so the outcome is
+    deterministic); two groups join only if every pair across them may be one target (scored,
+    not excluded by :func:`pair_score`). Each group keeps its oldest tracker, ``(born, id)``
+    smallest; every other member is merged into it.
     """
     scored: list[tuple[float, MergeView, MergeView, bool]] = []
     alive: set[tuple[TrackerId, TrackerId]] = set()
@@ -122,16 +125,27 @@ def find_merges(views: Sequence[MergeView], streaks: dict[tuple[TrackerId, Track
     for key in list(streaks):
         if key not in alive:
             del streaks[key]
-    merges: list[tuple[TrackerId, TrackerId]] = []
-    taken: set[TrackerId] = set()
+    group: dict[TrackerId, list[MergeView]] = {}  # tracker -> its group (shared list)
     for s, a, b, ready in sorted(scored, key=lambda e: (e[0], e[1].id, e[2].id)):
-        if not ready or a.id in taken or b.id in taken:
+        if not ready:
             continue
-        winner, loser = (a, b) if a.rank < b.rank else (b, a)
-        merges.append((loser.id, winner.id))
-        taken.update((a.id, b.id))
+        ga, gb = group.get(a.id, [a]), group.get(b.id, [b])
+        if ga is gb or not all((min(x.id, y.id), max(x.id, y.id)) in alive
+                               for x in ga for y in gb):
+            continue
+        ga.extend(gb)
+        for v in ga:
+            group[v.id] = ga
         streaks.pop((a.id, b.id), None)
-    return merges
+    merges: list[tuple[TrackerId, TrackerId]] = []
+    done: set[int] = set()
+    for g in group.values():
+        if id(g) in done:
+            continue
+        done.add(id(g))
+        winner = min(g, key=lambda v: v.rank)
+        merges.extend((v.id, winner.id) for v in sorted(g, key=lambda v: v.id) if v is not winner)
+    return sorted(merges, key=lambda m: (m[1], m[0]))
 
 
 def reidentify(gallery: Gallery, old: Mapping[TrackerId, Gallery], cfg: TrackerConfig

@@ -22,8 +22,9 @@ randomness: same inputs, same outputs.
 """
 from __future__ import annotations
 
+from collections import Counter
 from collections.abc import Callable, Iterable, Mapping, Sequence
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
@@ -39,6 +40,7 @@ from edge_node.core.measurement import box_measurement, fixed_R, pixels_per_unit
 from edge_node.core.memory import NeighbourMemory
 from edge_node.core.model import birth_covariance, birth_state, process_noise, quantize, transition
 from edge_node.core.registration import Registration
+from edge_node.core.screen import Screen
 from edge_node.core.tracker import LocalInfo, Tracker
 from edge_node.core.types import Detection, Track
 from edge_node.geometry import Camera
@@ -59,7 +61,18 @@ class NodeStats:
     reactivated: int = 0
     merged: int = 0
     dropped: int = 0
-    ignored_messages: int = 0
+    ignored_messages: int = 0  # other network, not a neighbour, future or too old a frame
+    duplicate_messages: int = 0  # a sender's frame already taken
+    bad_detections: int = 0  # boxes with NaN, inf or a non-positive size: not measured
+    numerical: int = 0  # tracker corrections that failed numerically (kept the prediction)
+    rejected: dict[str, int] = field(default_factory=dict)  # neighbours' entries, by reason
+
+    def add(self, other: "NodeStats") -> "NodeStats":
+        """The sum of two lives of a node (before and after a restart)."""
+        out = NodeStats(**{f: getattr(self, f) + getattr(other, f)
+                           for f in vars(self) if f != "rejected"})
+        out.rejected = dict(Counter(self.rejected) + Counter(other.rejected))
+        return out
 
 
 @dataclass(frozen=True)
@@ -106,6 +119,8 @@ class CameraNode:
             {c.id: parts.registration(c) for c in self.cameras} if parts.registration else {})
         self.book = IdentityBook(self.id, self.cfg, first_counter)
         self.memory = NeighbourMemory(self.cfg, network)
+        self.screen = Screen(self.cfg, self.cameras, self.id)
+        self._taken: dict[tuple[int, int], None] = {}  # (sender, frame) already used, recent
         self.A = transition(self.cfg.dt)
         self.Q = process_noise(self.cfg)
         self.P_birth = birth_covariance(self.cfg)
@@ -122,7 +137,7 @@ class CameraNode:
         self._begin(k)
         per_camera = self._split(detections)
         for cam in self.cameras:
-            obs = [self._observe(cam, d) for d in per_camera.get(cam.id, ())]
+            obs = [self._observe(cam, d) for d in self._usable(per_camera.get(cam.id, ()))]
             unassigned = self._associate(k, cam.id, obs)
             for chain in self.initiators[cam.id].step(k, unassigned):
                 self._birth(k, cam.id, chain)
@@ -158,6 +173,17 @@ class CameraNode:
             raise ValueError(f"node {self.id} owns {len(self.cameras)} cameras: "
                              "pass detections as {camera_id: [...]}")
         return {self.cameras[0].id: detections}
+
+    def _usable(self, dets: Sequence[Detection]) -> list[Detection]:
+        """Detections with a finite box of positive size (others are counted, not measured)."""
+        out = []
+        for d in dets:
+            b = np.asarray(d.box, float)
+            if b.shape == (4,) and np.all(np.isfinite(b)) and b[2] > 0 and b[3] > 0:
+                out.append(d)
+            else:
+                self.stats.bad_detections += 1
+        return out
 
     def _observe(self, cam: Camera, det: Detection) -> Observation:
         desc = self.associate.descriptor(det.descriptor)
@@ -263,12 +289,17 @@ class CameraNode:
         Event-triggered operation (``stale_ok=True``) also takes late, repeated and reordered
         messages up to ``kappa`` frames old and uses every neighbour's newest entry per tracker
         brought to ``k`` (``NeighbourMemory``). Messages from other networks, non-neighbours
-        and future frames are ignored (counted in ``stats.ignored_messages``).
+        and future frames are ignored (counted in ``stats.ignored_messages``); a second message
+        of a sender for a frame already taken is ignored (``stats.duplicate_messages``), as the
+        Zenoh transport does. What the messages say is checked for meaning first (``Screen``:
+        entries and merges that fail are dropped, counted in ``stats.rejected`` by reason).
+        Whatever a neighbour sends, the frame is finished for every tracker.
         """
         if not self._prepared:
             raise NodeStateError(f"node {self.id}: update() without prepare()")
         k = self._frame
-        msgs = self._accept(inbox, k, stale_ok)
+        msgs = [self.screen.message(m, self.book) for m in self._accept(inbox, k, stale_ok)]
+        self.stats.rejected = dict(self.screen.rejected)
         for m in msgs:
             for mg in m.merges:
                 self._merge(mg.loser, mg.winner, mg.winner_born)
@@ -296,7 +327,8 @@ class CameraNode:
         return self.tracks()
 
     def _accept(self, inbox: Iterable[FrameMessage], k: int, stale_ok: bool) -> list[FrameMessage]:
-        """The messages this frame may use, in a deterministic order (sender, frame)."""
+        """The messages this frame may use, in a deterministic order (sender, frame): one per
+        sender and frame (the first one; later copies are duplicates)."""
         msgs: list[FrameMessage] = []
         for m in inbox:
             ok = (m.sender in self.neighbours and m.network == self.network
@@ -304,7 +336,13 @@ class CameraNode:
             if not ok:
                 self.stats.ignored_messages += 1
                 continue
+            if (m.sender, m.frame) in self._taken:
+                self.stats.duplicate_messages += 1
+                continue
+            self._taken[(m.sender, m.frame)] = None
             msgs.append(m)
+        for key in [key for key in self._taken if key[1] < k - self.cfg.kappa]:
+            del self._taken[key]  # older frames are ignored anyway: bounded memory
         return sorted(msgs, key=lambda m: (m.sender, m.frame))
 
     def _received(self, msgs: list[FrameMessage]
@@ -327,11 +365,24 @@ class CameraNode:
         return received, measured
 
     def _correct(self, tr: Tracker, got: list[TrackerInfo]) -> None:
-        """Eqs. 3-4 for one tracker with its neighbours' entries, then ``ell`` (eq. 8)."""
+        """Eqs. 3-4 for one tracker with its neighbours' entries, then ``ell`` (eq. 8).
+
+        The entries passed ``Screen`` (``U`` positive semi-definite, bounded), so with ``P``
+        positive definite ``I + P S`` is invertible and nothing here can fail; should a
+        correction fail numerically anyway, this tracker alone keeps its prediction for the
+        frame (counted in ``stats.numerical``) and every other tracker is corrected as usual."""
         y, S = dkf.fuse([(tr.local.u, tr.local.U)] + [(t.u, t.U) for t in got])
-        tr.x_hat, tr.M = dkf.correct(tr.x_bar, tr.P, y, S, [t.x_bar for t in got],
-                                     own_x_bar_sent=tr.local.x_bar_sent,
-                                     units_per_metre=self.cfg.units_per_metre)
+        try:
+            x_hat, M = dkf.correct(tr.x_bar, tr.P, y, S, [t.x_bar for t in got],
+                                   own_x_bar_sent=tr.local.x_bar_sent,
+                                   units_per_metre=self.cfg.units_per_metre)
+            ok = bool(np.all(np.isfinite(x_hat)) and np.all(np.isfinite(M)))
+        except (np.linalg.LinAlgError, ValueError, FloatingPointError):
+            ok = False
+        if not ok:
+            self.stats.numerical += 1
+            x_hat, M = tr.x_bar.copy(), tr.P.copy()
+        tr.x_hat, tr.M = x_hat, M
         ell_before = tr.ell
         tr.ell = self.manager.ell(tr.local.ell_sent, [t.ell for t in got])
         tr.coast = tr.coast + 1 if tr.ell > ell_before else 0

@@ -24,7 +24,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from edge_node.core.model import transition
-from edge_node.core.params import check, integer, positive
+from edge_node.core.params import ConfigError, check, integer, positive
 from protocol.messages import FrameMessage, TrackerId
 
 
@@ -37,6 +37,17 @@ class TriggerConfig:
         check(self, "trigger")
 
 
+def check_heartbeat(cfg: TriggerConfig, kappa: int) -> None:
+    """``heartbeat_frames`` must be below the tracker's ``kappa``: a receiver forgets a
+    neighbour's entry ``kappa`` frames after it (``NeighbourMemory``) and the drop consensus
+    (eq. 8) ages it by one per frame, so a tracker that is only kept alive by heartbeats would
+    be forgotten between two of them."""
+    if cfg.heartbeat_frames >= kappa:
+        raise ConfigError("heartbeat_frames", f"must be below tracker.kappa ({kappa}): a "
+                          f"neighbour forgets an entry kappa frames after it, got "
+                          f"{cfg.heartbeat_frames}")
+
+
 @dataclass
 class _Sent:
     frame: int
@@ -47,7 +58,10 @@ class _Sent:
 class EventTrigger:
     """Filters a camera's messages down to what its neighbours need, frame by frame."""
 
-    def __init__(self, cfg: TriggerConfig, dt: float, units_per_metre: float = 1.0):
+    def __init__(self, cfg: TriggerConfig, dt: float, units_per_metre: float = 1.0,
+                 kappa: int | None = None):
+        if kappa is not None:
+            check_heartbeat(cfg, kappa)
         self.cfg = cfg
         self.dt = dt
         self.drift = cfg.drift * units_per_metre

@@ -45,7 +45,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Callable
 
-from edge_node.core.config import TrackerConfig
+from edge_node.core.config import ConfigError, TrackerConfig
 from edge_node.core.node import CameraNode
 from edge_node.core.trigger import EventTrigger, TriggerConfig
 from edge_node.faults import NO_FAULTS, FaultPlan
@@ -190,8 +190,11 @@ class FrameLoop:
         self._resync: set[int] = set()  # neighbours that (re)appeared: send them everything
         trigger = None
         if mode == "async":
-            trigger = EventTrigger(TriggerConfig(self.rt.heartbeat_frames, self.rt.drift_m),
-                                   node.cfg.dt, node.cfg.units_per_metre)
+            try:
+                trigger = EventTrigger(TriggerConfig(self.rt.heartbeat_frames, self.rt.drift_m),
+                                       node.cfg.dt, node.cfg.units_per_metre, node.cfg.kappa)
+            except ConfigError as e:
+                raise NodeConfigError(cfg.name, "runtime.heartbeat_frames", e.message) from None
         self.outbox = Outbox(node.id, transport.neighbours, faults, trigger)
         self.stats.wire = self.outbox.counters
 

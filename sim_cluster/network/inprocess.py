@@ -15,7 +15,7 @@ import numpy as np
 
 from edge_node.core.config import TrackerConfig
 from edge_node.core.node import CameraNode, NodeStats
-from edge_node.core.trigger import EventTrigger, TriggerConfig
+from edge_node.core.trigger import EventTrigger, TriggerConfig, check_heartbeat
 from edge_node.faults import NO_FAULTS, FaultPlan
 from edge_node.outbox import Outbox, OutboxCounters
 from edge_node.core.types import Track
@@ -150,6 +150,8 @@ def run_network(data: ScenarioData, adjacency: Adjacency | str, cfg: TrackerConf
     if sorted(adjacency) != list(range(n)):
         raise ValueError(f"topology has nodes {sorted(adjacency)}, scenario has cameras 0..{n - 1}")
     trigger = trigger or TriggerConfig()
+    if mode == "async":
+        check_heartbeat(trigger, cfg.kappa)
 
     def fresh(i: int, first_counter: int = 0) -> CameraNode:
         return CameraNode(data.cameras[i], adjacency[i], cfg, network, first_counter=first_counter)
@@ -230,7 +232,7 @@ def _sends(ob: Outbox, before: tuple[int, int] | None) -> tuple[int, int]:
 def _add_stats(a: NodeStats | None, b: NodeStats | None) -> NodeStats:
     if a is None or b is None:
         return a or b or NodeStats()
-    return NodeStats(**{f: getattr(a, f) + getattr(b, f) for f in vars(a)})
+    return a.add(b)
 
 
 def _run_centralized(data: ScenarioData, cfg: TrackerConfig, frames: int, progress) -> RunResult:

@@ -1,0 +1,247 @@
+"""The semantic trust boundary: what a neighbour's message may change on this node.
+
+``protocol.codec.decode`` checks a message's *form* (types, shapes, finite numbers, sizes). A
+message can be well-formed and still hostile or simply broken: an information matrix ``U`` that
+is not positive semi-definite makes ``I + P S`` singular in the DKF gain (eq. 4) or ``P``
+indefinite; a state of 1e27 poisons every estimate it is fused with; a forged ``born = 0`` or a
+forged merge announcement takes over established identities network-wide (identities rank by
+``(born, id)``, paper III-C). ``Screen`` checks a decoded message's *meaning* against what this
+node knows, entry by entry, before anything touches tracker state. An entry that fails is
+dropped and counted under its reason; the rest of the message is used.
+
+Tracker entry ``(ID, x_bar, u, U, ell, born)`` (paper III-D):
+
+* ``bad_information``: ``U`` (eq. 2, ``H^T R^-1 H``) must be symmetric, carry nothing on the
+  velocity (``H`` observes ``(x, y, w, h)`` only: rows and columns 4-5 and ``u[4:]`` are zero),
+  be positive semi-definite, and ``u`` must be ``U z`` for some measurement ``z`` (``u = 0``
+  when ``U = 0``: no measurement).
+* ``implausible_information``: the largest eigenvalue of ``U`` above one measurement with a
+  1 cm standard deviation (``1e4`` per m^2; honest runs: at most 282), or the measurement ``z``
+  more than 100 of its own standard deviations (``INFO_GATE``, in the metric of ``U``) from the
+  nearest plausible one: on the world (within ``world_radius`` of this node's cameras), width
+  and height in ``[0, max_size]``. In the metric of ``U`` because honest measurements can be
+  absurd where they are uncertain: a box cut near a camera's horizon gave a 56 m wide person
+  250 m away, 400 m uncertain along the viewing ray, 24 standard deviations off (honest runs:
+  at most 24.2).
+* ``implausible_state``: ``x_bar`` off the world, a size above ``max_size`` or a speed above
+  ``max_speed``.
+* ``implausible_ell``: ``ell`` above ``2 kappa + 2`` (an honest sender drops a tracker once its
+  ``ell`` exceeds ``kappa``, eq. 8, so it never reports more than ``kappa + 1``).
+* ``future_birth``: ``born`` after the message's frame.
+* ``born_moved``: an id whose birth this node knows, claimed earlier: ranks cannot be stolen.
+* ``implausible_birth``: an id new to this node whose birth contradicts its camera's counter
+  order (a camera's counter grows with time, so ``(c, n) < (c, m)`` implies ``born_n <=
+  born_m``), or an id of the sender's own camera that it never mentioned although we have been
+  hearing it without a gap since before that birth, more than ``kappa`` frames ago (a sender
+  announces its own births at once; a sender we did not hear, partitioned or new, may bring
+  old ones).
+
+Merge announcement ``loser -> winner``:
+
+* a winner this node has not heard of (merges are relayed hop by hop): ``winner_born`` is
+  checked as an entry's ``born`` is (``future_birth``, ``implausible_birth``); taking it on
+  trust would let an invented id outrank an established one.
+* ``unvouched_merge``: the loser may also be an id this node never heard of; such an alias is
+  remembered, and an entry that later names that id with a birth *after* the merge proves it
+  forged (honest merges link ids that exist; a forged one would hijack a target not yet
+  born): the alias is removed.
+* ``born_moved``: ``winner_born`` earlier than the winner's known birth.
+
+What stays possible for a peer that can publish on a link (no mTLS): entries that pass every
+rule, i.e. a plausible phantom target under a fresh id of its own camera, born now; an ``ell``
+of 0 that keeps a target alive; measurement information that pulls an estimate within the
+gates. Those are indistinguishable from a camera that sees something (README, "Threat model").
+
+Pure and deterministic; bounded memory (per neighbour, ids heard within the window).
+"""
+from __future__ import annotations
+
+from collections import Counter, OrderedDict
+from dataclasses import replace
+
+import numpy as np
+
+from edge_node.core.config import TrackerConfig
+from edge_node.core.identity import IdentityBook
+from edge_node.geometry import Camera
+from protocol.messages import FrameMessage, Merge, TrackerId, TrackerInfo
+
+RANK_TOL = 1e-9  # eigenvalues of U below this fraction of the largest count as zero
+INFO_GATE = 1e4  # squared standard deviations a measurement may lie off the plausible world
+MIN_SIGMA_M = 0.01  # m: no camera measures a foot point better than 1 cm
+
+REASONS = ("bad_information", "implausible_information", "implausible_state", "implausible_ell",
+           "future_birth", "born_moved", "implausible_birth", "unvouched_merge")
+
+
+def anchors(cameras: list[Camera]) -> np.ndarray:
+    """One ground point per camera: where the bottom centre of its image looks (in front)."""
+    pts = [c.to_ground(np.array([[c.image_size[0] / 2.0, float(c.image_size[1])]]))[0]
+           for c in cameras]
+    return np.array([p for p in pts if np.all(np.isfinite(p))]).reshape(-1, 2)
+
+
+class Screen:
+    """Checks neighbours' messages for meaning; counts what it drops in ``rejected``."""
+
+    def __init__(self, cfg: TrackerConfig, cameras: list[Camera], node_id: int):
+        self.cfg = cfg
+        self.node_id = node_id
+        self.anchors = anchors(cameras)
+        self.radius = cfg.m(cfg.world_radius)
+        self.max_size = cfg.m(cfg.max_size)
+        self.max_speed = cfg.m(cfg.max_speed)
+        self.max_info = 1.0 / cfg.m(MIN_SIGMA_M) ** 2
+        self.window = cfg.kappa + cfg.merge_announce_frames
+        self.rejected: Counter[str] = Counter()
+        self.heard_born: dict[TrackerId, int] = {}  # births in the message being screened
+        self.relayed: OrderedDict[TrackerId, int] = OrderedDict()  # unknown merge losers -> frame
+        self.heard: dict[int, dict[TrackerId, int]] = {}  # sender -> id -> last frame mentioned
+        # sender -> (first, last) frame of its messages without a gap longer than kappa
+        self.stretch: dict[int, tuple[int, int]] = {}
+
+    # -- a whole message ------------------------------------------------------------------
+    def message(self, m: FrameMessage, book: IdentityBook) -> FrameMessage:
+        """``m`` without the entries and merges that fail (each counted under its reason)."""
+        s = m.sender
+        since, last = self.stretch.get(s, (m.frame, m.frame))
+        if m.frame - last > self.cfg.kappa:  # silent for a while (partition, restart): anew
+            since = m.frame
+        self.stretch[s] = (min(since, m.frame), max(last, m.frame))
+        heard = self.heard.setdefault(s, {})
+        for tid in [t for t, f in heard.items() if m.frame - f > self.window]:
+            del heard[tid]
+        keep: list[TrackerInfo] = []
+        self.heard_born = {}
+        for t in m.trackers:
+            reason = self.entry(t, m, book, heard)
+            if reason:
+                self.rejected[reason] += 1
+                continue
+            if self.alias_born_later(t, book):
+                self.rejected["unvouched_merge"] += 1
+            heard[t.id] = max(m.frame, heard.get(t.id, m.frame))
+            self.heard_born[t.id] = t.born
+            keep.append(t)
+        merges: list[Merge] = []
+        for mg in m.merges:
+            reason = self.merge(mg, book, heard, m.frame, m.sender)
+            if reason:
+                self.rejected[reason] += 1
+                continue
+            merges.append(mg)
+        if len(keep) == len(m.trackers) and len(merges) == len(m.merges):
+            return m
+        return replace(m, trackers=tuple(keep), merges=tuple(merges))
+
+    # -- one entry ------------------------------------------------------------------------
+    def entry(self, t: TrackerInfo, m: FrameMessage, book: IdentityBook,
+              heard: dict[TrackerId, int]) -> str | None:
+        """The reason to drop tracker entry ``t`` of message ``m``, or ``None``."""
+        reason = self.information(t.u, t.U) or self.state(t.x_bar)
+        if reason:
+            return reason
+        if t.ell > 2 * self.cfg.kappa + 2:
+            return "implausible_ell"
+        return self.birth(t.id, t.born, m.frame, m.sender, book, heard)
+
+    def information(self, u: np.ndarray, U: np.ndarray) -> str | None:
+        """Eq. 2's ``u, U`` as a camera produces them, or why not."""
+        if not np.allclose(U, U.T, rtol=1e-6, atol=0.0):
+            return "bad_information"
+        if np.any(U[4:]) or np.any(U[:, 4:]) or np.any(u[4:]):
+            return "bad_information"
+        if not np.any(U):
+            return None if not np.any(u) else "bad_information"
+        ev, V = np.linalg.eigh(0.5 * (U[:4, :4] + U[:4, :4].T))
+        if ev[0] < -RANK_TOL * ev[-1]:
+            return "bad_information"  # not positive semi-definite
+        if ev[-1] > self.max_info:
+            return "implausible_information"
+        w = V.T @ u[:4]
+        seen = ev > RANK_TOL * ev[-1]
+        if np.any(np.abs(w[~seen]) > RANK_TOL * np.linalg.norm(w)):
+            return "bad_information"  # u = U z for no z
+        z = V[:, seen] @ (w[seen] / ev[seen])  # the measurement u, U encode
+        e = V.T @ (z - self._plausible(z))
+        if float(np.sum(ev[seen] * e[seen] ** 2)) > INFO_GATE:
+            return "implausible_information"
+        return None
+
+    def state(self, x: np.ndarray) -> str | None:
+        x = np.asarray(x, float)
+        if (not self._on_world(x[:2]) or np.any(np.abs(x[2:4]) > self.max_size)
+                or float(np.hypot(x[4], x[5])) > self.max_speed):
+            return "implausible_state"
+        return None
+
+    def birth(self, tid: TrackerId, born: int, frame: int, sender: int, book: IdentityBook,
+              heard: dict[TrackerId, int]) -> str | None:
+        if born > frame:
+            return "future_birth"
+        known = book.born.get(tid)
+        if known is not None:
+            return "born_moved" if born < known else None
+        if tid in heard:
+            return None
+        since = self.stretch[sender][0]
+        if tid[0] == sender and since <= born < frame - self.cfg.kappa:
+            return "implausible_birth"  # born while we heard the sender, never mentioned
+        if not self._in_counter_order(tid, born, book):
+            return "implausible_birth"
+        return None
+
+    def merge(self, mg: Merge, book: IdentityBook, heard: dict[TrackerId, int],
+              k: int, sender: int) -> str | None:
+        """A merge may only link ids whose rank this node can check (module docstring)."""
+        if book.resolve(mg.loser) == book.resolve(mg.winner):
+            return None  # already one id here: a repeated announcement changes nothing
+        known = book.born.get(mg.winner, self.heard_born.get(mg.winner))
+        if known is None:  # a winner first heard of here: its claimed birth is checked as an entry's
+            reason = self.birth(mg.winner, mg.winner_born, k, sender, book, heard)
+            if reason:
+                return reason
+        elif mg.winner_born < known:
+            return "born_moved"
+        if mg.loser not in book.born and mg.loser not in heard:
+            self.relayed[mg.loser] = k  # an id not heard of yet: it must have been born by now
+            while len(self.relayed) > 10 * self.cfg.max_old_trackers:
+                self.relayed.popitem(last=False)
+        return None
+
+    def alias_born_later(self, t: TrackerInfo, book: IdentityBook) -> bool:
+        """Entry ``t`` names an id that a relayed merge aliased before it was born: that merge
+        was forged (an honest merge only links ids that exist). The alias is removed."""
+        at = self.relayed.get(t.id)
+        if at is None or t.born <= at:
+            return False
+        del self.relayed[t.id]
+        book.aliases.pop(t.id, None)
+        return True
+
+    # -- helpers --------------------------------------------------------------------------
+    def _plausible(self, z: np.ndarray) -> np.ndarray:
+        """The plausible measurement nearest ``z``: on the world, sizes in ``[0, max_size]``."""
+        c = np.array(z, float)
+        c[2:4] = np.clip(c[2:4], 0.0, self.max_size)
+        if len(self.anchors):
+            d = np.linalg.norm(self.anchors - c[:2], axis=1)
+            i = int(np.argmin(d))
+            if d[i] > self.radius:
+                c[:2] = self.anchors[i] + (c[:2] - self.anchors[i]) * (self.radius / d[i])
+        return c
+
+    def _on_world(self, xy: np.ndarray) -> bool:
+        if not len(self.anchors):
+            return True
+        return bool(np.min(np.linalg.norm(self.anchors - xy, axis=1)) <= self.radius)
+
+    @staticmethod
+    def _in_counter_order(tid: TrackerId, born: int, book: IdentityBook) -> bool:
+        """A camera's counter grows with time: among the ids of ``tid``'s camera this node knows
+        the birth of, a smaller counter was not born later, a larger one not earlier."""
+        cam, n = tid
+        for (c, m), b in book.born.items():
+            if c == cam and ((m < n and b > born) or (m > n and b < born)):
+                return False
+        return True
