@@ -16,7 +16,7 @@ from edge_node.faults import FaultPlan, Network
 from sim_cluster.cluster.configs import video_source_toml
 from sim_cluster.cluster.launcher import Cluster
 from sim_cluster.cluster.state import ClusterError, node_status
-from sim_cluster.evaluation.report import run_table
+from sim_cluster.evaluation.report import latency_line, run_table
 from sim_cluster.progress import progress_bar
 from sim_cluster.scenarios.loader import scenario_from_args
 from sim_cluster.scenarios.synthetic.render import RenderError, ensure_rendered
@@ -83,10 +83,7 @@ def up(args) -> int:
         summary = cluster.gather(data, frames, args.config)
         (out / "summary.json").write_text(json.dumps(summary, indent=2, sort_keys=True))
         print(run_table(summary))
-        lat = [v.get("median_ms") for v in (p["latency"] or {} for p in
-                                             summary["processes"].values()) if v]
-        if lat:
-            print(f"one-hop latency: median of node medians {sorted(lat)[len(lat) // 2]:.2f} ms")
+        print(latency_line(summary))
         print(f"wrote {out}/summary.json, tracks and logs under {out}")
         viz.finish(frames)
         return 0
