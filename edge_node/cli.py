@@ -2,7 +2,8 @@
 
     edge_node run   --config cam0.toml [--frames N] [--mode sync|async] [--log-level INFO]
                     [--rerun off|spawn|connect ADDR|save FILE.rrd|serve] [--recording-id ID]
-    edge_node check --config cam0.toml       # validate and print the resolved config (JSON)
+    edge_node check --config cam0.toml       # validate, open the source as run does (no Zenoh),
+                                             # print the resolved config (JSON)
     edge_node calibrate --points pairs.csv [--image-size W H] [--ransac PX]
                                              # image-to-ground homography from >= 4 point pairs
 
@@ -21,7 +22,8 @@ from dataclasses import replace
 from edge_node.perception import PerceptionError, calibrate
 from edge_node.runtime import loop
 from edge_node.runtime.config import NodeConfigError, load_node_config
-from edge_node.runtime.sources import SourceError, open_source
+from edge_node.runtime.preflight import preflight
+from edge_node.runtime.sources import SourceError
 from edge_node.runtime.transport import StartupError, TransportError
 from edge_node.viz import VizSpecError, parse_spec
 
@@ -82,16 +84,19 @@ def _fail(message: str, code: int = 2) -> int:
 
 
 def _check(args) -> int:
+    """Validate the config and open its source as ``run`` does before Zenoh (``preflight``),
+    then print the config with what the source resolved."""
     try:
         cfg = load_node_config(args.config)
-        d = cfg.to_dict()
-        if cfg.source.kind == "det-file":  # cheap: one camera's files
-            src = open_source(cfg)
-            d["resolved"] = {"frames": src.frames, "fps": src.fps,
-                             "units_per_metre": src.units_per_metre,
-                             "camera_image_size": list(src.camera.image_size)}
+        ready = preflight(cfg)
     except (NodeConfigError, SourceError) as e:
         return _fail(str(e))
+    ready.close()
+    src = ready.source
+    d = cfg.to_dict()
+    d["resolved"] = {"frames": src.frames, "fps": src.fps, "units_per_metre": src.units_per_metre,
+                     "camera_image_size": list(src.camera.image_size),
+                     "first_counter": ready.first_counter}
     print(json.dumps(d, indent=1))
     return 0
 

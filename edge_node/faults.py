@@ -24,9 +24,19 @@ TOML form (``sim_cluster up --faults faults.toml``, ``sim_cluster run --faults``
     node = 2
     kill = 250          # the process dies before frame 250 ...
     restart = 300       # ... and a fresh one starts at frame 300 (omit: stays dead)
+
+Rules (each a :class:`FaultPlanError` naming the file and the field): node ids are non-negative
+integers; a ``[[link]]`` joins two different nodes; ``between`` pairs two different nodes;
+``groups`` are at least two non-empty, disjoint node lists; ``kill >= 1`` (a node runs its first
+frame in both shells) and ``restart > kill``; a node's kill windows do not overlap. Checked
+against the network the plan drives (``load`` / ``from_dict`` with a :class:`Network`): every
+node named exists, a ``[[link]]`` with ``src`` and ``dst`` and every ``between`` pair is a link
+of the topology, and ``start``, ``kill`` and ``restart`` fall inside the run. A camera process
+knows only its own links (:meth:`Network.of_node`) and checks those.
 """
 from __future__ import annotations
 
+from collections.abc import Iterable, Mapping
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -37,6 +47,48 @@ from edge_node.settings import SettingsError, Table, read_toml
 
 class FaultPlanError(SettingsError):
     """A fault file that cannot be used; the message names the file and the field."""
+
+
+@dataclass(frozen=True)
+class Network:
+    """What a plan is checked against: the topology it drives (``{node: neighbours}``) and the
+    run's frame count (``None``: unknown). ``partial``: only the listed nodes' links are known
+    (a camera process knows itself and its neighbours), so other node ids are not judged."""
+
+    adjacency: Mapping[int, Iterable[int]]
+    frames: int | None = None
+    partial: bool = False
+
+    @classmethod
+    def of_node(cls, node: int, neighbours: Iterable[int]) -> "Network":
+        """What one camera process knows: its id and its neighbours."""
+        return cls({node: tuple(neighbours)}, partial=True)
+
+    def node_problem(self, v: int) -> str | None:
+        """Why node ``v`` cannot be named (``None`` when it can)."""
+        if self.partial or v in self.adjacency:
+            return None
+        return (f"names node {v}, but the network has {len(self.adjacency)} nodes "
+                f"({', '.join(map(str, sorted(self.adjacency)))})")
+
+    def link_problem(self, a: int, b: int) -> str | None:
+        """Why ``a`` and ``b`` are not a link (``None`` when they are, or it is not known)."""
+        for x, y in ((a, b), (b, a)):
+            if x in self.adjacency:
+                if y in self.adjacency[x]:
+                    return None
+                near = ", ".join(map(str, sorted(self.adjacency[x]))) or "none"
+                return (f"names {a} -> {b}, which is not a link of the network (node {x}'s "
+                        f"neighbours: {near})")
+        return None
+
+    def frame_problem(self, k: int) -> str | None:
+        if self.frames is None or k < self.frames:
+            return None
+        return f"is {k}, after the run's last frame ({self.frames - 1})"
+
+
+ANY_NETWORK = Network({}, partial=True)  # checks nothing that depends on the network
 
 
 @dataclass(frozen=True)
@@ -105,37 +157,61 @@ class FaultPlan:
 
     # -- loading -------------------------------------------------------------------------------
     @classmethod
-    def from_dict(cls, d: dict, where: str = "faults") -> "FaultPlan":
-        """A plan from its (TOML) tables; ``where`` names it in errors (the file)."""
+    def from_dict(cls, d: dict, where: str = "faults",
+                  network: Network = ANY_NETWORK) -> "FaultPlan":
+        """A plan from its (TOML) tables, checked against ``network`` (module docstring);
+        ``where`` names it in errors (the file)."""
         top = Table(d, where, error=FaultPlanError)
         seed = top.integer("seed", 0, lo=0)
-        links: list[LinkFault] = [_link(t) for t in top.tables("link", required=False)]
+        links: list[LinkFault] = [_link(t, network) for t in top.tables("link", required=False)]
         for t in top.tables("partition", required=False):
-            links.extend(_partition(t))
-        nodes = [_node(t) for t in top.tables("node", required=False)]
+            links.extend(_partition(t, network))
+        nodes = _nodes(top.tables("node", required=False), network)
         top.finish()
         return cls(tuple(links), tuple(nodes), seed)
 
     @classmethod
-    def load(cls, path: str | Path) -> "FaultPlan":
+    def load(cls, path: str | Path, network: Network = ANY_NETWORK) -> "FaultPlan":
+        """The plan in the TOML file ``path``, checked against ``network``."""
         path = Path(path)
         return cls.from_dict(read_toml(path, FaultPlanError, file=str(path), what="fault plan"),
-                             where=str(path))
+                             where=str(path), network=network)
 
 
-def _frames(t: Table) -> tuple[int, int | None]:
+def _check(t: Table, key: str, problem: str | None) -> None:
+    if problem is not None:
+        raise t.error(key, problem)
+
+
+def _node_id(t: Table, key: str, v, net: Network) -> int:
+    """``v`` (read from ``key``) as a node id of ``net``."""
+    if isinstance(v, bool) or not isinstance(v, int) or v < 0:
+        raise t.error(key, f"must hold node ids (non-negative integers), got {v!r}")
+    _check(t, key, net.node_problem(v))
+    return v
+
+
+def _frames(t: Table, net: Network) -> tuple[int, int | None]:
     """``start`` and ``stop`` of a rule: frames ``[start, stop)``."""
     start = t.integer("start", 0, lo=0)
     stop = t.integer("stop", None, lo=0)
     if stop is not None and stop <= start:
         raise t.error("stop", f"must be after start ({start}), got {stop}")
+    _check(t, "start", net.frame_problem(start))
     return start, stop
 
 
-def _link(t: Table) -> LinkFault:
+def _link(t: Table, net: Network) -> LinkFault:
     src = t.integer("src", None, lo=0)
     dst = t.integer("dst", None, lo=0)
-    start, stop = _frames(t)
+    for key, v in (("src", src), ("dst", dst)):
+        if v is not None:
+            _check(t, key, net.node_problem(v))
+    if src is not None and dst is not None:
+        if src == dst:
+            raise t.error("dst", f"is src ({src}): a link joins two different nodes")
+        _check(t, "dst", net.link_problem(src, dst))
+    start, stop = _frames(t, net)
     fault = LinkFault(src, dst, start, stop, t.probability("loss", 0.0),
                       t.integer("delay", 0, lo=0), t.integer("jitter", 0, lo=0),
                       t.probability("duplicate", 0.0))
@@ -143,16 +219,31 @@ def _link(t: Table) -> LinkFault:
     return fault
 
 
-def _partition(t: Table) -> list[LinkFault]:
-    start, stop = _frames(t)
+def _partition(t: Table, net: Network) -> list[LinkFault]:
+    start, stop = _frames(t, net)
     pairs: list[tuple[int, int]] = []
-    for p in t.list("between", []):
-        if not (isinstance(p, list) and len(p) == 2 and all(isinstance(v, int) for v in p)):
-            raise t.error("between", f"must be a list of node pairs, got {p!r}")
-        pairs.append((p[0], p[1]))
+    for i, p in enumerate(t.list("between", [])):
+        key = f"between[{i}]"
+        if not (isinstance(p, list) and len(p) == 2):
+            raise t.error(key, f"must be a pair of node ids [a, b], got {p!r}")
+        a, b = (_node_id(t, key, v, net) for v in p)
+        if a == b:
+            raise t.error(key, f"pairs node {a} with itself")
+        _check(t, key, net.link_problem(a, b))
+        pairs.append((a, b))
     groups = t.list("groups", [])
-    if not all(isinstance(g, list) for g in groups):
-        raise t.error("groups", "must be a list of node lists")
+    if groups and len(groups) < 2:
+        raise t.error("groups", f"must hold at least two node lists, got {groups!r}")
+    seen: dict[int, int] = {}  # node -> its group
+    for i, g in enumerate(groups):
+        key = f"groups[{i}]"
+        if not isinstance(g, list) or not g:
+            raise t.error(key, f"must be a non-empty list of node ids, got {g!r}")
+        for v in g:
+            v = _node_id(t, key, v, net)
+            if v in seen:
+                raise t.error(key, f"repeats node {v} of groups[{seen[v]}]: groups are disjoint")
+            seen[v] = i
     for i, a in enumerate(groups):
         for b in groups[i + 1:]:
             pairs.extend((x, y) for x in a for y in b)
@@ -166,13 +257,29 @@ def _partition(t: Table) -> list[LinkFault]:
     return out
 
 
-def _node(t: Table) -> NodeFault:
-    node, kill = t.integer("node", lo=0), t.integer("kill", lo=0)
-    restart = t.integer("restart", None, lo=0)
-    if restart is not None and restart <= kill:
-        raise t.error("restart", f"must be after kill ({kill}), got {restart}")
-    t.finish()
-    return NodeFault(node, kill, restart)
+def _nodes(tables: list[Table], net: Network) -> list[NodeFault]:
+    """The ``[[node]]`` tables; one node's kill windows must not overlap."""
+    out: list[tuple[Table, NodeFault]] = []
+    for t in tables:
+        node = t.integer("node", lo=0)
+        _check(t, "node", net.node_problem(node))
+        kill = t.integer("kill", lo=1)
+        _check(t, "kill", net.frame_problem(kill))
+        restart = t.integer("restart", None, lo=0)
+        if restart is not None and restart <= kill:
+            raise t.error("restart", f"must be after kill ({kill}), got {restart}")
+        if restart is not None:
+            _check(t, "restart", net.frame_problem(restart))
+        t.finish()
+        out.append((t, NodeFault(node, kill, restart)))
+    for t, f in out:
+        for u, g in out:
+            if g is not f and g.node == f.node and g.kill <= f.kill and (
+                    g.restart is None or g.restart > f.kill):
+                back = "never" if g.restart is None else g.restart
+                raise t.error("kill", f"is {f.kill}, while node {f.node} is dead ({u.where}: "
+                              f"kill {g.kill}, restart {back})")
+    return [f for _, f in out]
 
 
 NO_FAULTS = FaultPlan()

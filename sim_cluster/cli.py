@@ -11,6 +11,7 @@ and as real processes on loopback.
 from __future__ import annotations
 
 import argparse
+import math
 import sys
 
 from edge_node.core.config import ABLATIONS, CONFIG_NAMES, ConfigError
@@ -18,6 +19,7 @@ from edge_node.formats.detfile import DetFilesError
 from edge_node.geometry import GeometryError
 from edge_node.runtime.sources import SourceError
 from edge_node.settings import SettingsError
+from protocol.keys import is_valid_network
 from sim_cluster.cluster import commands as cluster
 from sim_cluster.cluster.state import ClusterError
 from sim_cluster.experiments import ablation, bench, bench_cluster, faultreport, run
@@ -35,6 +37,67 @@ from sim_cluster.viz import VizError
 INPUT_ERRORS = (SettingsError, ConfigError, ClusterError, VizError, AblationError, GeometryError,
                 AppearanceError, DetectorParamsError, DetFilesError, EpflFormatError,
                 SourceError, TopologyError, WorldError, RenderError, OSError)
+
+
+class _Parser(argparse.ArgumentParser):
+    """A bad command line is one line on stderr naming the option, and exit status 2."""
+
+    def error(self, message: str):
+        sys.stderr.write(f"sim_cluster: error: {message}\n")
+        raise SystemExit(2)
+
+
+def integer(lo: int):
+    """An argparse type: a whole number ``>= lo``."""
+    def parse(text: str) -> int:
+        try:
+            v = int(text)
+        except ValueError:
+            v = None
+        if v is None or v < lo:
+            raise argparse.ArgumentTypeError(f"must be an integer >= {lo}, got {text!r}")
+        return v
+    return parse
+
+
+def number(lo: float, *, above: bool = False):
+    """An argparse type: a finite number ``>= lo`` (``> lo`` when ``above``)."""
+    def parse(text: str) -> float:
+        try:
+            v = float(text)
+        except ValueError:
+            v = math.nan
+        if not math.isfinite(v) or v < lo or (above and v == lo):
+            raise argparse.ArgumentTypeError(
+                f"must be a number {'>' if above else '>='} {lo:g}, got {text!r}")
+        return v
+    return parse
+
+
+def integers(lo: int):
+    """An argparse type: comma-separated whole numbers ``>= lo`` (at least one), kept as text."""
+    one = integer(lo)
+
+    def parse(text: str) -> str:
+        parts = [t.strip() for t in text.split(",") if t.strip()]
+        if not parts:
+            raise argparse.ArgumentTypeError(f"must be integers >= {lo} like 5,20, got {text!r}")
+        for t in parts:
+            try:
+                one(t)
+            except argparse.ArgumentTypeError:
+                raise argparse.ArgumentTypeError(f"must be integers >= {lo} like 5,20, got "
+                                                 f"{text!r}") from None
+        return text
+    return parse
+
+
+def network_name(text: str) -> str:
+    """An argparse type: a network name (one Zenoh key chunk, ``protocol/keys.py``)."""
+    if not is_valid_network(text):
+        raise argparse.ArgumentTypeError("must be a non-empty name without '/', '*', '$', '?', "
+                                         f"'#' or spaces (at most 64 bytes), got {text!r}")
+    return text
 
 
 def _rerun_arg(sp) -> None:
@@ -59,17 +122,17 @@ def _source_args(sp) -> None:
 
 
 def build_parser() -> argparse.ArgumentParser:
-    p = argparse.ArgumentParser(prog="sim_cluster", description=__doc__,
-                                formatter_class=argparse.RawDescriptionHelpFormatter)
-    sub = p.add_subparsers(dest="cmd", required=True)
+    p = _Parser(prog="sim_cluster", description=__doc__,
+                formatter_class=argparse.RawDescriptionHelpFormatter)
+    sub = p.add_subparsers(dest="cmd", required=True, parser_class=_Parser)
 
     def scenario_args(sp, frames_help="frames to run (default: the scenario's)"):
         sp.add_argument("--scenario", default="terrace-sim",
                         help="preset name (sim_cluster scenarios), path to a scenario TOML, or a "
                              "det-file folder with calibration.json (export-detections writes "
                              "one; without descriptors .npy the run tracks by geometry only)")
-        sp.add_argument("--seed", type=int, default=0)
-        sp.add_argument("--frames", type=int, default=None, help=frames_help)
+        sp.add_argument("--seed", type=integer(0), default=0)
+        sp.add_argument("--frames", type=integer(1), default=None, help=frames_help)
         sp.add_argument("--data-root", default=None,
                         help="folder holding epfl_pom/ (default: $DMTT_DATA or ../shared/data)")
 
@@ -79,7 +142,7 @@ def build_parser() -> argparse.ArgumentParser:
                    help="complete | ring | chain | disconnected | star | centralized | edge-list file")
     r.add_argument("--config", default="dkf+lda+dtm", choices=CONFIG_NAMES)
     r.add_argument("--tracker-config", default=None, help="TOML file overriding tracker parameters")
-    r.add_argument("--ground-threshold", type=float, default=1.0,
+    r.add_argument("--ground-threshold", type=number(0, above=True), default=1.0,
                    help="ground matching threshold in metres (default 1)")
     r.add_argument("--mode", default="sync", choices=("sync", "async"),
                    help="sync: fuse frame-k messages at k; async: event-triggered, latest messages")
@@ -93,21 +156,22 @@ def build_parser() -> argparse.ArgumentParser:
     scenario_args(u)
     u.add_argument("--topology", default="chain",
                    help="complete | ring | chain | disconnected | star | edge-list file")
-    u.add_argument("-n", "--nodes", type=int, default=None,
+    u.add_argument("-n", "--nodes", type=integer(1), default=None,
                    help="number of nodes (default: one per camera of the scenario)")
     u.add_argument("--mode", default="sync", choices=("sync", "async"))
     u.add_argument("--config", default="dkf+lda+dtm", choices=CONFIG_NAMES)
-    u.add_argument("--network", default="sim", help="network name (a Zenoh key chunk)")
+    u.add_argument("--network", type=network_name, default="sim",
+                   help="network name (a Zenoh key chunk)")
     u.add_argument("--out", default="runs/cluster")
     u.add_argument("--detach", action="store_true", help="return once the processes run")
-    u.add_argument("--sync-timeout", type=float, default=1.0,
+    u.add_argument("--sync-timeout", type=number(0, above=True), default=1.0,
                    help="sync mode: seconds frame k waits for a live neighbour")
-    u.add_argument("--startup-timeout", type=float, default=30.0,
+    u.add_argument("--startup-timeout", type=number(0, above=True), default=30.0,
                    help="seconds a node waits for its neighbours at start-up")
     u.add_argument("--faults", default=None,
                    help="fault plan TOML: link loss/delay/partitions applied by the nodes, "
                         "kills and restarts by the launcher")
-    u.add_argument("--fps", type=float, default=None,
+    u.add_argument("--fps", type=number(0), default=None,
                    help="frame pacing (default: the scenario's fps in async mode, "
                         "as fast as possible in sync mode)")
     u.add_argument("--quiet", action="store_true")
@@ -145,30 +209,31 @@ def build_parser() -> argparse.ArgumentParser:
     scenario_args(rd)
     rd.add_argument("--out", required=True, help="folder to write")
     rd.add_argument("--png", action="store_true", help="PNG folders c<i>/ instead of c<i>.avi")
-    rd.add_argument("--noise", type=float, default=2.0, help="sensor noise sigma (grey levels)")
+    rd.add_argument("--noise", type=number(0), default=2.0,
+                    help="sensor noise sigma (grey levels)")
     rd.set_defaults(func=scenarios.render)
 
     s = sub.add_parser("scenarios", help="list the scenario presets")
     s.set_defaults(func=scenarios.scenarios)
 
     b = sub.add_parser("bench", help="time prepare+update per node per frame; bytes per tracker")
-    b.add_argument("--targets", default="5,20,50")
-    b.add_argument("--neighbours", type=int, default=4)
-    b.add_argument("--frames", type=int, default=60)
-    b.add_argument("--repeats", type=int, default=3)
+    b.add_argument("--targets", type=integers(0), default="5,20,50")
+    b.add_argument("--neighbours", type=integer(0), default=4)
+    b.add_argument("--frames", type=integer(1), default=60)
+    b.add_argument("--repeats", type=integer(1), default=3)
     b.set_defaults(func=bench.main)
 
     bc = sub.add_parser("bench-cluster", help="real clusters of N processes: frames/s, one-hop "
                         "latency, bytes per link (passive subscriber), start-up time")
     bc.add_argument("--nodes", default="4,8", help="comma-separated node counts (default 4,8)")
-    bc.add_argument("--frames", type=int, default=300)
-    bc.add_argument("--repeats", type=int, default=3)
+    bc.add_argument("--frames", type=integer(2), default=300)
+    bc.add_argument("--repeats", type=integer(1), default=3)
     bc.add_argument("--topology", default="ring", help="complete | ring | chain | star")
     bc.add_argument("--scenario", default="ring8-sim", help="preset or scenario TOML with at "
                     "least max(--nodes) cameras (a node count N uses cameras 0..N-1)")
-    bc.add_argument("--seed", type=int, default=0)
-    bc.add_argument("--sync-timeout", type=float, default=10.0)
-    bc.add_argument("--startup-timeout", type=float, default=60.0)
+    bc.add_argument("--seed", type=integer(0), default=0)
+    bc.add_argument("--sync-timeout", type=number(0, above=True), default=10.0)
+    bc.add_argument("--startup-timeout", type=number(0, above=True), default=60.0)
     bc.add_argument("--out", default="runs/bench-cluster")
     bc.set_defaults(func=bench_cluster.main)
 
@@ -194,7 +259,10 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv: list[str] | None = None) -> int:
-    args = build_parser().parse_args(argv)
+    try:
+        args = build_parser().parse_args(argv)
+    except SystemExit as e:  # --help (0), or a bad command line (2, reported by _Parser)
+        return e.code if isinstance(e.code, int) else 2
     try:
         return args.func(args)
     except INPUT_ERRORS as e:

@@ -155,13 +155,7 @@ class ClusterViz:
         self.recording_id = new_recording_id()
         self.dir = self.out / "rerun"
         self.sink = None
-        self.grpc_port = None
-        if spec.kind == "save":
-            self.dir.mkdir(parents=True, exist_ok=True)
-            for f in self.dir.glob("*.rrd"):
-                f.unlink()
-        elif spec.kind == "serve":
-            self.grpc_port = free_ports(1)[0]
+        self.grpc_port = free_ports(1)[0] if spec.kind == "serve" else None
 
     @property
     def enabled(self) -> bool:
@@ -188,11 +182,15 @@ class ClusterViz:
 
     def open(self) -> None:
         """Before the nodes start: the launcher's sink (``spawn`` starts the viewer, ``serve``
-        the server the nodes then connect to)."""
+        the server the nodes then connect to); ``save`` first removes the previous run's
+        recordings from ``<out>/rerun``."""
         if not self.enabled:
             return
         spec = self.spec
         if spec.kind == "save":
+            self.dir.mkdir(parents=True, exist_ok=True)
+            for f in self.dir.glob("*.rrd"):
+                f.unlink()
             spec = VizSpec("save", str(self.dir / "world.rrd"))
         self.sink = open_sink(spec, recording_id=self.recording_id, grpc_port=self.grpc_port,
                               blueprint=make_blueprint(list(range(self.n)), area=self.data.area,

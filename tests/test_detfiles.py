@@ -138,3 +138,83 @@ def test_scenario_kind_from_a_toml_table(tmp_path):
         scenario_from_table({"source": {"kind": "det-files"}}, toml, 0, None)
     with pytest.raises(ScenarioError, match="calibration.json"):
         scenario_from_table({"source": {"kind": "det-files", "path": "nowhere"}}, toml, 0, None)
+
+
+GOOD_ROW = "1,-1,10,20,30,60,0.9,-1,-1,-1"
+
+
+@pytest.mark.parametrize("row, field", [
+    ("1,-1,10,20,nan,60,0.9,-1,-1,-1", "'w' must be a finite number, got nan"),
+    ("1,-1,inf,20,30,60,0.9,-1,-1,-1", "'x' must be a finite number, got inf"),
+    ("1,-1,10,20,30,-inf,0.9,-1,-1,-1", "'h' must be a finite number, got -inf"),
+    ("1,-1,10,20,0,60,0.9,-1,-1,-1", "'w' (box size) must be > 0, got 0"),
+    ("1,-1,10,20,30,-5,0.9,-1,-1,-1", "'h' (box size) must be > 0, got -5"),
+    ("nan,-1,10,20,30,60,0.9,-1,-1,-1", "'frame' must be a finite number, got nan"),
+    ("1.5,-1,10,20,30,60,0.9,-1,-1,-1", "'frame' must be a whole number, got 1.5"),
+    ("0,-1,10,20,30,60,0.9,-1,-1,-1",
+     "'frame' must be >= 1 (MOTChallenge frames are 1-based), got 0"),
+    ("1,2.5,10,20,30,60,0.9,-1,-1,-1", "'id' must be a whole number, got 2.5"),
+])
+def test_a_bad_box_is_an_error_naming_file_line_and_field(tmp_path, row, field):
+    """A NaN / inf / non-positive box used to reach the tracker's assignment (scipy raised
+    'matrix contains invalid numeric entries' and the node died); it is a load-time error now,
+    naming the line of the file (comments and blank lines counted)."""
+    det = tmp_path / "det.txt"
+    det.write_text(f"# a comment\n{GOOD_ROW}\n\n{row}\n{GOOD_ROW}\n")
+    with pytest.raises(DetFilesError) as e:
+        read_det(det)
+    assert str(e.value) == f"{det}:4: det.txt field {field}"
+
+
+def test_a_nan_confidence_still_reads_as_one(tmp_path):
+    det = tmp_path / "det.txt"
+    det.write_text("1,-1,10,20,30,60,nan,-1,-1,-1\n")
+    assert read_det(det)[0][0][0].score == 1.0
+
+
+def test_a_partly_nan_or_inf_descriptor_is_an_error(tmp_path):
+    det = tmp_path / "det.txt"
+    det.write_text(f"{GOOD_ROW}\n{GOOD_ROW}\n{GOOD_ROW}\n")
+    desc = np.ones((3, 4))
+    desc[0] = np.nan  # all NaN: no descriptor, fine
+    np.save(tmp_path / "det.npy", desc)
+    dets, _ = read_det(det, descriptors=tmp_path / "det.npy")
+    assert dets[0][0].descriptor is None and dets[0][1].descriptor is not None
+    desc[2, 1] = np.inf
+    np.save(tmp_path / "det.npy", desc)
+    with pytest.raises(DetFilesError, match=r"det.npy: row 2 \(descriptor of det.txt's data row "
+                                            r"3\) has NaN or inf values"):
+        read_det(det, descriptors=tmp_path / "det.npy")
+
+
+def test_ground_truth_files_need_finite_fields_too(tmp_path):
+    from edge_node.formats.detfile import read_gt, read_gt_ground
+
+    gt = tmp_path / "gt.txt"
+    gt.write_text("1,4,10,20,30,60,1,1,1\n1,5,nan,0,9,9,1,1,1\n")
+    with pytest.raises(DetFilesError, match=r"gt.txt:2: gt.txt field 'x' must be a finite"):
+        read_gt(gt, 1)
+    ground = tmp_path / "gt_ground.csv"
+    ground.write_text("# frame,id,x,y,w,h\n1,4,1.0,inf,0.5,1.7\n")
+    with pytest.raises(DetFilesError, match=r"gt_ground.csv:2: gt_ground.csv field 'y'"):
+        read_gt_ground(ground, 1)
+
+
+def test_a_nan_box_in_a_scenario_folder_is_exit_2_naming_the_line(tmp_path, capsys):
+    """``sim_cluster run --scenario FOLDER`` with a NaN width used to exit 1 with scipy's
+    traceback from linear_sum_assignment."""
+    from sim_cluster import cli
+
+    export_detections(load_scenario("lab-sim", frames=5), tmp_path / "det")
+    det = tmp_path / "det" / "c1" / "det.txt"
+    lines = det.read_text().splitlines()
+    f = lines[2].split(",")
+    f[4] = "nan"
+    lines[2] = ",".join(f)
+    det.write_text("\n".join(lines) + "\n")
+    assert cli.main(["run", "--scenario", str(tmp_path / "det"), "--quiet",
+                     "--out", str(tmp_path / "out")]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert err == [f"sim_cluster: error: {det}:3: det.txt field 'w' must be a finite number, "
+                   "got nan"]
+    assert not (tmp_path / "out").exists()

@@ -207,3 +207,21 @@ def test_start_frame_evaluates_only_the_later_frames():
     late = evaluate_ground(tracks, scen, frames=4, start=2)["per_node"]["0"]
     assert full["mota"] == 0.5 and full["num_misses"] == 2  # 2 of 4 frames missed by hand
     assert late["mota"] == 1.0 and late["num_objects"] == 2 and late["num_misses"] == 0
+
+
+def test_latency_line_names_nodes_without_samples():
+    """A node with no neighbour has ``latency.median_ms`` None (``latency_summary([])``)."""
+    from edge_node.runtime.output import latency_summary
+    from sim_cluster.evaluation.report import latency_line
+
+    def summary(*samples):
+        return {"processes": {str(i): {"latency": latency_summary(s)}
+                              for i, s in enumerate(samples)}}
+
+    assert latency_line(summary([0.001], [0.002, 0.004])) == \
+        "one-hop latency: median of node medians 2.00 ms"
+    assert latency_line(summary([0.001], [], [0.003])) == \
+        "one-hop latency: median of node medians 2.00 ms (no samples: node 1)"
+    assert latency_line(summary([], [])) == "one-hop latency: - (no samples: nodes 0, 1)"
+    assert latency_line({"processes": {"0": {"latency": None}}}) == \
+        "one-hop latency: - (no samples: node 0)"

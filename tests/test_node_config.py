@@ -103,3 +103,49 @@ def test_cli_check(tmp_path, export_dir, capsys):
     assert main(["check", "--config", str(p)]) == 2
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and "zenoh.listen[0]" in err
+
+
+@pytest.mark.parametrize("source, message", [
+    ('kind = "scenario"\nscenario = "nope-sim"\n',
+     "cam0.toml: source.scenario: nope-sim: unknown scenario preset"),
+    ('kind = "scenario"\nscenario = "lab-sim"\ncamera = 42\n',
+     "cam0.toml: source.camera is 42, but scenario lab-sim has 4 cameras (0..3)"),
+    ('kind = "det-file"\npath = "EXPORT"\ncamera = 7\n',
+     "cam0.toml: source.camera is 7, but EXPORT/calibration.json has 4 cameras (0..3)"),
+])
+def test_check_rejects_what_run_rejects(tmp_path, export_dir, capsys, source, message):
+    """``edge_node check`` passed a config whose scenario does not exist or whose camera index
+    is out of range, which ``edge_node run`` then refused: both now open the source the same
+    way (``edge_node/runtime/preflight.py``) and stop with the same one line, exit status 2."""
+    from edge_node.cli import main
+
+    p = tmp_path / "cam0.toml"
+    p.write_text('node = 0\nnetwork = "net"\n[source]\n' + source.replace("EXPORT", str(export_dir)))
+    assert main(["check", "--config", str(p)]) == 2
+    check = capsys.readouterr().err.splitlines()
+    assert main(["run", "--config", str(p)]) == 2  # stops before it opens a Zenoh session
+    run = capsys.readouterr().err.splitlines()
+    assert len(check) == 1 and check[0].startswith(
+        "edge_node: error: " + message.replace("EXPORT", str(export_dir))), check
+    assert run[-1] == check[0]
+
+
+def test_check_rejects_a_det_file_folder_with_a_nan_box(tmp_path, export_dir, capsys):
+    import shutil
+
+    from edge_node.cli import main
+
+    data = tmp_path / "data"
+    shutil.copytree(export_dir, data)
+    det = data / "c0" / "det.txt"
+    rows = det.read_text().splitlines()
+    f = rows[4].split(",")
+    f[3] = "inf"
+    rows[4] = ",".join(f)
+    det.write_text("\n".join(rows) + "\n")
+    p = tmp_path / "cam0.toml"
+    p.write_text(BASE.replace("EXPORT", str(data)))
+    assert main(["check", "--config", str(p)]) == 2
+    assert capsys.readouterr().err.splitlines() == [
+        f"edge_node: error: cam0.toml: source.path: {det}:5: det.txt field 'y' must be a finite "
+        "number, got inf"]

@@ -189,6 +189,25 @@ def test_cluster_up_saves_one_merged_recording(tmp_path):
 
 
 @pytest.mark.integration
+def test_a_cluster_with_an_isolated_node_finishes_and_merges_its_recording(tmp_path):
+    """A node without neighbours has no latency samples: the launcher's latency summary used
+    to end ``up`` in a TypeError after the run, before the recording was merged."""
+    edges = tmp_path / "edges.txt"
+    edges.write_text("0 1\n")  # node 2 alone
+    rrd = tmp_path / "cluster.rrd"
+    r = subprocess.run([str(BIN / "sim_cluster"), "up", "--scenario", "lab-sim", "--nodes", "3",
+                        "--topology", str(edges), "--frames", str(FRAMES), "--quiet",
+                        "--out", str(tmp_path / "c"), "--rerun", "save", str(rrd)],
+                       capture_output=True, text=True, timeout=240)
+    assert r.returncode == 0, r.stdout + r.stderr
+    line = next(x for x in r.stdout.splitlines() if x.startswith("one-hop latency"))
+    assert line.startswith("one-hop latency: median of node medians ")
+    assert line.endswith(" ms (no samples: node 2)")
+    csvs = {i: tmp_path / "c" / "nodes" / f"tracks_node{i}.csv" for i in range(3)}
+    check_recording(rrd, csvs, 3, live=True)
+
+
+@pytest.mark.integration
 def test_rerun_off_imports_no_rerun(tmp_path):
     code = f"""
 import sys

@@ -13,6 +13,12 @@ Boxes are pixels, top-left corner and size::
     gt.txt         frame,id,x,y,w,h,consider,class,vis (rows with consider = 0 or a class other
                    than 1, pedestrian, are skipped, as MOTChallenge evaluation does)
     gt_ground.csv  frame,id,x,y,w,h in ground units (may start with # comment lines)
+
+Every row's first six fields must be finite numbers, ``frame`` a whole number >= 1 and ``id`` a
+whole number; a ``det.txt`` box must have ``w > 0`` and ``h > 0``; a descriptor row is all finite
+or all NaN. Anything else is a :class:`DetFilesError` naming the file, the line and the field
+(a NaN box would otherwise reach the tracker's assignment and stop the node). Fields after the
+sixth may be NaN (a NaN confidence reads as 1.0).
 """
 from __future__ import annotations
 
@@ -31,30 +37,58 @@ class DetFilesError(ValueError):
 
 
 # -- text tables ------------------------------------------------------------------------------------
-def read_table(path: Path, min_cols: int, what: str) -> np.ndarray:
-    """A comma-separated numeric table (``#`` comments, blank lines and CRLF allowed)."""
+DET_COLUMNS = ("frame", "id", "x", "y", "w", "h")  # the fields every table starts with
+
+
+def _check_columns(path: Path, what: str, columns: tuple[str, ...], positive: tuple[str, ...],
+                   t: np.ndarray, lines: list[int]) -> None:
+    """The rules of the module docstring for the named fields of every row of ``t``
+    (``lines[r]``: the file line of row ``r``); the first broken one is the error."""
+    rules = []
+    for c, name in enumerate(columns):
+        v = t[:, c]
+        rules.append((~np.isfinite(v), name, "must be a finite number"))
+        if name in ("frame", "id"):
+            rules.append((np.isfinite(v) & (v != np.round(v)), name, "must be a whole number"))
+        if name == "frame":
+            rules.append((v < 1, name, "must be >= 1 (MOTChallenge frames are 1-based)"))
+        if name in positive:
+            rules.append((v <= 0, name, "(box size) must be > 0"))
+    bad = [(int(np.argmax(m)), k) for k, (m, _, _) in enumerate(rules) if np.any(m)]
+    if bad:
+        r, k = min(bad)
+        _, name, rule = rules[k]
+        got = t[r, columns.index(name)]
+        raise DetFilesError(f"{path}:{lines[r]}: {what} field {name!r} {rule}, got {got:g}")
+
+
+def read_table(path: Path, columns: tuple[str, ...], what: str,
+               positive: tuple[str, ...] = ()) -> np.ndarray:
+    """A comma-separated numeric table (``#`` comments, blank lines and CRLF allowed) whose
+    rows start with the fields ``columns``: finite, ``frame`` / ``id`` whole, ``frame >= 1``,
+    the fields named in ``positive`` > 0. Errors name the file, the line and the field."""
     if not path.is_file():
         raise DetFilesError(f"{what} file not found: {path}")
     rows: list[list[float]] = []
+    lines: list[int] = []
     for i, line in enumerate(path.read_text(encoding="utf-8").splitlines(), start=1):
         s = line.strip()
         if not s or s.startswith("#"):
             continue
         f = [x.strip() for x in s.split(",")]
-        if len(f) < min_cols:
-            raise DetFilesError(f"{path}:{i}: {what} row needs at least {min_cols} fields, got {len(f)}")
+        if len(f) < len(columns):
+            raise DetFilesError(f"{path}:{i}: {what} row needs at least {len(columns)} fields "
+                                f"({','.join(columns)}), got {len(f)}")
         try:
             rows.append([float(x) for x in f])
         except ValueError as exc:
             raise DetFilesError(f"{path}:{i}: non-numeric field in {what} row: {s!r}") from exc
-    width = max((len(r) for r in rows), default=min_cols)
+        lines.append(i)
+    width = max((len(r) for r in rows), default=len(columns))
     out = np.full((len(rows), width), np.nan)
     for i, r in enumerate(rows):
         out[i, :len(r)] = r
-    if len(out) and np.any(out[:, 0] < 1):
-        bad = int(np.argmax(out[:, 0] < 1))
-        raise DetFilesError(f"{path}: data row {bad + 1}: frame {out[bad, 0]:g} < 1 "
-                            "(MOTChallenge frames are 1-based)")
+    _check_columns(path, what, columns, positive, out, lines)
     return out
 
 
@@ -77,7 +111,7 @@ def read_det(path: str | os.PathLike[str], frames: int | None = None,
     all-NaN descriptor row means "no descriptor" (``None``).
     """
     path = Path(path)
-    t = read_table(path, 6, "det.txt")
+    t = read_table(path, DET_COLUMNS, "det.txt", positive=("w", "h"))
     desc = no_desc = None
     if descriptors is not None and require_descriptors and not Path(descriptors).is_file():
         raise DetFilesError(f"descriptor file not found: {descriptors} (named for {path})")
@@ -89,11 +123,17 @@ def read_det(path: str | os.PathLike[str], frames: int | None = None,
         if desc.ndim != 2 or len(desc) != len(t):
             raise DetFilesError(f"{descriptors}: shape {desc.shape} does not match {len(t)} rows "
                                 f"of {path} (want ({len(t)}, D))")
+        if desc.dtype.kind not in "fiu":
+            raise DetFilesError(f"{descriptors}: descriptors must be numbers, got dtype "
+                                f"{desc.dtype}")
         desc = desc.astype(np.float32, copy=False)
         no_desc = np.all(np.isnan(desc), axis=1)
-    if len(t) and np.any(t[:, 4:6] <= 0):
-        bad = int(np.argmax(np.any(t[:, 4:6] <= 0, axis=1)))
-        raise DetFilesError(f"{path}: data row {bad + 1}: non-positive box width or height")
+        bad = ~no_desc & ~np.all(np.isfinite(desc), axis=1)
+        if np.any(bad):
+            r = int(np.argmax(bad))
+            raise DetFilesError(f"{descriptors}: row {r} (descriptor of {path.name}'s data row "
+                                f"{r + 1}) has NaN or inf values: a row is all finite, or all "
+                                "NaN for no descriptor")
     f0 = t[:, 0].astype(int) - 1
     n = int(f0.max()) + 1 if frames is None and len(f0) else (frames or 0)
     dets, ids = [], []
@@ -110,7 +150,7 @@ def read_det(path: str | os.PathLike[str], frames: int | None = None,
 def read_gt(path: str | os.PathLike[str], frames: int) -> list[tuple[np.ndarray, np.ndarray]]:
     """One camera's MOTChallenge ``gt.txt`` as ``(ids, boxes)`` per frame ``0..frames-1``."""
     path = Path(path)
-    t = read_table(path, 6, "gt.txt")
+    t = read_table(path, DET_COLUMNS, "gt.txt")
     keep = np.ones(len(t), dtype=bool)
     if t.shape[1] > 6:
         keep &= ~(t[:, 6] == 0)  # consider flag
@@ -124,7 +164,7 @@ def read_gt(path: str | os.PathLike[str], frames: int) -> list[tuple[np.ndarray,
 def read_gt_ground(path: str | os.PathLike[str], frames: int
                    ) -> tuple[list[np.ndarray], list[np.ndarray], list[np.ndarray]]:
     """``gt_ground.csv`` (``frame,id,x,y,w,h``) as ``(ids, xy, wh)`` per frame ``0..frames-1``."""
-    t = read_table(Path(path), 6, "gt_ground.csv")
+    t = read_table(Path(path), DET_COLUMNS, "gt_ground.csv")
     groups = group_rows(t[:, 0].astype(int) - 1, frames)
     return ([t[g, 1].astype(np.int64) for g in groups], [t[g, 2:4].copy() for g in groups],
             [t[g, 4:6].copy() for g in groups])
@@ -133,7 +173,7 @@ def read_gt_ground(path: str | os.PathLike[str], frames: int
 def last_frame(path: Path) -> int:
     if not path.is_file():
         return 0
-    t = read_table(path, 1, path.name)
+    t = read_table(path, DET_COLUMNS[:1], path.name)
     return int(t[:, 0].max()) if len(t) else 0
 
 

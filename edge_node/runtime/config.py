@@ -56,7 +56,9 @@ Schema (defaults in brackets)::
 
     [faults]                        # optional: fault injection (edge_node/faults.py)
     file = "faults.toml"            #   a FaultPlan: this node applies the link faults on its
-                                    #   outgoing links and crashes itself at its kill frame
+                                    #   outgoing links and crashes itself at its kill frame;
+                                    #   a rule naming one of this node's links must name a
+                                    #   neighbour (the launcher checks the whole network)
 
     [output]
     dir = "out"                     # optional: tracks_node<id>.csv, status_node<id>.json,
@@ -85,7 +87,7 @@ import numpy as np
 from edge_node.core.config import CONFIG_NAMES, TrackerConfig
 from edge_node.core.params import build
 from edge_node.core.trigger import TriggerConfig
-from edge_node.faults import FaultPlan, FaultPlanError
+from edge_node.faults import FaultPlan, FaultPlanError, Network
 from edge_node.geometry import Camera
 from edge_node.perception.frames import FRAME_KINDS
 from edge_node.perception.settings import PerceptionSettings, parse_frame_source, parse_perception
@@ -297,7 +299,7 @@ def parse_node_config(data: dict, path: str | Path) -> NodeConfig:
     camera = _camera(top.optional_table("camera"))
     tracker, ablation, explicit = _tracker(top.optional_table("tracker"))
     output = _output(top.optional_table("output"), base)
-    faults = _faults(top.optional_table("faults"), base)
+    faults = _faults(top.optional_table("faults"), base, node, tuple(seen))
     viz = _viz(top.optional_table("viz"), base)
     perception = _perception(top.optional_table("perception"), base, source, camera, file)
     top.finish()
@@ -415,14 +417,16 @@ def _tracker(t: Table | None) -> tuple[TrackerConfig, str, frozenset[str]]:
     return cfg, ablation, frozenset(rest)
 
 
-def _faults(t: Table | None, base: Path) -> Path | None:
+def _faults(t: Table | None, base: Path, node: int, neighbours: tuple[int, ...]) -> Path | None:
+    """``[faults] file``, a fault plan checked as far as this node knows the network: its own
+    links must be links to its neighbours (``edge_node/faults.py``)."""
     if t is None:
         return None
     f = t.path("file", base, None)
     t.finish()
     if f is not None:
         try:
-            FaultPlan.load(f)
+            FaultPlan.load(f, Network.of_node(node, neighbours))
         except FaultPlanError as e:
             raise t.error("file", f"is not a usable fault plan: {e}") from None
     return f

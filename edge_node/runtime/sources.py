@@ -44,7 +44,9 @@ PLUGIN_GROUP = "dmtt.sources"
 
 
 class SourceError(ValueError):
-    """A source that cannot be opened: unreadable files, or a kind nobody installed."""
+    """A source that cannot be opened: unreadable files, or a kind nobody installed. A plug-in
+    starts its message with the field at fault (``source.camera is 42, but ...``);
+    :func:`open_source` puts the config's file name in front."""
 
 
 @dataclass
@@ -98,22 +100,32 @@ def load_det_file_camera(calibration: Path, index: int, node: int,
     try:
         cal = read_calibration(calibration)
         if index >= len(cal.cameras):
-            raise SourceError(f"{cal.path}: has {len(cal.cameras)} cameras, no camera index {index}")
+            raise SourceError(f"source.camera is {index}, but {cal.path} has {len(cal.cameras)} "
+                              f"cameras (0..{len(cal.cameras) - 1})")
         n = cal.frame_count()
         n = n if frames is None else min(n, frames)
         if n <= 0:
-            raise SourceError(f"{cal.path}: no frames")
+            raise SourceError(f"source.path: {cal.path}: no frames")
         f = cal.files[index]
         dets, _ = read_det(f.det, n, f.descriptors, f.descriptors_required)
     except DetFilesError as e:
-        raise SourceError(str(e)) from None
+        raise SourceError(f"source.path: {e}") from None
     cam = replace(cal.cameras[index], id=node)
     return Source(cam, n, cal.fps, cal.units_per_metre, dets,
                   f"det-file {calibration} camera {index}")
 
 
 def open_source(cfg) -> Source:
-    """The source a ``NodeConfig`` names; ``[camera]`` overrides its calibration."""
+    """The source a ``NodeConfig`` names; ``[camera]`` overrides its calibration. Anything that
+    cannot be opened is a :class:`SourceError` starting with the config's file name (then the
+    field, where the source kind knows it: ``cam0.toml: source.camera is 42, but ...``)."""
+    try:
+        return _open_source(cfg)
+    except SourceError as e:
+        raise SourceError(f"{cfg.name}: {e}") from None
+
+
+def _open_source(cfg) -> Source:
     s = cfg.source
     if s.kind in FRAME_KINDS:  # frames -> edge_node/perception
         try:  # detector, re-id weights and frames are all opened here, at start-up

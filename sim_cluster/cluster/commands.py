@@ -12,11 +12,11 @@ import json
 import sys
 from pathlib import Path
 
-from edge_node.faults import FaultPlan
+from edge_node.faults import FaultPlan, Network
 from sim_cluster.cluster.configs import video_source_toml
 from sim_cluster.cluster.launcher import Cluster
 from sim_cluster.cluster.state import ClusterError, node_status
-from sim_cluster.evaluation.report import run_table
+from sim_cluster.evaluation.report import latency_line, run_table
 from sim_cluster.progress import progress_bar
 from sim_cluster.scenarios.loader import scenario_from_args
 from sim_cluster.scenarios.synthetic.render import RenderError, ensure_rendered
@@ -24,6 +24,10 @@ from sim_cluster.viz import ClusterViz, spec_from_args
 
 
 def up(args) -> int:
+    """``sim_cluster up``. Everything the command line names (scenario, topology, fault plan,
+    Rerun option, node configs) is checked before the first write to ``--out``, so a mistake
+    leaves a previous run's files there as they were."""
+    spec = spec_from_args(getattr(args, "rerun", None))  # --rerun (sim_cluster/viz.py)
     data = scenario_from_args(args)
     n = data.num_cameras if args.nodes is None else args.nodes
     if not 1 <= n <= data.num_cameras:
@@ -32,26 +36,29 @@ def up(args) -> int:
         data.cameras = data.cameras[:n]
         data.detections = [d[:n] for d in data.detections]
         data.truth.boxes = data.truth.boxes[:n]
-    cluster = Cluster.create(args.out, network=args.network, scenario=args.scenario,
-                             seed=args.seed, frames=args.frames, mode=args.mode,
-                             topology=args.topology, nodes=n, data_root=args.data_root)
+    cluster = Cluster.prepare(args.out, network=args.network, scenario=args.scenario,
+                              seed=args.seed, frames=args.frames, mode=args.mode,
+                              topology=args.topology, nodes=n, data_root=args.data_root)
     out = cluster.out
-    viz = ClusterViz(spec_from_args(getattr(args, "rerun", None)), out, n, data,
-                     detach=bool(getattr(args, "detach", False)))  # --rerun (sim_cluster/viz.py)
     plan = None
     faults_file = None
     if getattr(args, "faults", None):
         faults_file = Path(args.faults).resolve()
-        plan = FaultPlan.load(faults_file)
+        adjacency = {int(i): v for i, v in cluster.state.adjacency.items()}
+        plan = FaultPlan.load(faults_file, Network(adjacency, data.frames))
+    viz = ClusterViz(spec, out, n, data, detach=bool(getattr(args, "detach", False)))
     # Pacing: a synchronous cluster runs in lock-step as fast as it can; an asynchronous one
     # never waits, so it plays frames at the cameras' rate (as real cameras deliver them).
     # Crashes and restarts happen in wall-clock time too (a process takes a second or two to
     # start), so a cluster whose fault plan kills nodes also plays at camera rate.
     realtime = args.mode == "async" or (plan is not None and bool(plan.nodes))
     fps = args.fps if args.fps is not None else (data.fps if realtime else 0.0)
-    cluster.write_configs(config=args.config, sync_timeout_s=args.sync_timeout,
-                          startup_timeout_s=args.startup_timeout, fps=fps, faults=faults_file,
-                          sources=video_sources(args, data, out, n), extra=viz.node_toml)
+    sources = video_sources(args, data, out, n)  # renders into out/video; removes nothing
+    cluster.plan_configs(config=args.config, sync_timeout_s=args.sync_timeout,
+                         startup_timeout_s=args.startup_timeout, fps=fps, faults=faults_file,
+                         sources=sources, extra=viz.node_toml)
+    cluster.reset()  # the first change to the previous run's files
+    cluster.write_configs()
     try:
         viz.open()  # spawn / serve: the viewer or server the nodes connect to
         cluster.start()
@@ -76,10 +83,7 @@ def up(args) -> int:
         summary = cluster.gather(data, frames, args.config)
         (out / "summary.json").write_text(json.dumps(summary, indent=2, sort_keys=True))
         print(run_table(summary))
-        lat = [v.get("median_ms") for v in (p["latency"] or {} for p in
-                                             summary["processes"].values()) if v]
-        if lat:
-            print(f"one-hop latency: median of node medians {sorted(lat)[len(lat) // 2]:.2f} ms")
+        print(latency_line(summary))
         print(f"wrote {out}/summary.json, tracks and logs under {out}")
         viz.finish(frames)
         return 0

@@ -18,11 +18,13 @@ import os
 import signal
 import subprocess
 import time
+import tomllib
 from collections.abc import Callable, Sequence
 from pathlib import Path
 
 from edge_node.faults import FaultPlan
 from edge_node.formats.tracks import read_tracks
+from edge_node.runtime.config import parse_node_config
 from edge_node.runtime.output import tracks_path
 from sim_cluster.cluster.configs import node_config
 from sim_cluster.cluster.processes import alive, free_ports, spawn, terminate
@@ -35,40 +37,55 @@ from sim_cluster.network import topology as topo
 class Cluster:
     """The processes of one cluster and its state file (module docstring).
 
-    ``create`` (a new cluster in ``out``) or ``attach`` (an existing one), then
-    ``write_configs``, ``start``, ``wait`` and ``stop`` (always, e.g. in ``finally``), and
-    ``gather`` the results. ``detach`` hands the running processes over to the state file.
+    ``create`` (a new cluster in ``out``: ``prepare`` checks, ``reset`` clears the previous
+    run's node files) or ``attach`` (an existing one), then ``plan_configs`` (checked, in
+    memory) and ``write_configs``, ``start``, ``wait`` and ``stop`` (always, e.g. in
+    ``finally``), and ``gather`` the results. ``detach`` hands the running processes over to
+    the state file.
     """
 
     def __init__(self, state: ClusterState):
         self.state = state
         self.procs: dict[int, subprocess.Popen] = {}  # the processes this launcher owns
         self.spawned: dict[int, float] = {}  # node -> when it was (last) started
+        self._configs: dict[int, str] = {}  # node -> its config TOML (plan_configs)
 
     # -- making one --------------------------------------------------------------------------
     @classmethod
-    def create(cls, out: str | Path, *, network: str, scenario: str, seed: int,
-               frames: int | None, mode: str, topology: str, nodes: int,
-               data_root: str | None = None, clear_logs: bool = False) -> "Cluster":
-        """A new cluster of ``nodes`` nodes in ``out`` (its folders made, old node files
-        removed). A cluster still running there is a :class:`ClusterError`."""
+    def prepare(cls, out: str | Path, *, network: str, scenario: str, seed: int,
+                frames: int | None, mode: str, topology: str, nodes: int,
+                data_root: str | None = None) -> "Cluster":
+        """A new cluster of ``nodes`` nodes in ``out``, checked but not written: nothing in
+        ``out`` is touched until :meth:`reset`. A bad topology is a ``TopologyError``, a
+        cluster still running there a :class:`ClusterError`."""
         adjacency = topo.build(topology, nodes)
         out = Path(out).resolve()
-        for sub in ("nodes", "configs", "logs"):
-            (out / sub).mkdir(parents=True, exist_ok=True)
         if (out / STATE).exists():
             running = Cluster.attach(out).running()
             if running:
                 raise ClusterError(f"a cluster is still running in {out} (nodes {running}); "
                                    f"'sim_cluster down --out {out}' first")
-        for f in (out / "nodes").glob("*"):
-            f.unlink()
-        if clear_logs:
-            for f in (out / "logs").glob("*"):
-                f.unlink()
         return cls(ClusterState(str(out), network, scenario, seed, frames, mode,
                                 Path(topology).stem, {str(i): list(v) for i, v in adjacency.items()},
                                 data_root=str(Path(data_root).resolve()) if data_root else None))
+
+    def reset(self, clear_logs: bool = False) -> None:
+        """Make the cluster's folders and remove the previous run's node files (and logs):
+        the first write to ``out``, so everything that can be checked comes before it."""
+        for sub in ("nodes", "configs", "logs"):
+            (self.out / sub).mkdir(parents=True, exist_ok=True)
+        for f in (self.out / "nodes").glob("*"):
+            f.unlink()
+        if clear_logs:
+            for f in (self.out / "logs").glob("*"):
+                f.unlink()
+
+    @classmethod
+    def create(cls, out: str | Path, *, clear_logs: bool = False, **kw) -> "Cluster":
+        """:meth:`prepare` (same arguments) then :meth:`reset`."""
+        cluster = cls.prepare(out, **kw)
+        cluster.reset(clear_logs)
+        return cluster
 
     @classmethod
     def attach(cls, out: str | Path) -> "Cluster":
@@ -83,25 +100,39 @@ class Cluster:
     def size(self) -> int:
         return len(self.state.adjacency)
 
-    def write_configs(self, *, config: str, sync_timeout_s: float, startup_timeout_s: float,
-                      fps: float = 0.0, faults: Path | None = None,
-                      sources: dict[int, str] | None = None,
-                      extra: Callable[[int], str] | None = None,
-                      connect_first: Sequence[str] = (), ports: Sequence[int] | None = None) -> None:
+    def plan_configs(self, *, config: str, sync_timeout_s: float, startup_timeout_s: float,
+                     fps: float = 0.0, faults: Path | None = None,
+                     sources: dict[int, str] | None = None,
+                     extra: Callable[[int], str] | None = None,
+                     connect_first: Sequence[str] = (),
+                     ports: Sequence[int] | None = None) -> dict[int, str]:
         """Every node's config (``configs.node_config``) on free ports (or ``ports``): the
         tracker ``config``, timeouts, pacing, a fault plan, per-node ``sources`` (rendered
-        video), ``extra`` tables per node (Rerun) and endpoints ``connect_first``."""
+        video), ``extra`` tables per node (Rerun) and endpoints ``connect_first``. Each is
+        checked as its node will check it (``NodeConfigError``); nothing is written
+        (:meth:`write_configs`). Returns the TOML texts by node."""
         ports_of = dict(enumerate(ports if ports is not None else free_ports(self.size)))
         sources = sources or {}
+        texts = {}
         for i in range(self.size):
             cfg = self.out / "configs" / f"node{i}.toml"
-            cfg.write_text(node_config(i, self.state, ports_of, config=config,
-                                       sync_timeout_s=sync_timeout_s,
-                                       startup_timeout_s=startup_timeout_s, fps=fps, faults=faults,
-                                       source_toml=sources.get(i), connect_first=connect_first)
-                           + (extra(i) if extra is not None else ""))
+            texts[i] = (node_config(i, self.state, ports_of, config=config,
+                                    sync_timeout_s=sync_timeout_s,
+                                    startup_timeout_s=startup_timeout_s, fps=fps, faults=faults,
+                                    source_toml=sources.get(i), connect_first=connect_first)
+                        + (extra(i) if extra is not None else ""))
+            parse_node_config(tomllib.loads(texts[i]), cfg)
             self.state.nodes[str(i)] = NodeProc(i, str(cfg), str(self.out / "logs" / f"node{i}.log"),
                                                 ports_of[i])
+        self._configs = texts
+        return texts
+
+    def write_configs(self, **plan) -> None:
+        """Write the configs :meth:`plan_configs` made (called here with ``plan`` when given)."""
+        if plan:
+            self.plan_configs(**plan)
+        for i, text in self._configs.items():
+            Path(self.state.nodes[str(i)].config).write_text(text)
 
     # -- running it --------------------------------------------------------------------------
     def start(self) -> None:

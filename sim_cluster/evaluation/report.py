@@ -1,6 +1,8 @@
 """Human-readable tables of a run's summary."""
 from __future__ import annotations
 
+import statistics
+
 
 def _f(v, fmt="{:.3f}") -> str:
     return "-" if v is None else fmt.format(v)
@@ -33,3 +35,21 @@ def run_table(summary: dict) -> str:
                  f"{bw['bytes_per_tracker_frame']:.0f} B per tracker per frame, "
                  f"{bw['appearance_bytes_per_new_tracker']:.0f} B per new tracker's appearance")
     return "\n".join(lines)
+
+
+def latency_line(summary: dict) -> str:
+    """The one-hop latency of a cluster run (``summary["processes"][node]["latency"]``, written
+    by ``edge_node.runtime.output.latency_summary``): the median of the node medians, and the
+    nodes without a sample (no neighbour, or none that sent): ``-`` when no node has one."""
+    medians, without = [], []
+    for node, proc in summary.get("processes", {}).items():
+        m = (proc.get("latency") or {}).get("median_ms")
+        if m is None:
+            without.append(node)
+        else:
+            medians.append(m)
+    none = (f" (no samples: node{'s' if len(without) > 1 else ''} {', '.join(without)})"
+            if without else "")
+    if not medians:
+        return f"one-hop latency: -{none}"
+    return f"one-hop latency: median of node medians {statistics.median(medians):.2f} ms{none}"

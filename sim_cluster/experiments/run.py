@@ -12,7 +12,7 @@ import json
 from pathlib import Path
 
 from edge_node.core.config import TrackerConfig
-from edge_node.faults import NO_FAULTS, FaultPlan
+from edge_node.faults import NO_FAULTS, FaultPlan, FaultPlanError, Network
 from edge_node.formats.tracks import write_tracks
 from edge_node.settings import Table, read_toml
 from sim_cluster.evaluation import metrics
@@ -36,6 +36,23 @@ def tracker_config(ablation: str, file: str | Path | None = None) -> TrackerConf
     raw = read_toml(path, file=str(path), what="tracker config")
     t = Table(raw.get("tracker", raw), str(path), "tracker")
     return t.built(lambda: TrackerConfig.from_dict({**base.to_dict(), **t.data}))
+
+
+def load_faults(path: str | Path | None, data: ScenarioData, topology: str,
+                order=None) -> FaultPlan | None:
+    """The fault plan file ``path`` (None: no plan) checked against the network ``topology``
+    builds on ``data``'s cameras and against its frames. The centralized baseline has no links
+    and no camera nodes, so a plan with faults is an error there."""
+    if not path:
+        return None
+    if topology == CENTRALIZED:
+        plan = FaultPlan.load(path)
+        if not plan.empty:
+            raise FaultPlanError(str(path), None, "the centralized topology has no links or "
+                                 "camera nodes to fault: pick another topology or drop --faults")
+        return plan
+    adj = topo.build(topology, data.num_cameras, order)
+    return FaultPlan.load(path, Network(adj, data.frames))
 
 
 def run_once(data: ScenarioData, topology: str, cfg: TrackerConfig, *, order=None,
@@ -68,7 +85,7 @@ def main(args) -> int:
     rerun = spec_from_args(getattr(args, "rerun", None))  # checked before any work
     data = scenario_from_args(args)
     cfg = tracker_config(args.config, getattr(args, "tracker_config", None))
-    faults = FaultPlan.load(args.faults) if args.faults else None
+    faults = load_faults(args.faults, data, args.topology)
     if not data.has_descriptors():
         print(f"{data.name}: no appearance descriptors in the detections: tracking by geometry "
               "only (duplicates merged by co-motion, re-identification by place)")

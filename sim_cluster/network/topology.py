@@ -7,6 +7,7 @@ A topology is an undirected adjacency ``{node: (neighbours...)}``. Ring and chai
 from __future__ import annotations
 
 import itertools
+import re
 from collections.abc import Sequence
 from pathlib import Path
 
@@ -52,26 +53,36 @@ def build(name: str, n: int, order: Sequence[int] | None = None) -> Adjacency:
                         "'centralized', or a path to an edge-list file")
 
 
+_EDGE_RE = re.compile(r"(-?\d+)\s*(?:-|,|\s)\s*(-?\d+)")
+
+
 def from_file(path: Path, n: int) -> Adjacency:
-    """An edge list: one edge per line as ``a b`` or ``a-b``; ``#`` starts a comment."""
+    """An edge list: one edge per line as ``a b``, ``a-b`` or ``a,b``; ``#`` starts a comment.
+
+    Each edge joins two different nodes of ``0..n-1`` and appears once (``a b`` and ``b a`` are
+    the same edge); anything else is a :class:`TopologyError` naming the file and the line."""
     try:
         text = Path(path).read_text()
     except OSError as e:
         raise TopologyError(f"{path}: cannot read edge list ({e.strerror})") from None
-    edges = []
+    edges: dict[tuple[int, int], int] = {}  # edge -> the line it was first given on
     for lineno, line in enumerate(text.splitlines(), 1):
         line = line.split("#", 1)[0].strip()
         if not line:
             continue
-        parts = line.replace("-", " ").replace(",", " ").split()
-        try:
-            a, b = (int(p) for p in parts)
-        except ValueError:
-            raise TopologyError(f"{path}:{lineno}: expected two node ids, got {line!r}") from None
+        m = _EDGE_RE.fullmatch(line)
+        if m is None:
+            raise TopologyError(f"{path}:{lineno}: expected two node ids, got {line!r}")
+        a, b = int(m.group(1)), int(m.group(2))
         for v in (a, b):
             if not 0 <= v < n:
                 raise TopologyError(f"{path}:{lineno}: node {v} is not in 0..{n - 1}")
-        edges.append((a, b))
+        if a == b:
+            raise TopologyError(f"{path}:{lineno}: edge {a}-{b} joins node {a} to itself")
+        key = (min(a, b), max(a, b))
+        if key in edges:
+            raise TopologyError(f"{path}:{lineno}: edge {a}-{b} repeats line {edges[key]}")
+        edges[key] = lineno
     return _from_edges(n, edges)
 
 

@@ -39,14 +39,16 @@ def parse(t: Table, base: Path) -> dict[str, Any]:
 
 
 def open(options: dict[str, Any], camera: int, node: int) -> Source:  # noqa: A001 - the plug-in API
-    """Camera ``camera`` of the scenario, as node ``node`` (its camera id)."""
+    """Camera ``camera`` of the scenario, as node ``node`` (its camera id). A scenario that
+    cannot be loaded or has no such camera is a ``SourceError`` naming the field."""
     try:
         data = load_scenario(options["scenario"], seed=options.get("seed"),
                              frames=options.get("frames"), data_root=options.get("data_root"))
     except (ValueError, OSError) as e:
-        raise SourceError(str(e)) from None
+        raise SourceError(f"source.scenario: {e}") from None
     if camera >= data.num_cameras:
-        raise SourceError(f"scenario {data.name} has {data.num_cameras} cameras, no camera {camera}")
+        raise SourceError(f"source.camera is {camera}, but scenario {data.name} has "
+                          f"{data.num_cameras} cameras (0..{data.num_cameras - 1})")
     dets = [data.detections[k][camera] for k in range(data.frames)]
     cam = replace(data.cameras[camera], id=node)
     return Source(cam, data.frames, data.fps, data.units_per_metre, dets,

@@ -1,0 +1,74 @@
+"""What ``edge_node run`` does with a camera config before it opens a Zenoh session, as one
+function ``edge_node check`` calls too, so that ``check`` accepts exactly the configs ``run``
+starts with.
+
+:func:`preflight` opens the source the way ``run`` does (``sources.open_source``: a det-files
+camera's files are read and checked, a plug-in kind such as sim_cluster's ``scenario`` loads its
+scenario and camera, a frame source opens its frames, detector and re-id weights), builds the
+tracker configuration from it (``loop.tracker_config_for``), reads the id counter a restarted
+node resumes from (``[output] dir``'s ``state_node<id>.json``) and assembles the tracker core.
+Errors are the ones ``run`` stops with at start-up (exit status 2): ``SourceError`` and
+``NodeConfigError`` naming the file and the field.
+"""
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass
+
+from edge_node.core.config import TrackerConfig
+from edge_node.core.node import CameraNode
+from edge_node.core.params import ConfigError
+from edge_node.runtime.config import NodeConfig, NodeConfigError
+from edge_node.runtime.loop import tracker_config_for
+from edge_node.runtime.output import state_path
+from edge_node.runtime.sources import Source, open_source
+
+
+@dataclass
+class Preflight:
+    """A config that passed: its open source, the tracker config and the first id counter."""
+
+    source: Source
+    tracker: TrackerConfig
+    first_counter: int
+
+    def close(self) -> None:
+        """Release the source (frames and cameras hold a file or a device open)."""
+        close = getattr(self.source, "close", None)
+        if close is not None:
+            close()
+
+
+def first_counter(cfg: NodeConfig) -> int:
+    """The id counter a restarted node resumes from (0 without a state file)."""
+    if cfg.output.dir is None:
+        return 0
+    path = state_path(cfg.output.dir, cfg.node)
+    if not path.exists():
+        return 0
+    try:
+        return int(json.loads(path.read_text())["next_counter"])
+    except (OSError, ValueError, KeyError, TypeError) as e:
+        raise NodeConfigError(cfg.name, "output.dir", f"has an unreadable {path.name} ({e}); "
+                              "remove it to start the id counter at 0") from None
+
+
+def preflight(cfg: NodeConfig) -> Preflight:
+    """Open ``cfg``'s source and build its tracker as ``edge_node run`` does before Zenoh
+    (module docstring); the caller closes the result."""
+    ready = Preflight(open_source(cfg), cfg.tracker, 0)
+    src = ready.source
+    try:
+        try:
+            ready.tracker = tracker_config_for(cfg, src)
+        except ConfigError as e:  # the source's fps or units per metre break a tracker rule
+            raise NodeConfigError(cfg.name, e.field or "tracker",
+                                  f"{e.message} (with the source's fps {src.fps:g} and "
+                                  f"units_per_metre {src.units_per_metre:g})") from None
+        ready.first_counter = first_counter(cfg)
+        CameraNode(src.camera, cfg.neighbours, ready.tracker, cfg.network, node_id=cfg.node,
+                   first_counter=ready.first_counter)
+    except BaseException:
+        ready.close()
+        raise
+    return ready
