@@ -37,7 +37,8 @@ from edge_node.core.node import CameraNode
 from edge_node.core.trigger import EventTrigger, TriggerConfig
 from edge_node.formats.tracks import TrackWriter
 from edge_node.runtime.config import load_node_config
-from edge_node.runtime.loop import FrameLoop, tracker_config_for
+from edge_node.runtime.loop import FrameLoop
+from edge_node.runtime.preflight import tracker_config_for
 from edge_node.runtime.output import StatusWriter, status_path
 from edge_node.runtime.sources import open_source
 from protocol import codec

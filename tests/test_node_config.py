@@ -149,3 +149,22 @@ def test_check_rejects_a_det_file_folder_with_a_nan_box(tmp_path, export_dir, ca
     assert capsys.readouterr().err.splitlines() == [
         f"edge_node: error: cam0.toml: source.path: {det}:5: det.txt field 'y' must be a finite "
         "number, got inf"]
+
+
+def test_async_heartbeat_as_long_as_kappa_is_refused_by_check_and_run(tmp_path, capsys):
+    """``[runtime] heartbeat_frames`` must be below ``[tracker] kappa`` in async mode (a
+    neighbour forgets an entry kappa frames after it); check and run say so, naming the field."""
+    from edge_node.cli import main
+
+    p = tmp_path / "cam0.toml"
+    p.write_text('node = 0\nnetwork = "net"\n[source]\nkind = "scenario"\nscenario = "lab-sim"\n'
+                 '[runtime]\nmode = "async"\nheartbeat_frames = 15\n[tracker]\nkappa = 15\n')
+    assert main(["check", "--config", str(p)]) == 2
+    check = capsys.readouterr().err.splitlines()
+    assert main(["run", "--config", str(p)]) == 2
+    run = capsys.readouterr().err.splitlines()
+    assert len(check) == 1 and "cam0.toml: runtime.heartbeat_frames must be below tracker.kappa " \
+        "(15)" in check[0], check
+    assert run[-1] == check[0]
+    p.write_text(p.read_text().replace("heartbeat_frames = 15", "heartbeat_frames = 14"))
+    assert main(["check", "--config", str(p)]) == 0

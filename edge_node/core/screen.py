@@ -113,8 +113,10 @@ class Screen:
             del heard[tid]
         keep: list[TrackerInfo] = []
         self.heard_born = {}
-        for t in m.trackers:
-            reason = self.entry(t, m, book, heard)
+        infos = self.informations(np.array([t.u for t in m.trackers]).reshape(-1, 6),
+                                  np.array([t.U for t in m.trackers]).reshape(-1, 6, 6))
+        for t, info in zip(m.trackers, infos):
+            reason = self.entry(t, m, book, heard, info)
             if reason:
                 self.rejected[reason] += 1
                 continue
@@ -136,9 +138,10 @@ class Screen:
 
     # -- one entry ------------------------------------------------------------------------
     def entry(self, t: TrackerInfo, m: FrameMessage, book: IdentityBook,
-              heard: dict[TrackerId, int]) -> str | None:
-        """The reason to drop tracker entry ``t`` of message ``m``, or ``None``."""
-        reason = self.information(t.u, t.U) or self.state(t.x_bar)
+              heard: dict[TrackerId, int], info: str | None = None) -> str | None:
+        """The reason to drop tracker entry ``t`` of message ``m``, or ``None`` (``info``: the
+        verdict of :meth:`informations` on its ``u, U``, computed for the whole message)."""
+        reason = info or self.state(t.x_bar)
         if reason:
             return reason
         if t.ell > 2 * self.cfg.kappa + 2:
@@ -147,18 +150,37 @@ class Screen:
 
     def information(self, u: np.ndarray, U: np.ndarray) -> str | None:
         """Eq. 2's ``u, U`` as a camera produces them, or why not."""
-        if not np.allclose(U, U.T, rtol=1e-6, atol=0.0):
-            return "bad_information"
-        if np.any(U[4:]) or np.any(U[:, 4:]) or np.any(u[4:]):
-            return "bad_information"
-        if not np.any(U):
-            return None if not np.any(u) else "bad_information"
-        ev, V = np.linalg.eigh(0.5 * (U[:4, :4] + U[:4, :4].T))
+        return self.informations(np.asarray(u)[None], np.asarray(U)[None])[0]
+
+    def informations(self, u: np.ndarray, U: np.ndarray) -> list[str | None]:
+        """:meth:`information` of a message's entries at once: ``u (n, 6)``, ``U (n, 6, 6)``
+        (one batched eigen-decomposition instead of one per entry)."""
+        n = len(u)
+        out: list[str | None] = [None] * n
+        if not n:
+            return out
+        asym = np.any(np.abs(U - U.transpose(0, 2, 1)) > 1e-6 * np.abs(U), axis=(1, 2))
+        vel = np.any(U[:, 4:], axis=(1, 2)) | np.any(U[:, :, 4:], axis=(1, 2)) | np.any(u[:, 4:], axis=1)
+        zero = ~np.any(U, axis=(1, 2))
+        for i in np.flatnonzero(asym | vel | (zero & np.any(u, axis=1))):
+            out[i] = "bad_information"
+        todo = np.flatnonzero(~(asym | vel | zero))
+        if not len(todo):
+            return out
+        U4 = U[todo, :4, :4]
+        ev, V = np.linalg.eigh(0.5 * (U4 + U4.transpose(0, 2, 1)))
+        w = np.einsum("nji,nj->ni", V, u[todo, :4])  # u in U's eigenbasis
+        for j, i in enumerate(todo):
+            out[i] = self._measurement(ev[j], V[j], w[j])
+        return out
+
+    def _measurement(self, ev: np.ndarray, V: np.ndarray, w: np.ndarray) -> str | None:
+        """One ``u, U`` (``U`` symmetric, nonzero on ``(x, y, w, h)`` only) in ``U``'s eigenbasis:
+        eigenvalues ``ev`` (ascending), eigenvectors ``V``, ``w = V^T u``."""
         if ev[0] < -RANK_TOL * ev[-1]:
             return "bad_information"  # not positive semi-definite
         if ev[-1] > self.max_info:
             return "implausible_information"
-        w = V.T @ u[:4]
         seen = ev > RANK_TOL * ev[-1]
         if np.any(np.abs(w[~seen]) > RANK_TOL * np.linalg.norm(w)):
             return "bad_information"  # u = U z for no z

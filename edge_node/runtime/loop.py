@@ -31,11 +31,11 @@ Exit codes (``edge_node run``)::
     2  bad command line, config, or source files (one line on stderr)
     3  start-up barrier timed out: a neighbour never became ready (named on stderr)
     4  the Zenoh session could not be opened or declared (e.g. port in use, bad zenoh config)
+    5  this node's id is already alive on the network (another process holds it)
 """
 from __future__ import annotations
 
 import inspect
-import json
 import logging
 import os
 import signal
@@ -45,7 +45,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Callable
 
-from edge_node.core.config import ConfigError, TrackerConfig
+from edge_node.core.config import ConfigError
 from edge_node.core.node import CameraNode
 from edge_node.core.trigger import EventTrigger, TriggerConfig
 from edge_node.faults import NO_FAULTS, FaultPlan
@@ -55,7 +55,7 @@ from edge_node.runtime import transport as tr
 from edge_node.runtime.config import NodeConfig, NodeConfigError
 from edge_node.runtime.output import (StatusWriter, counters_path, latency_summary, state_path,
                                       status_path, tracks_path, write_json_atomic)
-from edge_node.runtime.sources import Source, open_source
+from edge_node.runtime.preflight import preflight
 from edge_node.viz import NullSink, SinkError, ground_points, open_node_sink
 from protocol.messages import FrameMessage
 
@@ -66,6 +66,7 @@ EXIT_FAILURE = 1
 EXIT_USAGE = 2
 EXIT_STARTUP = 3
 EXIT_TRANSPORT = 4
+EXIT_DUPLICATE = 5
 
 
 class Shutdown:
@@ -130,19 +131,6 @@ def supports_stale(node: CameraNode) -> bool:
         return "stale_ok" in inspect.signature(node.update).parameters
     except (TypeError, ValueError):
         return False
-
-
-def tracker_config_for(cfg: NodeConfig, source: Source) -> TrackerConfig:
-    """The tracker config as sim_cluster's reference run builds it: fps and units per metre from
-    the source unless ``[tracker]`` sets them; ``[runtime] staleness_frames`` when given."""
-    changes: dict[str, Any] = {}
-    if "fps" not in cfg.tracker_explicit:
-        changes["fps"] = source.fps
-    if "units_per_metre" not in cfg.tracker_explicit:
-        changes["units_per_metre"] = source.units_per_metre
-    if cfg.runtime.staleness_frames is not None:
-        changes["staleness_frames"] = cfg.runtime.staleness_frames
-    return cfg.tracker.with_(**changes)
 
 
 def _sleep_until(t: float, stop: threading.Event) -> None:
@@ -343,7 +331,7 @@ class FrameLoop:
             "bytes_sent": c.get("bytes_sent", 0),
             "messages_sent": c.get("messages_sent", 0),
             "messages_received": c.get("messages_received", 0),
-            "rejected": c.get("rejected", {}),
+            "rejected": rejected(c, self.node),
             "late": sum(c.get("late", {}).values()),
             "timeouts": sum(c.get("timeouts", {}).values()),
             "frames_skipped": st.frames_skipped,
@@ -361,6 +349,15 @@ class FrameLoop:
             self.status.write(self.status_dict(phase))
         except OSError as e:
             log.warning("cannot write status: %s", e)
+
+
+def rejected(transport_counters: dict, node: CameraNode) -> dict[str, int]:
+    """What this node refused, by reason: messages its transport's codec rejected (form) and
+    tracker entries and merges its core's screen rejected (meaning, ``core/screen.py``)."""
+    out = dict(transport_counters.get("rejected", {}))
+    for reason, n in node.stats.rejected.items():
+        out[reason] = out.get(reason, 0) + n
+    return dict(sorted(out.items()))
 
 
 def wire_counters(outbox: Outbox) -> dict:
@@ -402,20 +399,13 @@ def run_node(cfg: NodeConfig, *, frames: int | None = None, mode: str | None = N
         cfg = cfg.with_runtime(**changes)
     rt = cfg.runtime
     mode = rt.mode
-    source = open_source(cfg)
+    ready = preflight(cfg)  # the checks `edge_node check` runs: source, tracker, id counter
+    source, tcfg = ready.source, ready.tracker
     total = source.frames if rt.frames is None else min(source.frames, rt.frames)
-    tcfg = tracker_config_for(cfg, source)
     out = cfg.output.dir
     state_file = state_path(out, cfg.node) if out else None
-    first_counter = 0
-    if state_file is not None and state_file.exists():
-        try:
-            first_counter = int(json.loads(state_file.read_text())["next_counter"])
-        except (OSError, ValueError, KeyError, TypeError) as e:
-            raise NodeConfigError(cfg.name, "output.dir", f"has an unreadable {state_file.name} "
-                                  f"({e}); remove it to start the id counter at 0") from None
     node = CameraNode(source.camera, cfg.neighbours, tcfg, cfg.network, node_id=cfg.node,
-                      first_counter=first_counter)
+                      first_counter=ready.first_counter)
     faults = FaultPlan.load(cfg.faults) if cfg.faults is not None else NO_FAULTS
     if mode == "async" and not supports_stale(node):
         raise NodeConfigError(cfg.name, "runtime.mode", "'async' needs a tracker core whose "
@@ -431,7 +421,8 @@ def run_node(cfg: NodeConfig, *, frames: int | None = None, mode: str | None = N
             transport = factory(cfg.network, cfg.node, cfg.neighbours, z.listen, z.connect,
                                 z.scouting, z.config_file, gossip=z.gossip, lease_ms=z.lease_ms)
         except tr.TransportError as e:
-            if status.path is not None:
+            # an id already alive: its status file belongs to the process that holds the id
+            if status.path is not None and not isinstance(e, tr.DuplicateNodeError):
                 write_json_atomic(status.path, {
                     "pid": os.getpid(), "node": cfg.node, "network": cfg.network, "mode": mode,
                     "phase": "failed", "finished": False, "exit_code": EXIT_TRANSPORT,
@@ -508,6 +499,7 @@ def run_node(cfg: NodeConfig, *, frames: int | None = None, mode: str | None = N
                             "exit_code": code, "frames_done": st.frames_done,
                             "frames_total": st.frames_total, "stopped": st.stopped,
                             "startup_s": st.startup_s, "latency": lat, **counters,
+                            "rejected": rejected(counters, node),
                             **wire_counters(loop.outbox),
                             "timing_s": {"prepare": st.prepare_s, "wait": st.wait_s,
                                          "update": st.update_s},

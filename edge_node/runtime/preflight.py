@@ -5,7 +5,7 @@ starts with.
 :func:`preflight` opens the source the way ``run`` does (``sources.open_source``: a det-files
 camera's files are read and checked, a plug-in kind such as sim_cluster's ``scenario`` loads its
 scenario and camera, a frame source opens its frames, detector and re-id weights), builds the
-tracker configuration from it (``loop.tracker_config_for``), reads the id counter a restarted
+tracker configuration from it (``tracker_config_for``; in async mode ``heartbeat_frames`` is checked against its ``kappa``), reads the id counter a restarted
 node resumes from (``[output] dir``'s ``state_node<id>.json``) and assembles the tracker core.
 Errors are the ones ``run`` stops with at start-up (exit status 2): ``SourceError`` and
 ``NodeConfigError`` naming the file and the field.
@@ -14,14 +14,29 @@ from __future__ import annotations
 
 import json
 from dataclasses import dataclass
+from typing import Any
 
 from edge_node.core.config import TrackerConfig
 from edge_node.core.node import CameraNode
 from edge_node.core.params import ConfigError
+from edge_node.core.trigger import TriggerConfig, check_heartbeat
 from edge_node.runtime.config import NodeConfig, NodeConfigError
-from edge_node.runtime.loop import tracker_config_for
 from edge_node.runtime.output import state_path
 from edge_node.runtime.sources import Source, open_source
+
+
+def tracker_config_for(cfg: NodeConfig, source: Source) -> TrackerConfig:
+    """The tracker config as sim_cluster's reference run builds it: fps and units per metre from
+    the source unless ``[tracker]`` sets them; ``[runtime] staleness_frames`` when given."""
+    changes: dict[str, Any] = {}
+    if "fps" not in cfg.tracker_explicit:
+        changes["fps"] = source.fps
+    if "units_per_metre" not in cfg.tracker_explicit:
+        changes["units_per_metre"] = source.units_per_metre
+    if cfg.runtime.staleness_frames is not None:
+        changes["staleness_frames"] = cfg.runtime.staleness_frames
+    return cfg.tracker.with_(**changes)
+
 
 
 @dataclass
@@ -65,6 +80,12 @@ def preflight(cfg: NodeConfig) -> Preflight:
             raise NodeConfigError(cfg.name, e.field or "tracker",
                                   f"{e.message} (with the source's fps {src.fps:g} and "
                                   f"units_per_metre {src.units_per_metre:g})") from None
+        if cfg.runtime.mode == "async":
+            try:
+                check_heartbeat(TriggerConfig(cfg.runtime.heartbeat_frames, cfg.runtime.drift_m),
+                                ready.tracker.kappa)
+            except ConfigError as e:
+                raise NodeConfigError(cfg.name, "runtime.heartbeat_frames", e.message) from None
         ready.first_counter = first_counter(cfg)
         CameraNode(src.camera, cfg.neighbours, ready.tracker, cfg.network, node_id=cfg.node,
                    first_counter=ready.first_counter)
