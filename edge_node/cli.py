@@ -8,8 +8,8 @@
                                              # image-to-ground homography from >= 4 point pairs
 
 Exit codes: 0 done (or stopped by SIGINT / SIGTERM), 1 internal error, 2 bad command line /
-config / source files, 3 start-up barrier timed out, 4 Zenoh could not start
-(``edge_node/runtime/loop.py``). Errors are one line on stderr.
+config / source files, 3 start-up barrier timed out, 4 Zenoh could not start, 5 the node id
+is already alive on the network (``edge_node/runtime/loop.py``). Errors are one line on stderr.
 """
 from __future__ import annotations
 
@@ -24,7 +24,7 @@ from edge_node.runtime import loop
 from edge_node.runtime.config import NodeConfigError, load_node_config
 from edge_node.runtime.preflight import preflight
 from edge_node.runtime.sources import SourceError
-from edge_node.runtime.transport import StartupError, TransportError
+from edge_node.runtime.transport import DuplicateNodeError, StartupError, TransportError
 from edge_node.viz import VizSpecError, parse_spec
 
 PROG = "edge_node"
@@ -124,6 +124,8 @@ def _run(args) -> int:
         return _fail(str(e), loop.EXIT_USAGE)
     except StartupError as e:
         return _fail(str(e), loop.EXIT_STARTUP)
+    except DuplicateNodeError as e:
+        return _fail(str(e), loop.EXIT_DUPLICATE)
     except TransportError as e:
         return _fail(str(e), loop.EXIT_TRANSPORT)
     except KeyboardInterrupt:

@@ -4,6 +4,7 @@ Layout (see DESIGN.md, "The wire")::
 
     dmtt/<network>/link/<src>/<dst>    one FrameMessage per frame from node src to node dst
     dmtt/<network>/alive/<node>        liveliness token of a running node
+    dmtt/<network>/peers/<node>        queryable: the nodes <node> sees alive (id check at start)
 
 ``<network>`` is one key chunk (non-empty; no ``/``, ``*``, ``$``, ``?``, ``#`` or whitespace;
 printable; at most ``MAX_NETWORK_LEN`` bytes in UTF-8). Node ids are non-negative integers written
@@ -19,6 +20,7 @@ from protocol.errors import ProtocolError
 KEY_ROOT = "dmtt"
 LINK = "link"
 ALIVE = "alive"
+PEERS = "peers"
 MAX_NETWORK_LEN = 64  # bytes of UTF-8
 MAX_NODE_ID = 2**63 - 1  # fits a signed 64-bit integer everywhere
 
@@ -83,6 +85,16 @@ def alive_key(network: str, node: int) -> str:
 def alive_pattern(network: str) -> str:
     """Pattern matching every node's liveliness token: ``dmtt/<network>/alive/*``."""
     return f"{KEY_ROOT}/{_network(network)}/{ALIVE}/*"
+
+
+def peers_key(network: str, node: int) -> str:
+    """Queryable of ``node`` that answers which nodes it sees alive."""
+    return f"{KEY_ROOT}/{_network(network)}/{PEERS}/{_node(node, 'peers')}"
+
+
+def peers_pattern(network: str) -> str:
+    """Every node's ``peers`` queryable: ``dmtt/<network>/peers/*``."""
+    return f"{KEY_ROOT}/{_network(network)}/{PEERS}/*"
 
 
 def _chunks(key: object, n: int, kind: str) -> list[str]:

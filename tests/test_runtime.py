@@ -356,3 +356,31 @@ def test_sigterm_during_startup_exits_0(tmp_path, export_dir, procs):
     assert p.returncode == 0, err
     s = json.loads(status.read_text())
     assert s["phase"] == "stopped" and s["frames_done"] == 0 and s["exit_code"] == 0
+
+
+@pytest.mark.integration
+def test_a_node_id_already_alive_is_refused_and_a_restart_is_not():
+    """A second process with an id already alive on the network is refused at start
+    (``DuplicateNodeError``, exit status 5 from ``edge_node run``), whether it connects to the
+    holder itself (its token) or only to a neighbour (who is asked: peers do not forward
+    tokens). The holder goes on. Once the holder is gone (a restart), the id is free at once."""
+    from edge_node.runtime.transport import DuplicateNodeError, ZenohTransport
+
+    transports = []
+    try:
+        a, b, p0, p1 = _pair(transports, network="dup")
+        with pytest.raises(DuplicateNodeError, match=r"id 0 is already alive .*node 1"):
+            ZenohTransport("dup", 0, [1], [ep(free_port())], [ep(p1)], id_wait_s=0.3)
+        with pytest.raises(DuplicateNodeError, match="its token"):
+            ZenohTransport("dup", 0, [], [ep(free_port())], [ep(p0)], id_wait_s=0.3)
+        assert wait_for(lambda: b.alive_neighbours() == {0}, 5.0)  # the holder is untouched
+        a.close()
+        assert wait_for(lambda: b.alive_neighbours() == set(), 5.0)
+        t0 = time.monotonic()
+        c = ZenohTransport("dup", 0, [1], [ep(free_port())], [ep(p1)])
+        transports.append(c)
+        assert time.monotonic() - t0 < 2.0
+        assert wait_for(lambda: b.alive_neighbours() == {0}, 5.0)
+    finally:
+        for t in transports:
+            t.close()

@@ -33,7 +33,7 @@ import zenoh
 from protocol import codec
 from protocol.errors import ProtocolError
 from protocol.keys import (alive_key, alive_pattern, inbox_key, link_key, parse_alive_key,
-                           parse_link_key)
+                           parse_link_key, peers_key, peers_pattern)
 from protocol.messages import FrameMessage
 
 log = logging.getLogger("edge_node.transport")
@@ -41,6 +41,7 @@ log = logging.getLogger("edge_node.transport")
 LATENCY_SAMPLES = 200_000  # newest one-hop latency samples kept for the summary
 
 
+ID_SETTLE_S = 0.5  # how long a starting node listens for its own id before it takes it
 GONE_GRACE_S = 0.25  # how long frame k still waits for a neighbour whose liveliness just ended
 
 
@@ -63,6 +64,10 @@ class StartupError(RuntimeError):
 
 class TransportError(RuntimeError):
     """The Zenoh session or one of its declarations could not be set up."""
+
+
+class DuplicateNodeError(TransportError):
+    """This node's id is already alive on the network (another process holds it)."""
 
 
 class RateLimitedLog:
@@ -114,7 +119,8 @@ class ZenohTransport:
     def __init__(self, network: str, node: int, neighbours: Iterable[int],
                  listen: Sequence[str] = (), connect: Sequence[str] = (), scouting: bool = False,
                  config_file: str | Path | None = None, *, gossip: bool = False,
-                 lease_ms: int | None = None, max_pending_frames: int = 256):
+                 lease_ms: int | None = None, max_pending_frames: int = 256,
+                 id_wait_s: float | None = None):
         self.network = network
         self.node = int(node)
         self.neighbours = tuple(sorted(set(int(n) for n in neighbours) - {self.node}))
@@ -131,6 +137,7 @@ class ZenohTransport:
         self._alive: set[int] = set()  # alive neighbours
         self._gone_at: dict[int, float] = {}  # neighbour -> when its liveliness went away
         self._alive_any: set[int] = set()  # every alive node seen (direct connections only)
+        self._self_seen = False  # start-up: our own id's token seen from another process
         # counters
         self.bytes_sent: dict[int, int] = defaultdict(int)
         self.messages_sent: dict[int, int] = defaultdict(int)
@@ -153,7 +160,7 @@ class ZenohTransport:
             raise TransportError(f"node {node}: cannot open the Zenoh session: "
                                  f"{str(e).split(' at /')[0]}") from None
         self._pubs: dict[int, Any] = {}
-        self._sub = self._alive_sub = self._token = None
+        self._sub = self._alive_sub = self._token = self._peers_q = None
         try:
             # receive first, announce last: once our token is visible we can take messages
             self._sub = self.session.declare_subscriber(inbox_key(network, self.node),
@@ -164,11 +171,67 @@ class ZenohTransport:
                 self._pubs[dst] = self.session.declare_publisher(
                     link_key(network, self.node, dst),
                     congestion_control=zenoh.CongestionControl.BLOCK)
+            self._peers_q = self.session.declare_queryable(peers_key(network, self.node),
+                                                           self._on_peers_query)
+            wait = (lease_ms or 10_000) / 1000.0 + 0.5 if id_wait_s is None else id_wait_s
+            self._await_peers(len(connect), ID_SETTLE_S)
+            holders = self._id_holders(wait)
+            if holders:
+                self.close()
+                raise DuplicateNodeError(
+                    f"node {node}: id {node} is already alive on network {network!r} (seen by "
+                    f"{holders}); every camera needs its own node id (README, 'Deploy')")
             self._token = self.session.liveliness().declare_token(alive_key(network, self.node))
         except zenoh.ZError as e:
             self.close()
             raise TransportError(f"node {node}: Zenoh declaration failed: "
                                  f"{str(e).split(' at /')[0]}") from None
+
+    # -- one identity per node id -----------------------------------------------------------------
+    def _await_peers(self, n: int, timeout: float) -> None:
+        """Wait up to ``timeout`` s until ``n`` peers are connected (the ``connect`` endpoints;
+        with multicast scouting, whatever is found meanwhile): ``open`` returns before the
+        connections are made, and the id check must reach the network."""
+        deadline = time.monotonic() + timeout
+        while n and time.monotonic() < deadline:
+            if len(list(self.session.info.peers_zid())) >= n:
+                return
+            time.sleep(0.02)
+
+    def _id_holders(self, wait_s: float, settle_s: float = ID_SETTLE_S) -> list[str]:
+        """Who says this node's id is alive: its own token (the liveliness subscriber and a
+        liveliness query), or a connected peer that sees it (peers do not forward tokens, so
+        the neighbours are asked through their ``peers`` queryable). Declarations arrive a
+        moment after the connections: nobody is trusted to be absent before ``settle_s``. A
+        previous life of this node (killed, restarting) vanishes within the lease: wait up to
+        ``wait_s`` for that before concluding the id is taken."""
+        start = time.monotonic()
+        while True:
+            holders = ["its token"] if self._self_seen else []
+            for r in self.session.liveliness().get(alive_key(self.network, self.node), timeout=0.2):
+                if r.ok is not None:
+                    holders.append("its token")
+            for r in self.session.get(peers_pattern(self.network), timeout=0.2):
+                if r.ok is None:
+                    continue
+                try:
+                    seen = json.loads(r.ok.payload.to_bytes())
+                    if isinstance(seen, dict) and self.node in seen.get("alive", []):
+                        holders.append(f"node {int(seen['node'])}")
+                except (ValueError, TypeError, KeyError):
+                    continue
+            elapsed = time.monotonic() - start
+            if (not holders and elapsed >= settle_s) or (holders and elapsed >= wait_s):
+                return sorted(set(holders))
+            time.sleep(0.05)
+
+    def _on_peers_query(self, query) -> None:
+        try:
+            with self._cond:
+                alive = sorted(self._alive_any)
+            query.reply(query.key_expr, json.dumps({"node": self.node, "alive": alive}))
+        except Exception as e:  # noqa: BLE001 - a callback must never raise into Zenoh
+            self._rlog.warning("peers", f"node {self.node}: peers query failed: {e}")
 
     # -- callbacks (Zenoh threads): never raise ------------------------------------------------
     def _reject(self, reason: str, detail: str) -> None:
@@ -237,9 +300,11 @@ class ZenohTransport:
                 net, n = parse_alive_key(sample.key_expr)
             except ProtocolError:
                 return
+            gone = sample.kind == zenoh.SampleKind.DELETE
+            if net == self.network and n == self.node and self._token is None:
+                self._self_seen = not gone  # another process holds our id (start-up check)
             if net != self.network or n == self.node:
                 return
-            gone = sample.kind == zenoh.SampleKind.DELETE
             with self._cond:
                 if gone:
                     self._alive_any.discard(n)
@@ -425,7 +490,7 @@ class ZenohTransport:
                 return
             self._closed = True
             self._cond.notify_all()
-        for obj in [self._token, *self._pubs.values(), self._alive_sub, self._sub]:
+        for obj in [self._token, self._peers_q, *self._pubs.values(), self._alive_sub, self._sub]:
             if obj is None:
                 continue
             try:
