@@ -22,7 +22,7 @@ from edge_node.settings import SettingsError
 from protocol.keys import is_valid_network
 from sim_cluster.cluster import commands as cluster
 from sim_cluster.cluster.state import ClusterError
-from sim_cluster.experiments import ablation, bench, bench_cluster, faultreport, run
+from sim_cluster.experiments import ablation, bench, bench_cluster, faultreport, fuzz, run
 from sim_cluster.experiments.ablation import AblationError
 from sim_cluster.network.topology import TopologyError
 from sim_cluster.scenarios import commands as scenarios
@@ -194,6 +194,16 @@ def build_parser() -> argparse.ArgumentParser:
     fr.add_argument("--out", default="runs/faults")
     fr.add_argument("--quiet", action="store_true")
     fr.set_defaults(func=faultreport.main)
+
+    fz = sub.add_parser("fuzz", help="wire-valid hostile messages into two running nodes through "
+                        "Zenoh: no crash, every rejection counted, tracks as without the attacker")
+    fz.add_argument("--messages", type=integer(100), default=10_000)
+    fz.add_argument("--scenario", default="lab-sim")
+    fz.add_argument("--fps", type=number(0, above=True), default=50.0, help="victims' pacing")
+    fz.add_argument("--seed", type=integer(0), default=0)
+    fz.add_argument("--out", default="runs/fuzz")
+    fz.add_argument("--quiet", action="store_true")
+    fz.set_defaults(func=fuzz.main)
 
     e = sub.add_parser("export-detections",
                        help="write a scenario's detections (det.txt + .npy), truth and calibration")

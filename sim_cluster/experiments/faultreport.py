@@ -9,8 +9,9 @@ the same plans (``sim_cluster up --faults``).
 Reported per case: the survivors' ground MOTA and IDF1 over the frames from the fault on, beside
 the fault-free run's over the same frames (targets that only a dead camera could see are left out
 of both), their ratio, the frames until the nodes agree on ids again after the fault ends
-(restart, partition), the messages the receivers rejected, and crashes (exceptions out of a
-node: must be 0).
+(restart, partition), what the receivers refused (messages too old, from the future or a second
+time; tracker entries and merges the screen rejected, ``edge_node/core/screen.py``), and crashes
+(exceptions out of a node: must be 0).
 """
 from __future__ import annotations
 
@@ -129,7 +130,8 @@ def run_report(data: ScenarioData, cfg: TrackerConfig | None = None, progress=No
             row.update(got=got,
                        ratio={m: (got[m] / ref[m]) if ref[m] else None for m in got},
                        frames_to_recover=_recovery(r, adj, survivors, case.heal, frames),
-                       rejected=sum(s.ignored_messages for s in r.stats.values()),
+                       rejected=sum(s.ignored_messages + s.duplicate_messages
+                                    + sum(s.rejected.values()) for s in r.stats.values()),
                        bytes_per_frame=r.bandwidth()["bytes_per_frame"])
         else:
             row["error"] = error

@@ -1,0 +1,24 @@
+"""The semantic fuzz test of issue 13 through the real Zenoh subscribers of two running nodes
+(``sim_cluster/experiments/fuzz.py``): 10,000 wire-valid hostile messages."""
+import pytest
+
+from sim_cluster.experiments import fuzz
+
+
+@pytest.mark.integration
+def test_ten_thousand_hostile_messages_crash_nothing_and_change_no_honest_track(tmp_path):
+    rep = fuzz.run(10_000, tmp_path)
+    assert rep.messages >= 10_000
+    assert rep.exit_codes == {"reference": [0, 0], "attack": [0, 0]}
+    # every hostile entry and merge node 1's tracker took was dropped and counted
+    assert rep.used >= 0.9 * rep.frames
+    assert rep.semantic_rejections == rep.expected_rejections == rep.used * 6
+    # every kind was sent, and every reason the kinds map to was counted
+    assert set(rep.kinds) == set(fuzz.ENTRY_KINDS) | set(fuzz.MERGE_KINDS)
+    for reason in ("bad_information", "implausible_information", "implausible_state",
+                   "implausible_ell", "future_birth", "born_moved", "implausible_birth"):
+        assert rep.rejected.get(reason, 0) > 0, reason
+    # the transport's own refusals: not a neighbour of node 0, replays, copies
+    assert all(rep.rejected.get(r, 0) > 0 for r in ("unknown_sender", "late", "duplicates"))
+    # the honest nodes' tracks: byte for byte those of the run without the attacker
+    assert rep.identical and rep.tracks_compared > 500
