@@ -20,7 +20,7 @@ def test_ratios_and_recovery_are_consistent(report):
     for r in report["cases"]:
         for m in ("mota", "idf1"):
             assert r["ratio"][m] == pytest.approx(r["got"][m] / r["fault_free"][m])
-        if r["case"] in ("kill and restart", "partition {0,1} | {2,3}"):
+        if r["case"] in ("kill and restart", "partition {0,1} / {2,3}"):
             assert r["frames_to_recover"] is not None and r["frames_to_recover"] >= 0
         else:
             assert r["frames_to_recover"] is None

@@ -298,7 +298,7 @@ class CameraNode:
         if not self._prepared:
             raise NodeStateError(f"node {self.id}: update() without prepare()")
         k = self._frame
-        msgs = [self.screen.message(m, self.book) for m in self._accept(inbox, k, stale_ok)]
+        msgs = self.screen.messages(self._accept(inbox, k, stale_ok), self.book)
         self.stats.rejected = dict(self.screen.rejected)
         for m in msgs:
             for mg in m.merges:

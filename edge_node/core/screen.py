@@ -100,9 +100,25 @@ class Screen:
         # sender -> (first, last) frame of its messages without a gap longer than kappa
         self.stretch: dict[int, tuple[int, int]] = {}
 
-    # -- a whole message ------------------------------------------------------------------
-    def message(self, m: FrameMessage, book: IdentityBook) -> FrameMessage:
-        """``m`` without the entries and merges that fail (each counted under its reason)."""
+    # -- whole messages -------------------------------------------------------------------
+    def messages(self, msgs: list[FrameMessage], book: IdentityBook) -> list[FrameMessage]:
+        """:meth:`message` of a frame's messages in order, the numbers of all their entries
+        checked in one batch."""
+        ts = [t for m in msgs for t in m.trackers]
+        infos = self.informations(np.array([t.u for t in ts], float).reshape(-1, 6),
+                                  np.array([t.U for t in ts], float).reshape(-1, 6, 6))
+        bad = self.states(np.array([t.x_bar for t in ts], float).reshape(-1, 6)).tolist()
+        out, i = [], 0
+        for m in msgs:
+            n = len(m.trackers)
+            out.append(self.message(m, book, (infos[i:i + n], bad[i:i + n])))
+            i += n
+        return out
+
+    def message(self, m: FrameMessage, book: IdentityBook,
+                verdicts: tuple[list, list] | None = None) -> FrameMessage:
+        """``m`` without the entries and merges that fail (each counted under its reason).
+        ``verdicts``: :meth:`informations` and :meth:`states` of its entries, if known."""
         s = m.sender
         since, last = self.stretch.get(s, (m.frame, m.frame))
         if m.frame - last > self.cfg.kappa:  # silent for a while (partition, restart): anew
@@ -113,10 +129,13 @@ class Screen:
             del heard[tid]
         keep: list[TrackerInfo] = []
         self.heard_born = {}
-        infos = self.informations(np.array([t.u for t in m.trackers]).reshape(-1, 6),
-                                  np.array([t.U for t in m.trackers]).reshape(-1, 6, 6))
-        for t, info in zip(m.trackers, infos):
-            reason = self.entry(t, m, book, heard, info)
+        ts = m.trackers
+        if verdicts is None:
+            verdicts = (self.informations(np.array([t.u for t in ts], float).reshape(-1, 6),
+                                          np.array([t.U for t in ts], float).reshape(-1, 6, 6)),
+                        self.states(np.array([t.x_bar for t in ts], float).reshape(-1, 6)).tolist())
+        for t, info, bad_state in zip(ts, *verdicts):
+            reason = self.entry(t, m, book, heard, info, bad_state)
             if reason:
                 self.rejected[reason] += 1
                 continue
@@ -138,10 +157,12 @@ class Screen:
 
     # -- one entry ------------------------------------------------------------------------
     def entry(self, t: TrackerInfo, m: FrameMessage, book: IdentityBook,
-              heard: dict[TrackerId, int], info: str | None = None) -> str | None:
-        """The reason to drop tracker entry ``t`` of message ``m``, or ``None`` (``info``: the
-        verdict of :meth:`informations` on its ``u, U``, computed for the whole message)."""
-        reason = info or self.state(t.x_bar)
+              heard: dict[TrackerId, int], info: str | None = None,
+              bad_state: bool = False) -> str | None:
+        """The reason to drop tracker entry ``t`` of message ``m``, or ``None`` (``info`` and
+        ``bad_state``: the verdicts of :meth:`informations` and :meth:`states`, computed for the
+        whole message at once)."""
+        reason = info or ("implausible_state" if bad_state else None)
         if reason:
             return reason
         if t.ell > 2 * self.cfg.kappa + 2:
@@ -150,52 +171,46 @@ class Screen:
 
     def information(self, u: np.ndarray, U: np.ndarray) -> str | None:
         """Eq. 2's ``u, U`` as a camera produces them, or why not."""
-        return self.informations(np.asarray(u)[None], np.asarray(U)[None])[0]
+        return self.informations(np.asarray(u, float)[None], np.asarray(U, float)[None])[0]
 
     def informations(self, u: np.ndarray, U: np.ndarray) -> list[str | None]:
         """:meth:`information` of a message's entries at once: ``u (n, 6)``, ``U (n, 6, 6)``
-        (one batched eigen-decomposition instead of one per entry)."""
+        (batched: one eigen-decomposition call per message, no loop over entries)."""
         n = len(u)
-        out: list[str | None] = [None] * n
         if not n:
-            return out
+            return []
         asym = np.any(np.abs(U - U.transpose(0, 2, 1)) > 1e-6 * np.abs(U), axis=(1, 2))
         vel = np.any(U[:, 4:], axis=(1, 2)) | np.any(U[:, :, 4:], axis=(1, 2)) | np.any(u[:, 4:], axis=1)
         zero = ~np.any(U, axis=(1, 2))
-        for i in np.flatnonzero(asym | vel | (zero & np.any(u, axis=1))):
-            out[i] = "bad_information"
+        bad = asym | vel | (zero & np.any(u, axis=1))
+        implausible = np.zeros(n, bool)
         todo = np.flatnonzero(~(asym | vel | zero))
-        if not len(todo):
-            return out
-        U4 = U[todo, :4, :4]
-        ev, V = np.linalg.eigh(0.5 * (U4 + U4.transpose(0, 2, 1)))
-        w = np.einsum("nji,nj->ni", V, u[todo, :4])  # u in U's eigenbasis
-        for j, i in enumerate(todo):
-            out[i] = self._measurement(ev[j], V[j], w[j])
-        return out
+        if len(todo):
+            U4 = U[todo, :4, :4]
+            ev, V = np.linalg.eigh(0.5 * (U4 + U4.transpose(0, 2, 1)))
+            w = np.einsum("nji,nj->ni", V, u[todo, :4])  # u in U's eigenbasis
+            top = ev[:, -1:]
+            not_psd = ev[:, 0] < -RANK_TOL * top[:, 0]
+            huge = top[:, 0] > self.max_info
+            seen = ev > RANK_TOL * top  # the directions U measures
+            norm_w = np.linalg.norm(w, axis=1, keepdims=True)
+            off_range = np.any(~seen & (np.abs(w) > RANK_TOL * norm_w), axis=1)  # u = U z for no z
+            with np.errstate(all="ignore"):
+                z = np.einsum("nij,nj->ni", V, np.where(seen, w / np.where(seen, ev, 1.0), 0.0))
+                e = np.einsum("nji,nj->ni", V, z - self._plausible(z))
+                d2 = np.sum(np.where(seen, ev * e**2, 0.0), axis=1)
+            far = ~(d2 <= INFO_GATE)
+            bad[todo] |= not_psd | (~huge & off_range)
+            implausible[todo] = ~not_psd & (huge | (~off_range & far))
+        return ["bad_information" if b else "implausible_information" if i else None
+                for b, i in zip(bad.tolist(), implausible.tolist())]
 
-    def _measurement(self, ev: np.ndarray, V: np.ndarray, w: np.ndarray) -> str | None:
-        """One ``u, U`` (``U`` symmetric, nonzero on ``(x, y, w, h)`` only) in ``U``'s eigenbasis:
-        eigenvalues ``ev`` (ascending), eigenvectors ``V``, ``w = V^T u``."""
-        if ev[0] < -RANK_TOL * ev[-1]:
-            return "bad_information"  # not positive semi-definite
-        if ev[-1] > self.max_info:
-            return "implausible_information"
-        seen = ev > RANK_TOL * ev[-1]
-        if np.any(np.abs(w[~seen]) > RANK_TOL * np.linalg.norm(w)):
-            return "bad_information"  # u = U z for no z
-        z = V[:, seen] @ (w[seen] / ev[seen])  # the measurement u, U encode
-        e = V.T @ (z - self._plausible(z))
-        if float(np.sum(ev[seen] * e[seen] ** 2)) > INFO_GATE:
-            return "implausible_information"
-        return None
-
-    def state(self, x: np.ndarray) -> str | None:
-        x = np.asarray(x, float)
-        if (not self._on_world(x[:2]) or np.any(np.abs(x[2:4]) > self.max_size)
-                or float(np.hypot(x[4], x[5])) > self.max_speed):
-            return "implausible_state"
-        return None
+    def states(self, x: np.ndarray) -> np.ndarray:
+        """Whether each ``x_bar`` of ``x (n, 6)`` is implausible: off the world, a size above
+        ``max_size`` or a speed above ``max_speed``."""
+        with np.errstate(all="ignore"):
+            return (~self._on_world(x[:, :2]) | np.any(~(np.abs(x[:, 2:4]) <= self.max_size), axis=1)
+                    | ~(np.hypot(x[:, 4], x[:, 5]) <= self.max_speed))
 
     def birth(self, tid: TrackerId, born: int, frame: int, sender: int, book: IdentityBook,
               heard: dict[TrackerId, int]) -> str | None:
@@ -243,20 +258,24 @@ class Screen:
 
     # -- helpers --------------------------------------------------------------------------
     def _plausible(self, z: np.ndarray) -> np.ndarray:
-        """The plausible measurement nearest ``z``: on the world, sizes in ``[0, max_size]``."""
+        """The plausible measurements nearest ``z (n, 4)``: on the world, sizes in
+        ``[0, max_size]``."""
         c = np.array(z, float)
-        c[2:4] = np.clip(c[2:4], 0.0, self.max_size)
+        c[:, 2:4] = np.clip(c[:, 2:4], 0.0, self.max_size)
         if len(self.anchors):
-            d = np.linalg.norm(self.anchors - c[:2], axis=1)
-            i = int(np.argmin(d))
-            if d[i] > self.radius:
-                c[:2] = self.anchors[i] + (c[:2] - self.anchors[i]) * (self.radius / d[i])
+            d = np.linalg.norm(c[:, None, :2] - self.anchors[None], axis=2)  # (n, anchors)
+            i = np.argmin(d, axis=1)
+            a, di = self.anchors[i], d[np.arange(len(c)), i]
+            out = di > self.radius
+            c[out, :2] = a[out] + (c[out, :2] - a[out]) * (self.radius / di[out])[:, None]
         return c
 
-    def _on_world(self, xy: np.ndarray) -> bool:
+    def _on_world(self, xy: np.ndarray) -> np.ndarray:
+        """Whether each ground point of ``xy (n, 2)`` lies within ``world_radius`` of a camera."""
         if not len(self.anchors):
-            return True
-        return bool(np.min(np.linalg.norm(self.anchors - xy, axis=1)) <= self.radius)
+            return np.ones(len(xy), bool)
+        d = np.linalg.norm(xy[:, None] - self.anchors[None], axis=2)
+        return np.min(d, axis=1) <= self.radius
 
     @staticmethod
     def _in_counter_order(tid: TrackerId, born: int, book: IdentityBook) -> bool:

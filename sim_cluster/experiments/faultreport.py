@@ -55,7 +55,7 @@ def standard_cases(frames: int) -> list[Case]:
              mode="async", baseline_mode="async"),
         Case("3-frame delay, every link (async)", {"link": [{"delay": 3, "start": mid}]},
              mode="async", baseline_mode="async"),
-        Case("partition {0,1} | {2,3}", {"partition": [{"groups": [[0, 1], [2, 3]],
+        Case("partition {0,1} / {2,3}", {"partition": [{"groups": [[0, 1], [2, 3]],
                                                         "start": mid, "stop": mid + q}]},
              heal=mid + q),
     ]
