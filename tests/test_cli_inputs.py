@@ -3,7 +3,6 @@ numeric option names itself when it is wrong, and ``up`` checks its whole input 
 touches the previous run's files in ``--out``. No process is started here."""
 from __future__ import annotations
 
-import os
 from pathlib import Path
 
 import pytest
@@ -42,11 +41,12 @@ from sim_cluster.cluster.state import ClusterState, NodeProc
      "argument --sync-timeout: must be a number > 0, got '-1'"),
     (["bench-cluster", "--seed", "-1"], "argument --seed: must be an integer >= 0, got '-1'"),
 ])
-def test_a_bad_number_on_the_command_line_names_the_option(tmp_path, capsys, argv, message):
+def test_a_bad_number_on_the_command_line_names_the_option(tmp_path, capsys, monkeypatch, argv,
+                                                          message):
     """``--frames -5`` used to be blamed on the scenario file ('lab-sim.toml: frames must be
     ...'); a negative timeout was found by every node after the launcher had started them; a
     negative --targets or --neighbours ended ``bench`` in a traceback."""
-    os.chdir(tmp_path)  # nothing may be written, wherever it would go
+    monkeypatch.chdir(tmp_path)  # nothing may be written, wherever it would go (restored after)
     assert cli.main(argv) == 2
     assert capsys.readouterr().err.splitlines() == [f"sim_cluster: error: {message}"]
     assert list(tmp_path.iterdir()) == []
