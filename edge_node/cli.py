@@ -8,8 +8,9 @@
                                              # image-to-ground homography from >= 4 point pairs
 
 Exit codes: 0 done (or stopped by SIGINT / SIGTERM), 1 internal error, 2 bad command line /
-config / source files, 3 start-up barrier timed out, 4 Zenoh could not start, 5 the node id
-is already alive on the network (``edge_node/runtime/loop.py``). Errors are one line on stderr.
+config / source files, 4 Zenoh could not start, 5 the node id is already alive on the
+network; 3, a start-up barrier timeout, is no longer fatal (``edge_node/runtime/loop.py``).
+Errors are one line on stderr.
 """
 from __future__ import annotations
 

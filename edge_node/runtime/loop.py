@@ -6,8 +6,16 @@
     from every neighbour that is currently alive, up to ``sync_timeout_s`` (the first frame waits
     up to ``startup_timeout_s``: neighbours may still be in their own start-up barrier); a
     neighbour whose liveliness is lost is no longer waited for, a late message is dropped for
-    that frame (and counted); ``node.update(messages of frame k)``; write the tracks. With every
-    neighbour alive and in time this is exactly sim_cluster's in-process reference run.
+    that frame (and counted); a neighbour that misses the timeout is not waited for again until
+    one of its messages arrives in time (one frozen box costs its neighbours one timeout);
+    ``node.update(messages of frame k)``; write the tracks. With every neighbour alive and in
+    time this is exactly sim_cluster's in-process reference run.
+
+Start-up: the barrier waits up to ``startup_timeout_s`` for every neighbour, then starts with
+those that are there (a camera missing at boot costs only its own view; it joins when it comes).
+A node whose neighbours were already running when it came (a late boot, a restart) starts at
+their frame. A paced node that falls more than ``SKIP_FRAMES`` behind the network (a freeze,
+an overload) skips ahead to the network's frame and paces on from there.
 
 ``async`` (event-triggered)
     never waits. Each frame: ``prepare``; the outbox's ``EventTrigger`` keeps the tracker
@@ -29,7 +37,7 @@ Exit codes (``edge_node run``)::
     0  all frames done, or stopped by SIGINT / SIGTERM (also during start-up)
     1  unexpected internal error (traceback logged)
     2  bad command line, config, or source files (one line on stderr)
-    3  start-up barrier timed out: a neighbour never became ready (named on stderr)
+    3  (no longer used: a neighbour missing at start-up is named in a warning, not fatal)
     4  the Zenoh session could not be opened or declared (e.g. port in use, bad zenoh config)
     5  this node's id is already alive on the network (another process holds it)
 """
@@ -60,6 +68,9 @@ from edge_node.viz import NullSink, SinkError, ground_points, open_node_sink
 from protocol.messages import FrameMessage
 
 log = logging.getLogger("edge_node.loop")
+
+SKIP_FRAMES = 2  # a node more frames than this behind its neighbours skips ahead to them
+LATE_PACING_S = 1.0  # a paced loop this far behind its clock re-anchors instead of bursting
 
 EXIT_OK = 0
 EXIT_FAILURE = 1
@@ -111,6 +122,8 @@ class LoopStats:
     prepare_s: float = 0.0
     wait_s: float = 0.0
     update_s: float = 0.0
+    frames_skipped_behind: int = 0  # frames skipped to catch up with the network
+    catch_ups: int = 0  # times it skipped ahead
 
     @property
     def frames_sent(self) -> int:  # frames whose message was published
@@ -273,11 +286,17 @@ class FrameLoop:
 
     # -- the loop ----------------------------------------------------------------------------------
     def run(self) -> LoopStats:
+        """Frames from ``first_frame`` on, paced at ``fps`` (0: as fast as possible). A paced
+        node that fell behind its neighbours by more than ``SKIP_FRAMES`` (a freeze, an
+        overload) skips ahead to the network's frame, as a restarted node joins: the skipped
+        frames are predicted through, not processed, and the pacing restarts from there. (An
+        unpaced run, an experiment, processes every frame.)"""
         st = self.stats
         fps = self.rt.fps
         t_start = time.monotonic()
         self.write_status("running")
-        for i, k in enumerate(range(st.first_frame, st.frames_total)):
+        k, i = st.first_frame, 0
+        while k < st.frames_total:
             if self.stop.is_set():
                 break
             self._before_frame(k)
@@ -295,11 +314,30 @@ class FrameLoop:
             if self.status.due():
                 self.writer.flush()
                 self.write_status("running")
+            i += 1
+            k += 1
+            ahead = self._network_frame() if fps > 0 else None  # unpaced: every frame counts
+            if ahead is not None and ahead > k + SKIP_FRAMES and ahead < st.frames_total:
+                log.warning("node %d: %d frames behind the network: skipping from frame %d to %d",
+                            self.node.id, ahead - k, k, ahead)
+                st.frames_skipped_behind += ahead - k
+                st.catch_ups += 1
+                k = ahead
+                t_start, i = time.monotonic(), 0  # pace from here on
+                continue
             if fps > 0:
-                _sleep_until(t_start + (i + 1) / fps, self.stop)
-        st.stopped = self.stop.is_set() and st.frames_done < st.frames_total - st.first_frame
+                due = t_start + i / fps
+                if time.monotonic() - due > LATE_PACING_S:  # fell behind the clock: re-anchor
+                    t_start, i = time.monotonic(), 0
+                else:
+                    _sleep_until(due, self.stop)
+        st.stopped = self.stop.is_set() and k < st.frames_total
         self.writer.flush()
         return st
+
+    def _network_frame(self) -> int | None:
+        f = getattr(self.transport, "network_frame", None)
+        return None if f is None else f()
 
     def _log_viz(self, k: int, tracks: list) -> None:
         """The frame to the Rerun sink: tracks, detections on the ground, counters."""
@@ -447,22 +485,29 @@ def run_node(cfg: NodeConfig, *, frames: int | None = None, mode: str | None = N
             loop.write_status("starting")
             if cfg.neighbours:
                 try:
-                    waited = transport.wait_ready(rt.startup_timeout_s, shutdown.event)
-                except tr.StartupError as e:
-                    if e.interrupted:
-                        loop.stats.stopped = True
-                        code = EXIT_OK
-                        return RunReport(EXIT_OK, loop.stats, transport.counters(), writer.path)
-                    code = EXIT_STARTUP
-                    error = str(e)
-                    raise
+                    waited = transport.wait_ready(rt.startup_timeout_s, shutdown.event,
+                                                  partial=True)
+                except tr.StartupError as e:  # only when interrupted (partial: never a timeout)
+                    loop.stats.stopped = True
+                    code = EXIT_OK
+                    return RunReport(EXIT_OK, loop.stats, transport.counters(), writer.path)
                 loop.stats.startup_s = waited
-                log.info("node %d: neighbours ready after %.3f s", cfg.node, waited)
-                if join:
+                missing = transport.not_ready() if hasattr(transport, "not_ready") else {}
+                if missing:
+                    log.warning("node %d: starting without neighbour(s) %s after %.1f s (%s); "
+                                "they join when they come up", cfg.node, sorted(missing), waited,
+                                "; ".join(f"{n}: {', '.join(w)}" for n, w in sorted(missing.items())))
+                else:
+                    log.info("node %d: neighbours ready after %.3f s", cfg.node, waited)
+                # a network that ran before this node came (a restart, a late boot): start at
+                # its frame, not at 0; at a common boot every neighbour is still at no frame
+                running = getattr(transport, "running_at_start", {})
+                k0 = None
+                if join or running:
                     k0 = transport.wait_first_frame(rt.startup_timeout_s, shutdown.event)
-                    if k0 is not None:
-                        loop.stats.first_frame = min(k0, total)
-                        log.info("node %d: joining the network at frame %d", cfg.node, k0)
+                if k0:
+                    loop.stats.first_frame = min(k0, total)
+                    log.info("node %d: joining the network at frame %d", cfg.node, k0)
             try:
                 stats = loop.run()
             except Exception as e:

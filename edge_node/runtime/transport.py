@@ -138,6 +138,10 @@ class ZenohTransport:
         self._gone_at: dict[int, float] = {}  # neighbour -> when its liveliness went away
         self._alive_any: set[int] = set()  # every alive node seen (direct connections only)
         self._self_seen = False  # start-up: our own id's token seen from another process
+        self._lagging: set[int] = set()  # sync: neighbours that missed a frame and are behind
+        self._newest: dict[int, int] = {}  # sender -> newest frame received from it
+        self._frame_now: int | None = None  # the frame this node is at (collect / drain)
+        self.running_at_start: dict[int, int] = {}  # neighbours already running when we came
         # counters
         self.bytes_sent: dict[int, int] = defaultdict(int)
         self.messages_sent: dict[int, int] = defaultdict(int)
@@ -218,7 +222,10 @@ class ZenohTransport:
                     seen = json.loads(r.ok.payload.to_bytes())
                     if isinstance(seen, dict) and self.node in seen.get("alive", []):
                         holders.append(f"node {int(seen['node'])}")
-                except (ValueError, TypeError, KeyError):
+                    frame, peer = seen.get("frame"), int(seen["node"])
+                    if isinstance(frame, int) and frame >= 0 and peer in self._neigh:
+                        self.running_at_start[peer] = frame
+                except (ValueError, TypeError, KeyError, AttributeError):
                     continue
             elapsed = time.monotonic() - start
             if (not holders and elapsed >= settle_s) or (holders and elapsed >= wait_s):
@@ -229,7 +236,8 @@ class ZenohTransport:
         try:
             with self._cond:
                 alive = sorted(self._alive_any)
-            query.reply(query.key_expr, json.dumps({"node": self.node, "alive": alive}))
+            query.reply(query.key_expr, json.dumps({"node": self.node, "alive": alive,
+                                                    "frame": self._frame_now}))
         except Exception as e:  # noqa: BLE001 - a callback must never raise into Zenoh
             self._rlog.warning("peers", f"node {self.node}: peers query failed: {e}")
 
@@ -276,9 +284,11 @@ class ZenohTransport:
             if msg.sent_at > 0:
                 self._latency.append(now - msg.sent_at)
             k = msg.frame
+            self._newest[src] = max(k, self._newest.get(src, k))
             if k < self._floor:
                 self.late[src] += 1
                 return
+            self._lagging.discard(src)  # in time again: waited for from the next frame on
             key = (src, k)
             if key in self._inbox:
                 self.duplicates[src] += 1
@@ -306,6 +316,8 @@ class ZenohTransport:
             if net != self.network or n == self.node:
                 return
             with self._cond:
+                self._lagging.discard(n)
+                self._newest.pop(n, None)
                 if gone:
                     self._alive_any.discard(n)
                     if n in self._alive:
@@ -383,10 +395,12 @@ class ZenohTransport:
                 out[n] = why
         return out
 
-    def wait_ready(self, timeout: float, stop: threading.Event | None = None) -> float:
+    def wait_ready(self, timeout: float, stop: threading.Event | None = None,
+                   partial: bool = False) -> float:
         """Block until every neighbour is alive and subscribed to our link to it; returns the
-        seconds waited. Raises :class:`StartupError` naming the missing ones on timeout (or when
-        ``stop`` is set)."""
+        seconds waited. On timeout raises :class:`StartupError` naming the missing ones, or
+        with ``partial`` returns anyway: the node starts with the neighbours that are there, and
+        a late one joins as a restarted node does (also raised when ``stop`` is set)."""
         t0 = time.monotonic()
         deadline = t0 + timeout
         while True:
@@ -397,17 +411,30 @@ class ZenohTransport:
                 raise StartupError(self.node, missing, timeout, interrupted=True)
             now = time.monotonic()
             if now >= deadline:
+                if partial:
+                    return now - t0
                 raise StartupError(self.node, missing, timeout)
             with self._cond:
                 self._cond.wait(min(0.01, deadline - now))
 
+    def network_frame(self) -> int | None:
+        """The frame the running network is at, as this node hears it: the smallest of the
+        newest frames its alive neighbours sent (``None`` before any). A node that fell behind
+        (a freeze, an overload) skips ahead to it."""
+        with self._cond:
+            frames = [f for n, f in self._newest.items() if n in self._alive]
+        return min(frames) if frames else None
+
     def collect(self, frame: int, timeout: float, stop: threading.Event | None = None
                 ) -> dict[int, FrameMessage]:
         """Sync mode: frame ``frame``'s messages, waiting up to ``timeout`` s for every neighbour
-        that is alive (one whose liveliness is lost is not waited for). Messages of earlier
-        frames are discarded (counted as late), now and when they arrive later."""
+        that is alive (one whose liveliness is lost is not waited for). A neighbour that misses
+        the timeout is lagging: it is not waited for again until one of its messages arrives in
+        time, so one slow or frozen box costs its neighbours one timeout, not one per frame.
+        Messages of earlier frames are discarded (counted as late), now and when they arrive."""
         deadline = time.monotonic() + timeout
         with self._cond:
+            self._frame_now = frame
             self._floor = frame
             for key in [key for key in self._inbox if key[1] < frame]:
                 del self._inbox[key]
@@ -419,15 +446,19 @@ class ZenohTransport:
                 # still in flight behind the liveliness DELETE: wait for it a moment longer.
                 now = time.monotonic()
                 leaving = {s for s, t in self._gone_at.items() if now - t < GONE_GRACE_S}
-                missing = (self._alive | leaving) - have
+                missing = (self._alive | leaving) - have - self._lagging
                 if not missing or (stop is not None and stop.is_set()):
                     break
                 remaining = deadline - time.monotonic()
                 if remaining <= 0:
                     for s in missing:
                         self.timeouts[s] += 1
+                    # behind (frozen, overloaded): not waited for again until one of its
+                    # messages arrives in time; until then its messages count as late
+                    self._lagging |= missing
                     self._rlog.warning("timeout", f"node {self.node}: frame {frame}: no message "
-                                       f"from neighbour(s) {sorted(missing)} within {timeout:g} s")
+                                       f"from neighbour(s) {sorted(missing)} within {timeout:g} s; "
+                                       "not waiting for them until they catch up")
                     break
                 self._cond.wait(min(remaining, 0.1))
             out = {}
@@ -443,6 +474,7 @@ class ZenohTransport:
         ahead of us) stay until ``frame`` reaches them. The core keeps each neighbour's newest
         entry per tracker, so late, duplicated and reordered deliveries are harmless."""
         with self._cond:
+            self._frame_now = frame
             keys = sorted(key for key in self._inbox if key[1] <= frame)
             out = []
             for key in keys:
