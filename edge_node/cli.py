@@ -21,7 +21,7 @@ import sys
 from dataclasses import replace
 
 from edge_node.perception import PerceptionError, calibrate
-from edge_node.runtime import loop
+from edge_node.runtime import loop, router
 from edge_node.runtime.config import NodeConfigError, load_node_config
 from edge_node.runtime.preflight import preflight
 from edge_node.runtime.sources import SourceError
@@ -39,7 +39,8 @@ class _Parser(argparse.ArgumentParser):
 
 def _parser() -> argparse.ArgumentParser:
     p = _Parser(prog=PROG, description="One camera node of the distributed tracker.")
-    sub = p.add_subparsers(dest="command", metavar="{run,check,calibrate}", parser_class=_Parser)
+    sub = p.add_subparsers(dest="command", metavar="{run,check,calibrate,router}",
+                           parser_class=_Parser)
     sub.required = True
     r = sub.add_parser("run", help="run this camera's tracker and exchange messages over Zenoh")
     r.add_argument("--config", required=True, help="camera config TOML file")
@@ -66,7 +67,19 @@ def _parser() -> argparse.ArgumentParser:
                    help="the image size, written into the [camera] table")
     k.add_argument("--ransac", type=float, default=None, metavar="PX",
                    help="robust fit: pairs off by more than PX pixels are left out")
+    ro = sub.add_parser("router", help="a Zenoh router joining sites (runs until Ctrl-C)")
+    ro.add_argument("--config", default=None, help="Zenoh JSON5 config of the router")
+    ro.add_argument("--listen", nargs="*", default=[], metavar="EP", help="endpoints to listen on")
+    ro.add_argument("--connect", nargs="*", default=[], metavar="EP",
+                    help="endpoints to connect to (the other sites' routers)")
     return p
+
+
+def _router(args) -> int:
+    try:
+        return router.run_router(args.config, args.listen, args.connect)
+    except TransportError as e:
+        return _fail(str(e), loop.EXIT_TRANSPORT)
 
 
 def _calibrate(args) -> int:
@@ -143,6 +156,8 @@ def main(argv: list[str] | None = None) -> int:
         return _check(args)
     if args.command == "calibrate":
         return _calibrate(args)
+    if args.command == "router":
+        return _router(args)
     return _run(args)
 
 

@@ -301,7 +301,7 @@ class FrameLoop:
                 break
             self._before_frame(k)
             if self.mode == "sync":
-                tracks = self.step_sync(k, first=(i == 0))
+                tracks = self.step_sync(k, first=(st.frames_done == 0))
             else:
                 tracks = self.step_async(k)
             self.writer.write(tracks)
@@ -317,13 +317,14 @@ class FrameLoop:
             i += 1
             k += 1
             ahead = self._network_frame() if fps > 0 else None  # unpaced: every frame counts
-            if ahead is not None and ahead > k + SKIP_FRAMES and ahead < st.frames_total:
+            now = time.monotonic()
+            if ahead is not None and k + SKIP_FRAMES < ahead < st.frames_total:
                 log.warning("node %d: %d frames behind the network: skipping from frame %d to %d",
                             self.node.id, ahead - k, k, ahead)
                 st.frames_skipped_behind += ahead - k
                 st.catch_ups += 1
                 k = ahead
-                t_start, i = time.monotonic(), 0  # pace from here on
+                t_start, i = now, 0  # pace from here on
                 continue
             if fps > 0:
                 due = t_start + i / fps

@@ -418,12 +418,13 @@ class ZenohTransport:
                 self._cond.wait(min(0.01, deadline - now))
 
     def network_frame(self) -> int | None:
-        """The frame the running network is at, as this node hears it: the smallest of the
-        newest frames its alive neighbours sent (``None`` before any). A node that fell behind
-        (a freeze, an overload) skips ahead to it."""
+        """The frame the running network is at, as this node hears it: the newest frame any
+        alive neighbour sent (``None`` before any). A node that fell behind (a freeze, an
+        overload, a timeout on a lost link) skips ahead to it, so the network converges on its
+        front-runner, which runs at camera rate (the caller bounds the jump by real time)."""
         with self._cond:
             frames = [f for n, f in self._newest.items() if n in self._alive]
-        return min(frames) if frames else None
+        return max(frames) if frames else None
 
     def collect(self, frame: int, timeout: float, stop: threading.Event | None = None
                 ) -> dict[int, FrameMessage]:
