@@ -422,12 +422,15 @@ def run_node(cfg: NodeConfig, *, frames: int | None = None, mode: str | None = N
              transport_factory: Callable[..., Any] | None = None,
              install_signals: bool = True, join: bool = False) -> RunReport:
     """Run one camera process to completion. Raises ``NodeConfigError`` / ``SourceError`` for
-    bad inputs, ``TransportError`` when Zenoh cannot start and ``StartupError`` when the barrier
-    times out (the CLI maps them to exit codes); returns a report otherwise.
+    bad inputs, ``TransportError`` when Zenoh cannot start and ``DuplicateNodeError`` when its
+    id is already alive (the CLI maps them to exit codes); returns a report otherwise. The
+    start-up barrier does not fail: after ``startup_timeout_s`` the node starts with the
+    neighbours that are there.
 
     ``join``: this process replaces one that died (or joins a running network): it starts at
     the frame its neighbours are at, not at 0; they see its liveliness come back and resync it
-    with all their trackers and galleries. The id counter persists in the output folder
+    with all their trackers and galleries. Without ``join`` the same happens when a neighbour
+    reports at start-up that it is already running (a late boot). The id counter persists in the output folder
     (``state_node<id>.json``), so a restarted node never reuses an id."""
     if mode is not None or frames is not None:
         changes = {}
