@@ -178,8 +178,9 @@ class ZenohTransport:
             self._peers_q = self.session.declare_queryable(peers_key(network, self.node),
                                                            self._on_peers_query)
             wait = (lease_ms or 10_000) / 1000.0 + 0.5 if id_wait_s is None else id_wait_s
+            t0 = time.monotonic()  # one settle window for connecting and listening
             self._await_peers(len(connect), ID_SETTLE_S)
-            holders = self._id_holders(wait)
+            holders = self._id_holders(wait, since=t0)
             if holders:
                 self.close()
                 raise DuplicateNodeError(
@@ -202,14 +203,15 @@ class ZenohTransport:
                 return
             time.sleep(0.02)
 
-    def _id_holders(self, wait_s: float, settle_s: float = ID_SETTLE_S) -> list[str]:
+    def _id_holders(self, wait_s: float, settle_s: float = ID_SETTLE_S,
+                    since: float | None = None) -> list[str]:
         """Who says this node's id is alive: its own token (the liveliness subscriber and a
         liveliness query), or a connected peer that sees it (peers do not forward tokens, so
         the neighbours are asked through their ``peers`` queryable). Declarations arrive a
         moment after the connections: nobody is trusted to be absent before ``settle_s``. A
         previous life of this node (killed, restarting) vanishes within the lease: wait up to
         ``wait_s`` for that before concluding the id is taken."""
-        start = time.monotonic()
+        start = time.monotonic() if since is None else since
         while True:
             holders = ["its token"] if self._self_seen else []
             for r in self.session.liveliness().get(alive_key(self.network, self.node), timeout=0.2):
