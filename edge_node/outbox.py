@@ -84,22 +84,21 @@ class Outbox:
         c = self.counters
         full = msg
         resync = set(resync) & set(self.neighbours) if resync_message is not None else set()
+        stayers = len(self.neighbours) - len(resync)  # the neighbours the trigger's cut goes to
         if self.trigger is not None:
             msg = self.trigger.filter(full)
             if msg is None:
-                c.frames_skipped += 1
-                self._count_saved(full, 0)
+                self._count_saved(full, 0, stayers)
         if sent_at is not None:
             full = replace(full, sent_at=sent_at)
             msg = None if msg is None else replace(msg, sent_at=sent_at)
         plain = None  # (message, payload) for the neighbours that stayed
         if msg is not None:
             payload = self._encode(msg)
-            if payload is None:
-                return []
-            plain = (msg, payload)
-            if self.trigger is not None and len(msg.trackers) < len(full.trackers):
-                self._count_saved(full, len(payload))
+            if payload is not None:
+                plain = (msg, payload)
+                if self.trigger is not None and len(msg.trackers) < len(full.trackers):
+                    self._count_saved(full, len(payload), stayers)
         special = None
         if resync:
             # the whole frame, not what the trigger kept: a neighbour that came back with an
@@ -110,8 +109,10 @@ class Outbox:
             special = (special_msg, special_payload) if special_payload is not None else None
         now: list[Delivery] = []
         k = full.frame
-        if plain is not None:
+        if plain is not None or special is not None:
             c.frames_sent += 1
+        elif msg is None:
+            c.frames_skipped += 1  # the trigger kept the frame silent
         for dst in self.neighbours:
             pair = special if (dst in resync and special is not None) else plain
             if pair is None:
@@ -144,9 +145,10 @@ class Outbox:
             self.last_error = f"frame {msg.frame}: {e}"
             return None
 
-    def _count_saved(self, full: FrameMessage, sent: int) -> None:
+    def _count_saved(self, full: FrameMessage, sent: int, links: int) -> None:
+        """Bytes not sent on ``links`` links against sending ``full`` on them."""
         try:
             n = len(codec.encode(full))
         except ProtocolError:
             n = 0
-        self.counters.bytes_saved += max(n - sent, 0) * len(self.neighbours)
+        self.counters.bytes_saved += max(n - sent, 0) * links

@@ -80,15 +80,15 @@ def test_a_frozen_node_neither_drags_the_ring_nor_stays_behind(tmp_path, procs):
         return min(after, key=lambda e: abs(e[0] - dt))[1]
     f2, f45 = at(2.0), at(4.5)  # rate over [2, 4.5] s after SIGCONT, per node
     rates = [(b - a) / 2.5 for a, b in zip(f2, f45)]
-    assert min(rates) >= 0.9 * FPS, rates
+    assert min(rates) >= 0.9 * FPS, (rates, f2, f45)
     fin = at(5.0)
     others = [fin[i] for i in (0, 1, 3)]
-    assert abs(fin[2] - statistics.median(others)) <= 1, fin
+    assert abs(fin[2] - statistics.median(others)) <= 1, (fin, after[-5:])
     for p in ps:
         assert p.wait(timeout=60) == 0
     c2 = json.loads((out / "counters_node2.json").read_text())
     c1 = json.loads((out / "counters_node1.json").read_text())
-    assert c1["timeouts"].get("2->1", 0) <= 2  # one timeout's budget, not one per frame
+    assert c1["timeouts"].get("2->1", 0) <= 2, c1["timeouts"]  # one timeout, not one per frame
 
 
 @pytest.mark.integration

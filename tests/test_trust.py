@@ -203,8 +203,30 @@ def test_a_merge_that_aliases_an_id_before_its_birth_is_undone():
     n1.prepare(9, [])
     n1.update([FrameMessage("t", 0, 9, (born_later,))])
     assert n1.book.resolve((0, 5)) == (0, 5)
-    assert n1.stats.rejected == {"unvouched_merge": 1}
+    assert n1.stats.rejected == {"forged_alias": 1}
     assert (0, 5) in n1.trackers and (0, 0) in n1.trackers
+
+
+def test_a_birth_cannot_be_moved_earlier_in_two_steps():
+    """A fresh id first sent with a plausible birth but not adopted (``ell`` beyond kappa), then
+    again with ``born = 0``: the second claim is refused as moving the first one earlier, and
+    the id never outranks an established one (found in review: the check only knew adopted
+    births)."""
+    cfg = TrackerConfig()
+    nodes, rng = two_nodes()
+    n1 = nodes[1]
+    step = [0]
+
+    def hostile(m):
+        step[0] += 1
+        first = step[0] == 1
+        e = entry((0, 999), [3.1, 5.0, 0.5, 1.7, 0, 0], born=m.frame if first else 0,
+                  ell=cfg.kappa + 1 if first else 0)
+        return replace(m, trackers=m.trackers + (e,))
+    for k in range(6, 10):
+        next_frame(nodes, rng, k, hostile)
+    assert n1.stats.rejected == {"born_moved": 3}
+    assert n1.book.born.get((0, 999), 6) == 6
 
 
 def test_honest_runs_reject_nothing():

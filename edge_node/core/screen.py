@@ -28,7 +28,8 @@ Tracker entry ``(ID, x_bar, u, U, ell, born)`` (paper III-D):
 * ``implausible_ell``: ``ell`` above ``2 kappa + 2`` (an honest sender drops a tracker once its
   ``ell`` exceeds ``kappa``, eq. 8, so it never reports more than ``kappa + 1``).
 * ``future_birth``: ``born`` after the message's frame.
-* ``born_moved``: an id whose birth this node knows, claimed earlier: ranks cannot be stolen.
+* ``born_moved``: an id whose birth this node knows (adopted, or first claimed in an entry it
+  accepted), claimed earlier: ranks cannot be stolen, not even in two steps.
 * ``implausible_birth``: an id new to this node whose birth contradicts its camera's counter
   order (a camera's counter grows with time, so ``(c, n) < (c, m)`` implies ``born_n <=
   born_m``), or an id of the sender's own camera that it never mentioned although we have been
@@ -41,11 +42,10 @@ Merge announcement ``loser -> winner``:
 * a winner this node has not heard of (merges are relayed hop by hop): ``winner_born`` is
   checked as an entry's ``born`` is (``future_birth``, ``implausible_birth``); taking it on
   trust would let an invented id outrank an established one.
-* ``unvouched_merge``: the loser may also be an id this node never heard of; such an alias is
+* ``forged_alias``: the loser may also be an id this node never heard of; such an alias is
   remembered, and an entry that later names that id with a birth *after* the merge proves it
   forged (honest merges link ids that exist; a forged one would hijack a target not yet
-  born): the alias is removed.
-* ``born_moved``: ``winner_born`` earlier than the winner's known birth.
+  born): the alias is removed (the entry itself is kept and counted here).
 
 What stays possible for a peer that can publish on a link (no mTLS): entries that pass every
 rule, i.e. a plausible phantom target under a fresh id of its own camera, born now; an ``ell``
@@ -66,12 +66,15 @@ from edge_node.core.identity import IdentityBook
 from edge_node.geometry import Camera
 from protocol.messages import FrameMessage, Merge, TrackerId, TrackerInfo
 
-RANK_TOL = 1e-9  # eigenvalues of U below this fraction of the largest count as zero
+RANK_TOL = 1e-9  # eigenvalues of U below this fraction of the largest count as unmeasured
+FLOAT_TOL = 1e-6  # float32 rounding on the wire: negative eigenvalues of U and components of u
+# in unmeasured directions up to this fraction are rounding, not a fault
 INFO_GATE = 1e4  # squared standard deviations a measurement may lie off the plausible world
 MIN_SIGMA_M = 0.01  # m: no camera measures a foot point better than 1 cm
 
+BIRTH_REASONS = ("future_birth", "born_moved", "implausible_birth")
 REASONS = ("bad_information", "implausible_information", "implausible_state", "implausible_ell",
-           "future_birth", "born_moved", "implausible_birth", "unvouched_merge")
+           *BIRTH_REASONS, "forged_alias")
 
 
 def anchors(cameras: list[Camera]) -> np.ndarray:
@@ -94,7 +97,8 @@ class Screen:
         self.max_info = 1.0 / cfg.m(MIN_SIGMA_M) ** 2
         self.window = cfg.kappa + cfg.merge_announce_frames
         self.rejected: Counter[str] = Counter()
-        self.heard_born: dict[TrackerId, int] = {}  # births in the message being screened
+        # the first birth accepted for every id not yet adopted here (bounded, oldest out)
+        self.claimed: OrderedDict[TrackerId, int] = OrderedDict()
         self.relayed: OrderedDict[TrackerId, int] = OrderedDict()  # unknown merge losers -> frame
         self.heard: dict[int, dict[TrackerId, int]] = {}  # sender -> id -> last frame mentioned
         # sender -> (first, last) frame of its messages without a gap longer than kappa
@@ -128,7 +132,6 @@ class Screen:
         for tid in [t for t, f in heard.items() if m.frame - f > self.window]:
             del heard[tid]
         keep: list[TrackerInfo] = []
-        self.heard_born = {}
         ts = m.trackers
         if verdicts is None:
             verdicts = (self.informations(np.array([t.u for t in ts], float).reshape(-1, 6),
@@ -136,13 +139,17 @@ class Screen:
                         self.states(np.array([t.x_bar for t in ts], float).reshape(-1, 6)).tolist())
         for t, info, bad_state in zip(ts, *verdicts):
             reason = self.entry(t, m, book, heard, info, bad_state)
+            if reason not in BIRTH_REASONS:  # mentioned: the never-mentioned rule is not for it
+                heard[t.id] = max(m.frame, heard.get(t.id, m.frame))
             if reason:
                 self.rejected[reason] += 1
                 continue
             if self.alias_born_later(t, book):
-                self.rejected["unvouched_merge"] += 1
-            heard[t.id] = max(m.frame, heard.get(t.id, m.frame))
-            self.heard_born[t.id] = t.born
+                self.rejected["forged_alias"] += 1
+            if t.id not in book.born:
+                self.claimed.setdefault(t.id, t.born)
+                while len(self.claimed) > 10 * self.cfg.max_old_trackers:
+                    self.claimed.popitem(last=False)
             keep.append(t)
         merges: list[Merge] = []
         for mg in m.merges:
@@ -190,11 +197,11 @@ class Screen:
             ev, V = np.linalg.eigh(0.5 * (U4 + U4.transpose(0, 2, 1)))
             w = np.einsum("nji,nj->ni", V, u[todo, :4])  # u in U's eigenbasis
             top = ev[:, -1:]
-            not_psd = ev[:, 0] < -RANK_TOL * top[:, 0]
+            not_psd = ev[:, 0] < -FLOAT_TOL * top[:, 0]
             huge = top[:, 0] > self.max_info
             seen = ev > RANK_TOL * top  # the directions U measures
             norm_w = np.linalg.norm(w, axis=1, keepdims=True)
-            off_range = np.any(~seen & (np.abs(w) > RANK_TOL * norm_w), axis=1)  # u = U z for no z
+            off_range = np.any(~seen & (np.abs(w) > FLOAT_TOL * norm_w), axis=1)  # u = U z for no z
             with np.errstate(all="ignore"):
                 z = np.einsum("nij,nj->ni", V, np.where(seen, w / np.where(seen, ev, 1.0), 0.0))
                 e = np.einsum("nji,nj->ni", V, z - self._plausible(z))
@@ -216,24 +223,27 @@ class Screen:
               heard: dict[TrackerId, int]) -> str | None:
         if born > frame:
             return "future_birth"
-        known = book.born.get(tid)
+        known = self.known_birth(tid, book)
         if known is not None:
             return "born_moved" if born < known else None
-        if tid in heard:
-            return None
         since = self.stretch[sender][0]
-        if tid[0] == sender and since <= born < frame - self.cfg.kappa:
+        if tid[0] == sender and since <= born < frame - self.cfg.kappa and tid not in heard:
             return "implausible_birth"  # born while we heard the sender, never mentioned
         if not self._in_counter_order(tid, born, book):
             return "implausible_birth"
         return None
+
+    def known_birth(self, tid: TrackerId, book: IdentityBook) -> int | None:
+        """The birth of ``tid`` as this node knows it: adopted or heard of, or first claimed in
+        an entry it accepted (a later claim cannot move it earlier)."""
+        return book.born.get(tid, self.claimed.get(tid))
 
     def merge(self, mg: Merge, book: IdentityBook, heard: dict[TrackerId, int],
               k: int, sender: int) -> str | None:
         """A merge may only link ids whose rank this node can check (module docstring)."""
         if book.resolve(mg.loser) == book.resolve(mg.winner):
             return None  # already one id here: a repeated announcement changes nothing
-        known = book.born.get(mg.winner, self.heard_born.get(mg.winner))
+        known = self.known_birth(mg.winner, book)
         if known is None:  # a winner first heard of here: its claimed birth is checked as an entry's
             reason = self.birth(mg.winner, mg.winner_born, k, sender, book, heard)
             if reason:

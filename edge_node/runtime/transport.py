@@ -225,7 +225,7 @@ class ZenohTransport:
                     if isinstance(seen, dict) and self.node in seen.get("alive", []):
                         holders.append(f"node {int(seen['node'])}")
                     frame, peer = seen.get("frame"), int(seen["node"])
-                    if isinstance(frame, int) and frame >= 0 and peer in self._neigh:
+                    if isinstance(frame, int) and frame > 0 and peer in self._neigh:
                         self.running_at_start[peer] = frame
                 except (ValueError, TypeError, KeyError, AttributeError):
                     continue
@@ -286,7 +286,10 @@ class ZenohTransport:
             if msg.sent_at > 0:
                 self._latency.append(now - msg.sent_at)
             k = msg.frame
-            self._newest[src] = max(k, self._newest.get(src, k))
+            if k <= max(self._floor, self._frame_now or 0) + self.max_pending_frames:
+                # how far ahead the network is (a node behind skips there); no further than the
+                # inbox keeps frames ahead, so one forged frame number cannot fling a node away
+                self._newest[src] = max(k, self._newest.get(src, k))
             if k < self._floor:
                 self.late[src] += 1
                 return
@@ -421,9 +424,10 @@ class ZenohTransport:
 
     def network_frame(self) -> int | None:
         """The frame the running network is at, as this node hears it: the newest frame any
-        alive neighbour sent (``None`` before any). A node that fell behind (a freeze, an
-        overload, a timeout on a lost link) skips ahead to it, so the network converges on its
-        front-runner, which runs at camera rate (the caller bounds the jump by real time)."""
+        alive neighbour sent, counting only frames up to ``max_pending_frames`` ahead of this
+        node (``None`` before any). A node that fell behind (a freeze, an overload, a timeout on
+        a lost link) skips ahead to it, so the network converges on its front-runner, which
+        runs at camera rate; farther behind, it gets there in several skips."""
         with self._cond:
             frames = [f for n, f in self._newest.items() if n in self._alive]
         return max(frames) if frames else None
