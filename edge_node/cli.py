@@ -25,7 +25,7 @@ from edge_node.runtime import loop, router
 from edge_node.runtime.config import NodeConfigError, load_node_config
 from edge_node.runtime.preflight import preflight
 from edge_node.runtime.sources import SourceError
-from edge_node.runtime.transport import DuplicateNodeError, StartupError, TransportError
+from edge_node.runtime.transport import DuplicateNodeError, TransportError
 from edge_node.viz import VizSpecError, parse_spec
 
 PROG = "edge_node"
@@ -136,8 +136,6 @@ def _run(args) -> int:
         report = loop.run_node(cfg, frames=args.frames, mode=args.mode, join=args.join)
     except (NodeConfigError, SourceError) as e:
         return _fail(str(e), loop.EXIT_USAGE)
-    except StartupError as e:
-        return _fail(str(e), loop.EXIT_STARTUP)
     except DuplicateNodeError as e:
         return _fail(str(e), loop.EXIT_DUPLICATE)
     except TransportError as e:

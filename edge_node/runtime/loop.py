@@ -75,7 +75,6 @@ LATE_PACING_S = 1.0  # a paced loop this far behind its clock re-anchors instead
 EXIT_OK = 0
 EXIT_FAILURE = 1
 EXIT_USAGE = 2
-EXIT_STARTUP = 3
 EXIT_TRANSPORT = 4
 EXIT_DUPLICATE = 5
 
@@ -317,14 +316,13 @@ class FrameLoop:
             i += 1
             k += 1
             ahead = self._network_frame() if fps > 0 else None  # unpaced: every frame counts
-            now = time.monotonic()
             if ahead is not None and k + SKIP_FRAMES < ahead < st.frames_total:
                 log.warning("node %d: %d frames behind the network: skipping from frame %d to %d",
                             self.node.id, ahead - k, k, ahead)
                 st.frames_skipped_behind += ahead - k
                 st.catch_ups += 1
                 k = ahead
-                t_start, i = now, 0  # pace from here on
+                t_start, i = time.monotonic(), 0  # pace from here on
                 continue
             if fps > 0:
                 due = t_start + i / fps
@@ -491,7 +489,7 @@ def run_node(cfg: NodeConfig, *, frames: int | None = None, mode: str | None = N
                 try:
                     waited = transport.wait_ready(rt.startup_timeout_s, shutdown.event,
                                                   partial=True)
-                except tr.StartupError as e:  # only when interrupted (partial: never a timeout)
+                except tr.StartupError:  # only when interrupted (partial: never a timeout)
                     loop.stats.stopped = True
                     code = EXIT_OK
                     return RunReport(EXIT_OK, loop.stats, transport.counters(), writer.path)

@@ -96,7 +96,7 @@ class Hostile:
         return (camera, PHANTOM + self.serial)
 
     def _plausible(self) -> np.ndarray:
-        return np.array([2.0, 3.0, 0.5, 1.7, 0.3, 0.0]) * np.array([self.upm] * 4 + [self.upm] * 2)
+        return np.array([2.0, 3.0, 0.5, 1.7, 0.3, 0.0]) * self.upm
 
     def _older(self) -> tuple[tuple[int, int], int] | None:
         """A known id born after frame 0 (its birth can be claimed earlier)."""
