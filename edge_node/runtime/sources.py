@@ -26,6 +26,7 @@ plug-ins
 """
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass, replace
 from importlib.metadata import entry_points
 from pathlib import Path
@@ -51,17 +52,19 @@ class SourceError(ValueError):
 
 @dataclass
 class Source:
-    """This node's camera and its detections per frame ``0..frames-1`` (held in memory)."""
+    """This node's camera and its detections per frame ``0..frames-1``: ``read(k)``, called
+    with increasing ``k`` (frames may be skipped, never revisited in a normal run), makes or
+    reads frame ``k`` on demand, so a source need not hold a run's frames in memory."""
 
     camera: Camera
     frames: int
     fps: float
     units_per_metre: float
-    detections: list[list[Detection]]
+    read: Callable[[int], list[Detection]]
     description: str = ""
 
     def __call__(self, k: int) -> list[Detection]:
-        return self.detections[k] if 0 <= k < len(self.detections) else []
+        return self.read(k) if 0 <= k < self.frames else []
 
 
 class SourcePlugin(Protocol):
@@ -111,7 +114,7 @@ def load_det_file_camera(calibration: Path, index: int, node: int,
     except DetFilesError as e:
         raise SourceError(f"source.path: {e}") from None
     cam = replace(cal.cameras[index], id=node)
-    return Source(cam, n, cal.fps, cal.units_per_metre, dets,
+    return Source(cam, n, cal.fps, cal.units_per_metre, dets.__getitem__,
                   f"det-file {calibration} camera {index}")
 
 

@@ -1,6 +1,18 @@
-"""What a scenario gives the network: cameras, per-frame detections, and the ground truth."""
+"""What a scenario gives the network: cameras, per-frame detections, and the ground truth.
+
+Two forms of the same thing:
+
+:class:`ScenarioStream`
+    frames made on demand, a chunk of ``chunk_frames`` at a time (:meth:`ScenarioStream.frame`).
+    Memory does not grow with the number of frames: a camera process replaying one camera of a
+    100,000-frame scenario holds one chunk. Frame ``k`` is a function of the scenario, its seed
+    and ``k`` only, never of how many frames the run has or which frames were asked before.
+:class:`ScenarioData`
+    every frame in lists (``stream.materialise()``): what in-process runs and evaluation use.
+"""
 from __future__ import annotations
 
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field, replace
 
 import numpy as np
@@ -60,3 +72,111 @@ class ScenarioData:
         """The same detections without appearance: what a detector without re-id gives."""
         return replace(self, detections=[[[replace(d, descriptor=None) for d in cam]
                                           for cam in frame] for frame in self.detections])
+
+
+@dataclass
+class Frame:
+    """One frame of a scenario, every camera: ``detections[c]`` with the person behind each
+    (``detection_truth[c]``, ``-1`` for a false positive), the ground truth ``ids`` / ``xy`` /
+    ``wh`` (as :class:`GroundTruth` at one frame) and ``boxes[c] = (ids, boxes)``."""
+
+    detections: list[list[Detection]]
+    detection_truth: list[np.ndarray]
+    ids: np.ndarray
+    xy: np.ndarray
+    wh: np.ndarray
+    boxes: list[tuple[np.ndarray, np.ndarray]]
+
+
+#: ``chunk(j)`` -> frames ``j * chunk_frames .. (j + 1) * chunk_frames - 1`` (all of them, also past
+#: the scenario's last frame where the source can make them; :class:`ScenarioStream` truncates).
+ChunkMaker = Callable[[int], list[Frame]]
+
+
+@dataclass
+class ScenarioStream:
+    """A scenario whose frames are made on demand (see the module docstring).
+
+    ``chunk`` makes one chunk of frames; the stream keeps the last chunk it made, so reading
+    frames in order costs one ``chunk`` call per ``chunk_frames`` frames. A source that must
+    simulate its way to a frame (the synthetic world's walkers) does so inside ``chunk``.
+    """
+
+    name: str
+    cameras: list[Camera]
+    frames: int
+    fps: float
+    units_per_metre: float
+    chunk: ChunkMaker
+    chunk_frames: int
+    area: tuple[float, float, float, float] = (0.0, 1.0, 0.0, 1.0)
+    seed: int = 0
+    _held: tuple[int, list[Frame]] | None = field(default=None, repr=False)
+
+    @property
+    def num_cameras(self) -> int:
+        return len(self.cameras)
+
+    def frame(self, k: int) -> Frame:
+        """Frame ``k`` (``0 <= k < frames``)."""
+        if not 0 <= k < self.frames:
+            raise IndexError(f"frame {k} outside 0..{self.frames - 1} of scenario {self.name}")
+        j = k // self.chunk_frames
+        if self._held is None or self._held[0] != j:
+            self._held = (j, self.chunk(j))
+        return self._held[1][k - j * self.chunk_frames]
+
+    def __iter__(self) -> Iterator[Frame]:
+        return (self.frame(k) for k in range(self.frames))
+
+    def camera(self, c: int) -> Callable[[int], list[Detection]]:
+        """Camera ``c``'s detections as ``read(k)``: what a camera process replays."""
+        return lambda k: self.frame(k).detections[c]
+
+    def first_cameras(self, n: int) -> "ScenarioStream":
+        """The same stream seen by cameras ``0..n-1`` only (``sim_cluster up --nodes n``)."""
+        if n == self.num_cameras:
+            return self
+        full = self.chunk
+
+        def chunk(j: int) -> list[Frame]:
+            return [replace(f, detections=f.detections[:n], detection_truth=f.detection_truth[:n],
+                            boxes=f.boxes[:n]) for f in full(j)]
+
+        return replace(self, cameras=self.cameras[:n], chunk=chunk, _held=None)
+
+    def materialise(self) -> "ScenarioData":
+        """Every frame in lists: the :class:`ScenarioData` of this stream."""
+        C = self.num_cameras
+        truth = GroundTruth(ids=[], xy=[], wh=[], boxes=[[] for _ in range(C)])
+        detections, det_truth = [], []
+        for f in self:
+            detections.append(f.detections)
+            det_truth.append(f.detection_truth)
+            truth.ids.append(f.ids)
+            truth.xy.append(f.xy)
+            truth.wh.append(f.wh)
+            for c in range(C):
+                truth.boxes[c].append(f.boxes[c])
+        return ScenarioData(name=self.name, cameras=list(self.cameras), frames=self.frames,
+                            fps=self.fps, units_per_metre=self.units_per_metre,
+                            detections=detections, truth=truth, detection_truth=det_truth,
+                            area=self.area, seed=self.seed)
+
+    @classmethod
+    def of(cls, data: "ScenarioData", chunk_frames: int = 100) -> "ScenarioStream":
+        """A materialised scenario as a stream (its frames are already in memory)."""
+        C, t = data.num_cameras, data.truth
+        empty = np.zeros(0, np.int64)
+
+        def chunk(j: int) -> list[Frame]:
+            lo, hi = j * chunk_frames, min((j + 1) * chunk_frames, data.frames)
+            return [Frame(detections=data.detections[k],
+                          detection_truth=(data.detection_truth[k] if data.detection_truth
+                                           else [empty] * C),
+                          ids=t.ids[k], xy=t.xy[k], wh=t.wh[k],
+                          boxes=[t.boxes[c][k] for c in range(C)]) for k in range(lo, hi)]
+
+        return cls(name=data.name, cameras=list(data.cameras), frames=data.frames, fps=data.fps,
+                   units_per_metre=data.units_per_metre, chunk=chunk, chunk_frames=chunk_frames,
+                   area=data.area, seed=data.seed)

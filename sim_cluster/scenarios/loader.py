@@ -8,7 +8,9 @@ A scenario is a TOML file (:mod:`sim_cluster.scenarios.files`: presets, paths, e
 ``det-files``                your own detections (:mod:`sim_cluster.scenarios.detfiles`)
 
 A folder written by ``sim_cluster export-detections`` (or its ``calibration.json``) is a scenario
-too. Same file + same seed gives identical detections.
+too. Same file + same seed gives identical detections. :func:`open_scenario` gives the
+scenario as a :class:`~sim_cluster.scenarios.data.ScenarioStream` (frames on demand: what the
+launcher and camera processes use), :func:`load_scenario` materialised (in-process runs).
 """
 from __future__ import annotations
 
@@ -18,17 +20,17 @@ from pathlib import Path
 import numpy as np
 
 from sim_cluster.scenarios import detfiles, epfl
-from sim_cluster.scenarios.data import ScenarioData
+from sim_cluster.scenarios.data import ScenarioData, ScenarioStream
 from sim_cluster.scenarios.detfiles import load_det_files
 from sim_cluster.scenarios.files import (ScenarioError, read_scenario_toml, resolve_scenario_path,
                                          scenario_table)
 from sim_cluster.scenarios.synthetic.schema import load_synthetic
 
-ScenarioLoader = Callable[[dict, Path, int, "int | None"], ScenarioData]
+ScenarioLoader = Callable[[dict, Path, int, "int | None"], "ScenarioStream | ScenarioData"]
 
 #: ``[source] kind`` -> loader ``(raw toml dict, file path, resolved seed, frames override or
-#: None) -> ScenarioData``. A loader validates its own fields (``files.scenario_table``) and
-#: raises ``ScenarioError``.
+#: None) -> ScenarioStream`` (or a ``ScenarioData``, wrapped). A loader validates its own fields
+#: (``files.scenario_table``) and raises ``ScenarioError``.
 SCENARIO_KINDS: dict[str, ScenarioLoader] = {
     "synthetic": load_synthetic,
     "epfl-gt": epfl.scenario_from_table,
@@ -38,11 +40,25 @@ SCENARIO_KINDS: dict[str, ScenarioLoader] = {
 
 def load_scenario(name_or_path: str | Path, seed: int | None = None,
                   frames: int | None = None, data_root: str | Path | None = None) -> ScenarioData:
-    """Load a scenario by preset name or file path. ``seed`` / ``frames`` override the file's.
+    """Load a scenario by preset name or file path, every frame in memory (``open_scenario``'s
+    arguments)."""
+    return open_scenario(name_or_path, seed, frames, data_root).materialise()
+
+
+def open_scenario(name_or_path: str | Path, seed: int | None = None,
+                  frames: int | None = None, data_root: str | Path | None = None
+                  ) -> ScenarioStream:
+    """Open a scenario by preset name or file path, frames on demand. ``seed`` / ``frames``
+    override the file's.
 
     Same file + same seed gives identical detections. A folder written by
     ``sim_cluster export-detections`` (or its ``calibration.json``) is a scenario too.
     """
+    made = _open(name_or_path, seed, frames, data_root)
+    return made if isinstance(made, ScenarioStream) else ScenarioStream.of(made)
+
+
+def _open(name_or_path, seed, frames, data_root) -> ScenarioStream | ScenarioData:
     candidate = Path(str(name_or_path))
     if candidate.is_dir() or candidate.suffix == ".json":
         return load_det_files(candidate, frames=frames, seed=seed)
@@ -68,5 +84,10 @@ def load_scenario(name_or_path: str | Path, seed: int | None = None,
 
 def scenario_from_args(args) -> ScenarioData:
     """The scenario of a command line: ``--scenario``, ``--seed``, ``--frames``, ``--data-root``."""
-    return load_scenario(args.scenario, seed=args.seed, frames=args.frames,
+    return stream_from_args(args).materialise()
+
+
+def stream_from_args(args) -> ScenarioStream:
+    """:func:`scenario_from_args`, frames on demand."""
+    return open_scenario(args.scenario, seed=args.seed, frames=args.frames,
                          data_root=getattr(args, "data_root", None))

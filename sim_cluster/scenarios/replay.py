@@ -4,7 +4,8 @@ scenario (developer convenience; what ``sim_cluster up`` configures its nodes wi
 A plug-in of ``edge_node``'s sources (entry-point group ``dmtt.sources``, declared in
 pyproject.toml; the interface is in ``edge_node/runtime/sources.py``): edge_node looks the kind
 up by name and never imports the simulator. The scenario is regenerated in the process from its
-file and seed, so the node sees exactly the detections of the in-process run. ``[source]``
+file and seed, a chunk at a time as the node asks for frames (``ScenarioStream``), so the node
+sees exactly the detections of the in-process run and holds one chunk of them. ``[source]``
 fields::
 
     kind = "scenario"
@@ -22,7 +23,7 @@ from typing import Any
 
 from edge_node.runtime.sources import Source, SourceError
 from edge_node.settings import Table
-from sim_cluster.scenarios.loader import load_scenario
+from sim_cluster.scenarios.loader import open_scenario
 
 
 def parse(t: Table, base: Path) -> dict[str, Any]:
@@ -42,14 +43,13 @@ def open(options: dict[str, Any], camera: int, node: int) -> Source:  # noqa: A0
     """Camera ``camera`` of the scenario, as node ``node`` (its camera id). A scenario that
     cannot be loaded or has no such camera is a ``SourceError`` naming the field."""
     try:
-        data = load_scenario(options["scenario"], seed=options.get("seed"),
+        data = open_scenario(options["scenario"], seed=options.get("seed"),
                              frames=options.get("frames"), data_root=options.get("data_root"))
     except (ValueError, OSError) as e:
         raise SourceError(f"source.scenario: {e}") from None
     if camera >= data.num_cameras:
         raise SourceError(f"source.camera is {camera}, but scenario {data.name} has "
                           f"{data.num_cameras} cameras (0..{data.num_cameras - 1})")
-    dets = [data.detections[k][camera] for k in range(data.frames)]
     cam = replace(data.cameras[camera], id=node)
-    return Source(cam, data.frames, data.fps, data.units_per_metre, dets,
+    return Source(cam, data.frames, data.fps, data.units_per_metre, data.camera(camera),
                   f"scenario {data.name} seed {data.seed} camera {camera}")

@@ -33,6 +33,8 @@ _TAG_IDENTITY = 0x1D
 _TAG_VIEW = 0x71E
 _TAG_SHARED = 0x5A
 _BLOCK = 512  # rows of noise drawn at a time
+_KEEP = 4096  # identity and view vectors kept (derived again when needed: an endless world's
+# people keep coming, and a camera process runs for months)
 
 
 class AppearanceError(ValueError):
@@ -99,6 +101,14 @@ def _unit(v: np.ndarray) -> np.ndarray:
     return v / np.linalg.norm(v, axis=-1, keepdims=True)
 
 
+def _keep(cache: dict, key, value) -> None:
+    """Remember ``value``, forgetting the oldest entry beyond ``_KEEP`` (values are derived from
+    their key, so forgetting changes nothing but time)."""
+    cache[key] = value
+    if len(cache) > _KEEP:
+        del cache[next(iter(cache))]
+
+
 def _key(x: int) -> int:
     """A non-negative seed word for any Python integer (negative ids included)."""
     return int(x) & _MASK64
@@ -129,7 +139,7 @@ class AppearanceModel:
         v = self._identity.get(pid)
         if v is None:
             v = self._random_unit([self.seed, _TAG_IDENTITY, _key(pid)])
-            self._identity[pid] = v
+            _keep(self._identity, pid, v)
         return v
 
     def base(self, person_id: int, camera: int) -> np.ndarray:
@@ -140,7 +150,7 @@ class AppearanceModel:
             p = self.params
             view = self._random_unit([self.seed, _TAG_VIEW, _key(key[0]), _key(key[1])])
             b = p.identity * self.identity(key[0]) + p.view * view + self._shared
-            self._base[key] = b
+            _keep(self._base, key, b)
         return b
 
     def descriptors(self, person_ids: np.ndarray, camera: int, rng: np.random.Generator) -> np.ndarray:

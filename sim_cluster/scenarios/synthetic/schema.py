@@ -59,12 +59,12 @@ import numpy as np
 
 from edge_node.geometry import Camera, GeometryError
 from edge_node.settings import Table
-from sim_cluster.scenarios.data import ScenarioData
+from sim_cluster.scenarios.data import ScenarioStream
 from sim_cluster.scenarios.files import ScenarioError, scenario_table
 from sim_cluster.scenarios.synthetic.appearance import AppearanceError, AppearanceParams
 from sim_cluster.scenarios.synthetic.calibration import CalibrationBump, CalibrationError
 from sim_cluster.scenarios.synthetic.detector_model import DetectorParams, DetectorParamsError
-from sim_cluster.scenarios.synthetic.world import PeopleParams, WorldConfig, WorldError, generate
+from sim_cluster.scenarios.synthetic.world import PeopleParams, WorldConfig, WorldError, stream
 
 CAMERA_KEYS = ("image_size", "homography", "pixel_scale", "projection", "position", "look_at",
                "yaw_deg", "pitch_deg", "roll_deg", "fov_deg", "focal_px", "principal_point")
@@ -339,6 +339,7 @@ def detector_params_from_table(t: Table) -> DetectorParams:
         raise t.error(None, str(e)) from None
 
 
-def load_synthetic(raw: dict, path: Path, seed: int, frames: int | None) -> ScenarioData:
-    """The scenario loader of kind ``synthetic`` (``SCENARIO_KINDS["synthetic"]``)."""
-    return generate(parse_synthetic(raw, path, seed, frames))
+def load_synthetic(raw: dict, path: Path, seed: int, frames: int | None) -> ScenarioStream:
+    """The scenario loader of kind ``synthetic`` (``SCENARIO_KINDS["synthetic"]``): the world,
+    frames on demand."""
+    return stream(parse_synthetic(raw, path, seed, frames))

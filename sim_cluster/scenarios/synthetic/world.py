@@ -51,7 +51,7 @@ import numpy as np
 
 from edge_node.core.types import Detection
 from edge_node.geometry import Camera
-from sim_cluster.scenarios.data import GroundTruth, ScenarioData
+from sim_cluster.scenarios.data import Frame, ScenarioData, ScenarioStream
 from sim_cluster.scenarios.synthetic.appearance import AppearanceModel, AppearanceParams
 from sim_cluster.scenarios.synthetic.calibration import (CalibrationError, believed_camera,
                                                          moved_camera)
@@ -162,7 +162,7 @@ class Trajectories:
 
 class _Person:
     __slots__ = ("pid", "pos", "heading", "speed", "wh", "target", "leaving", "leave_at",
-                 "pause_until", "start", "path", "arrive_r", "stuck")
+                 "pause_until", "start", "arrive_r", "stuck")
 
     def __init__(self, pid: int, pos: np.ndarray, heading: float, speed: float, wh: np.ndarray,
                  start: int, leave_at: int, arrive_r: float):
@@ -176,7 +176,6 @@ class _Person:
         self.leave_at = leave_at
         self.pause_until = -1
         self.start = start
-        self.path: list[np.ndarray] = []
         self.arrive_r = arrive_r
         self.stuck = 0
 
@@ -211,54 +210,75 @@ def _waypoint(area: tuple[float, float, float, float], margin: float, rng: np.ra
     return p
 
 
-def simulate_people(area: tuple[float, float, float, float], fps: float, frames: int,
-                    params: PeopleParams, rng: np.random.Generator) -> Trajectories:
-    """Walk people through ``frames`` frames; deterministic given ``rng``."""
-    dt = 1.0 / fps
-    max_turn = math.radians(params.turn_rate_dps) * dt
-    people: list[_Person] = []
-    active: list[_Person] = []
-    births: list[tuple[int, int]] = []  # (frame, sequence) heap
-    seq = 0
+class PeopleWalk:
+    """The people of a world, one frame at a time: :meth:`next` gives frame ``k`` (``ids``,
+    ``xy``, ``wh`` of everybody in the world), then walks everybody to frame ``k + 1``.
 
-    def new_person(k: int, pos: np.ndarray, inside: bool) -> _Person:
+    Memory holds the people in the world, never the ones who left. Frame ``k`` depends only on
+    the generator's seed and ``k``: walking 100 frames gives the first 100 frames of a walk of
+    1000 (see the module docstring for the behaviour).
+    """
+
+    def __init__(self, area: tuple[float, float, float, float], fps: float, params: PeopleParams,
+                 rng: np.random.Generator):
+        self.area, self.fps, self.params, self.rng = area, fps, params, rng
+        self.k = 0  # the frame next() gives
+        self.born = 0  # people so far: ids are 1, 2, ...
+        self.active: list[_Person] = []
+        self._births: list[tuple[int, int]] = []  # (frame, sequence) heap
+        self._seq = 0
+        self._max_turn = math.radians(params.turn_rate_dps) / fps
+        for _ in range(params.initial_count):
+            for _try in range(20):  # initial places without overlaps, when there is room
+                pos = _waypoint(area, params.waypoint_margin_m, rng)
+                if all(math.hypot(*(pos - q.pos)) > 0.7 for q in self.active):
+                    break
+            self.active.append(self._new_person(0, pos, inside=True))
+        for _ in range(max(0, params.concurrent - params.initial_count)):
+            self._schedule(0)
+
+    def _new_person(self, k: int, pos: np.ndarray, inside: bool) -> _Person:
+        params, rng, fps = self.params, self.rng, self.fps
         speed = rng.uniform(*params.speed_mps)
         wh = np.array([rng.uniform(*params.width_m), rng.uniform(*params.height_m)])
         stay = rng.uniform(*params.stay_s)
         if inside:  # already inside at the start: an unknown part of the stay is over
             stay *= rng.uniform(0.1, 1.0)
         arrive_r = max(0.6, 2.0 * speed / math.radians(params.turn_rate_dps))
-        p = _Person(len(people) + 1, pos, 0.0, speed, wh, k, k + int(round(stay * fps)), arrive_r)
-        p.target = _waypoint(area, params.waypoint_margin_m, rng, avoid=pos)
+        self.born += 1
+        p = _Person(self.born, pos, 0.0, speed, wh, k, k + int(round(stay * fps)), arrive_r)
+        p.target = _waypoint(self.area, params.waypoint_margin_m, rng, avoid=pos)
         d = p.target - pos
         p.heading = rng.uniform(-math.pi, math.pi) if inside else math.atan2(d[1], d[0])
-        people.append(p)
         return p
 
-    def schedule(k: int) -> None:
-        nonlocal seq
-        gap = rng.exponential(params.entry_gap_s) if params.entry_gap_s > 0 else 0.0
-        heapq.heappush(births, (k + max(1, int(round(gap * fps))), seq))
-        seq += 1
+    def _schedule(self, k: int) -> None:
+        gap = self.rng.exponential(self.params.entry_gap_s) if self.params.entry_gap_s > 0 else 0.0
+        heapq.heappush(self._births, (k + max(1, int(round(gap * self.fps))), self._seq))
+        self._seq += 1
 
-    for _ in range(params.initial_count):
-        for _try in range(20):  # initial places without overlaps, when there is room
-            pos = _waypoint(area, params.waypoint_margin_m, rng)
-            if all(math.hypot(*(pos - q.pos)) > 0.7 for q in active):
-                break
-        active.append(new_person(0, pos, inside=True))
-    for _ in range(max(0, params.concurrent - params.initial_count)):
-        schedule(0)
+    def next(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """``(ids (n,), xy (n, 2), wh (n, 2))`` of frame ``self.k``; then one step of walking."""
+        k = self.k
+        while self._births and self._births[0][0] <= k:
+            heapq.heappop(self._births)
+            self.active.append(self._new_person(
+                k, _border_point(self.area, self.params.spawn_margin_m, self.rng), inside=False))
+        a = self.active
+        frame = (np.array([p.pid for p in a], dtype=np.int64),
+                 np.array([p.pos for p in a]).reshape(-1, 2),
+                 np.array([p.wh for p in a]).reshape(-1, 2))
+        self._step(k)
+        self.k = k + 1
+        return frame
 
-    r_rep = params.personal_space_m
-    for k in range(frames):
-        while births and births[0][0] <= k:
-            heapq.heappop(births)
-            active.append(new_person(k, _border_point(area, params.spawn_margin_m, rng), inside=False))
-        for p in active:
-            p.path.append(p.pos)
-        if k == frames - 1:
-            break
+    def _step(self, k: int) -> None:
+        """Frame ``k`` -> ``k + 1``."""
+        area, params, rng, fps = self.area, self.params, self.rng, self.fps
+        active = self.active
+        dt = 1.0 / fps
+        max_turn = self._max_turn
+        r_rep = params.personal_space_m
         # Repulsion: push away from people inside the personal space, with a sidestep component.
         rep = np.zeros((len(active), 2))
         if len(active) > 1 and r_rep > 0:
@@ -271,7 +291,7 @@ def simulate_people(area: tuple[float, float, float, float], fps: float, frames:
             side = np.stack([unit[..., 1], -unit[..., 0]], axis=-1)
             rep = np.sum(wgt[..., None] * (unit + 0.5 * side), axis=1) * 2.0
         survivors: list[_Person] = []
-        cur = np.array([p.pos for p in active])  # live positions, for the no-overlap rule
+        cur = np.array([p.pos for p in active]).reshape(-1, 2)  # live positions: no-overlap rule
         radius = np.array([p.wh[0] / 2.0 for p in active])
         for idx, (p, r) in enumerate(zip(active, rep)):
             if not p.leaving and k >= p.leave_at:
@@ -316,16 +336,38 @@ def simulate_people(area: tuple[float, float, float, float], fps: float, frames:
                                 else _waypoint(area, params.waypoint_margin_m, rng, avoid=p.pos))
             survivors.append(p)
         for _ in range(len(active) - len(survivors)):
-            schedule(k + 1)
-        active = survivors
+            self._schedule(k + 1)
+        self.active = survivors
 
-    n = len(people)
-    xy = np.full((frames, n, 2), np.nan)
-    wh = np.zeros((n, 2))
-    for i, p in enumerate(people):
-        xy[p.start:p.start + len(p.path), i] = np.array(p.path)
-        wh[i] = p.wh
-    return Trajectories(ids=np.arange(1, n + 1, dtype=np.int64), xy=xy, wh=wh)
+    def skip(self, frames: int) -> None:
+        """Walk ``frames`` frames without looking (fast-forward to a later chunk)."""
+        for _ in range(frames):
+            self.next()
+
+
+def simulate_people(area: tuple[float, float, float, float], fps: float, frames: int,
+                    params: PeopleParams, rng: np.random.Generator) -> Trajectories:
+    """Walk people through ``frames`` frames (a :class:`PeopleWalk`, kept whole); deterministic
+    given ``rng``."""
+    walk = PeopleWalk(area, fps, params, rng)
+    steps = [walk.next() for _ in range(frames)]
+    return _trajectories(steps, walk.born)
+
+
+def _trajectories(steps: list[tuple[np.ndarray, np.ndarray, np.ndarray]],
+                  known: int | None = None) -> Trajectories:
+    """Frames of a walk as one :class:`Trajectories` over the people seen in them."""
+    ids = np.unique(np.concatenate([s[0] for s in steps] + [np.zeros(0, np.int64)]))
+    if known is not None and len(ids):  # everybody born so far, as simulate_people always had
+        ids = np.arange(1, known + 1, dtype=np.int64)
+    col = {int(p): j for j, p in enumerate(ids)}
+    xy = np.full((len(steps), len(ids), 2), np.nan)
+    wh = np.zeros((len(ids), 2))
+    for k, (pid, pos, size) in enumerate(steps):
+        j = [col[int(p)] for p in pid]
+        xy[k, j] = pos
+        wh[j] = size
+    return Trajectories(ids=ids, xy=xy, wh=wh)
 
 
 # -- projection and occlusion -------------------------------------------------------------------
@@ -426,16 +468,63 @@ def _pack(mask: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, int]:
 
 # -- the whole scenario -------------------------------------------------------------------------
 
+#: Frames per chunk: the unit in which a world is made (one vectorised projection, occlusion
+#: and detector pass per camera) and the unit of the detector's random streams.
+CHUNK_FRAMES = 100
+
+
+class WorldStream:
+    """A world's frames, a chunk at a time (the ``chunk`` of its
+    :class:`~sim_cluster.scenarios.data.ScenarioStream`).
+
+    The walkers are simulated in order (one :class:`PeopleWalk`, restarted from frame 0 only
+    when an earlier chunk is asked for after a later one); the detector of camera ``c`` draws
+    chunk ``j`` from its own generator ``[seed, 2, c, j]``. So frame ``k`` is the same whether a
+    run has 100 frames or 100,000, and whether the frames before it were made or skipped.
+    """
+
+    def __init__(self, config: WorldConfig):
+        self.config = config
+        self.appearance = AppearanceModel(config.appearance, int(config.seed))
+        self.walk = self._walk()
+
+    def _walk(self) -> PeopleWalk:
+        c = self.config
+        return PeopleWalk(c.area, c.fps, c.people,
+                          np.random.default_rng([int(c.seed), _TAG_PEOPLE]))
+
+    def __call__(self, j: int) -> list[Frame]:
+        k0 = j * CHUNK_FRAMES
+        if self.walk.k > k0:
+            self.walk = self._walk()
+        self.walk.skip(k0 - self.walk.k)
+        steps = [self.walk.next() for _ in range(CHUNK_FRAMES)]
+        return _chunk(self.config, self.appearance, k0, j, _trajectories(steps))
+
+
+def stream(config: WorldConfig) -> ScenarioStream:
+    """The world as a :class:`~sim_cluster.scenarios.data.ScenarioStream` (frames on demand)."""
+    cams = config.cameras
+    believed = list(cams)
+    if config.calibration is not None:  # what the user believes (calibration module)
+        believed = [believed_camera(cam, E) for cam, E in zip(cams, config.calibration.errors(cams))]
+    return ScenarioStream(name=config.name, cameras=believed, frames=config.frames, fps=config.fps,
+                          units_per_metre=1.0, chunk=WorldStream(config),
+                          chunk_frames=CHUNK_FRAMES,
+                          area=tuple(float(v) for v in config.area), seed=int(config.seed))
+
 
 def generate(config: WorldConfig) -> ScenarioData:
     """Simulate the world and materialise detections and ground truth (deterministic)."""
+    return stream(config).materialise()
+
+
+def _chunk(config: WorldConfig, appearance: AppearanceModel, k0: int, j: int,
+           traj: Trajectories) -> list[Frame]:
+    """Frames ``k0 .. k0 + F - 1`` (chunk ``j``) of the world, the people's paths ``traj``."""
     seed = int(config.seed)
-    F = config.frames
-    traj = simulate_people(config.area, config.fps, F, config.people,
-                           np.random.default_rng([seed, _TAG_PEOPLE]))
-    N = len(traj.ids)
+    F, N = traj.xy.shape[:2]
     present = traj.present
-    appearance = AppearanceModel(config.appearance, seed)
     cams = config.cameras
     C = len(cams)
     thr = max(config.min_visible, 1e-12)
@@ -449,9 +538,9 @@ def generate(config: WorldConfig) -> ScenarioData:
     bump = config.calibration.bump if config.calibration is not None else None
     for c, cam in enumerate(cams):
         views = [(cam, None)]
-        if bump is not None and bump.camera == c and bump.frame < F:
+        if bump is not None and bump.camera == c and bump.frame < k0 + F:
             moved = moved_camera(cam, config.calibration.bump_map(cams))
-            views = [(cam, kk < bump.frame), (moved, kk >= bump.frame)]
+            views = [(cam, kk + k0 < bump.frame), (moved, kk + k0 >= bump.frame)]
         for view, sel in views:
             fk, fi = (kk, ii) if sel is None else (kk[sel], ii[sel])
             b, front = project_people(view, traj.xy[fk, fi], traj.wh[fi])
@@ -467,15 +556,13 @@ def generate(config: WorldConfig) -> ScenarioData:
                 depth[c, fk, fi] = -(b[:, 1] + b[:, 3])  # lower foot row = nearer
 
     truth_mask = np.any(inimg >= thr, axis=0)  # (F, N)
-    truth = GroundTruth(ids=[], xy=[], wh=[], boxes=[])
+    frames = []
     for k in range(F):
         sel = np.flatnonzero(truth_mask[k])
-        truth.ids.append(traj.ids[sel])
-        truth.xy.append(traj.xy[k, sel])
-        truth.wh.append(traj.wh[sel])
-
-    detections: list[list[list[Detection]]] = [[[] for _ in range(C)] for _ in range(F)]
-    det_truth: list[list[np.ndarray]] = [[np.zeros(0, np.int64)] * C for _ in range(F)]
+        frames.append(Frame(detections=[[] for _ in range(C)],
+                            detection_truth=[np.zeros(0, np.int64)] * C,
+                            ids=traj.ids[sel], xy=traj.xy[k, sel], wh=traj.wh[sel],
+                            boxes=[None] * C))
     for c, cam in enumerate(cams):
         # Candidates: in front and at least partly in the image, packed per frame for occlusion.
         ck, ci, slot, width = _pack(inimg[c] > 0)
@@ -488,26 +575,11 @@ def generate(config: WorldConfig) -> ScenarioData:
         gt = inimg[c, ck, ci] * vis >= thr
         gk, gids, gboxes = ck[gt], traj.ids[ci[gt]], cb[gt]
         bounds = np.searchsorted(gk, np.arange(F + 1))
-        truth.boxes.append([(gids[bounds[k]:bounds[k + 1]], gboxes[bounds[k]:bounds[k + 1]])
-                            for k in range(F)])
         per_frame = detect_frames(cam, ck, traj.ids[ci], cb, vis, F, config.detector, appearance,
-                                  np.random.default_rng([seed, _TAG_DETECT, c]))
+                                  np.random.default_rng([seed, _TAG_DETECT, c, j]))
         for k, (dets, ids) in enumerate(per_frame):
-            detections[k][c] = dets
-            det_truth[k][c] = ids
-
-    believed = list(cams)
-    if config.calibration is not None:  # what the user believes (calibration module)
-        believed = [believed_camera(cam, E) for cam, E in zip(cams, config.calibration.errors(cams))]
-    return ScenarioData(
-        name=config.name,
-        cameras=believed,
-        frames=F,
-        fps=config.fps,
-        units_per_metre=1.0,
-        detections=detections,
-        truth=truth,
-        detection_truth=det_truth,
-        area=tuple(float(v) for v in config.area),
-        seed=seed,
-    )
+            f = frames[k]
+            f.boxes[c] = (gids[bounds[k]:bounds[k + 1]], gboxes[bounds[k]:bounds[k + 1]])
+            f.detections[c] = dets
+            f.detection_truth[c] = ids
+    return frames
