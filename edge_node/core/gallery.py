@@ -1,7 +1,6 @@
 """The bounded appearance gallery of a tracker and the appearance score of eq. 7."""
 from __future__ import annotations
 
-from collections import deque
 from collections.abc import Iterable
 
 import numpy as np
@@ -20,20 +19,42 @@ def cosine_distance(a: np.ndarray, b: np.ndarray) -> float:
 
 class Gallery:
     """At most ``capacity`` descriptors, oldest dropped first; a new one at most every ``every``
-    frames (paper III-B: "saving a new patch every N frames, and discarding the oldest one")."""
+    frames (paper III-B: "saving a new patch every N frames, and discarding the oldest one").
+
+    The descriptors are the rows of one array, oldest first (``matrix()`` is a view of it): a
+    gallery costs its descriptors once, and a node that keeps ``max_old_trackers`` dropped
+    galleries for re-identification holds no second copy of each.
+    """
 
     def __init__(self, capacity: int = 20, every: int = 20,
                  descriptors: Iterable[np.ndarray] = ()):
         self.capacity = capacity
         self.every = every
-        self._items: deque[np.ndarray] = deque(maxlen=capacity)
-        self._matrix: np.ndarray | None = None  # cache of the stacked descriptors
+        self._a = np.zeros((0, 0))  # rows 0.._n-1: unit descriptors, oldest first
+        self._n = 0
         self._last_frame: int | None = None
         for d in descriptors:
-            self._items.append(_unit(d))
+            self._push(_unit(d))
 
     def __len__(self) -> int:
-        return len(self._items)
+        return self._n
+
+    def _push(self, u: np.ndarray) -> None:
+        """Append one unit descriptor, dropping the oldest when full (rows grow by doubling)."""
+        if self._n and u.size != self._a.shape[1]:
+            raise ValueError(f"a descriptor of dimension {u.size} for a gallery of dimension "
+                             f"{self._a.shape[1]}")
+        if self._n == self.capacity:
+            self._a[:-1] = self._a[1:]
+            self._a[-1] = u
+            return
+        if self._n == len(self._a):
+            grown = np.empty((min(self.capacity, max(4, 2 * self._n)), u.size))
+            if self._n:
+                grown[:self._n] = self._a[:self._n]
+            self._a = grown
+        self._a[self._n] = u
+        self._n += 1
 
     def offer(self, descriptor: np.ndarray | None, frame: int, admit: float | None = None) -> bool:
         """Store ``descriptor`` if ``every`` frames have passed since the last one stored and
@@ -43,14 +64,13 @@ class Gallery:
             return False
         if self._last_frame is not None and frame - self._last_frame < self.every:
             return False
-        if admit is not None and self._items and self.distance(descriptor) > admit:
+        if admit is not None and self._n and self.distance(descriptor) > admit:
             return False
         self.add(descriptor, frame)
         return True
 
     def add(self, descriptor: np.ndarray, frame: int | None = None) -> None:
-        self._items.append(_unit(descriptor))
-        self._matrix = None
+        self._push(_unit(descriptor))
         if frame is not None:
             self._last_frame = frame
 
@@ -59,43 +79,43 @@ class Gallery:
         self._last_frame = frame
 
     def extend(self, other: "Gallery") -> None:
-        for d in other._items:
-            self._items.append(d)
-        self._matrix = None
+        for d in other.matrix().copy():
+            self._push(d)
 
     def matrix(self) -> np.ndarray:
-        if not self._items:
+        """The descriptors ``(n, D)``, oldest first (a view: read, do not keep)."""
+        if not self._n:
             return np.zeros((0, 0))
-        if self._matrix is None:
-            self._matrix = np.stack(self._items)
-        return self._matrix
+        return self._a[:self._n]
 
     def newest(self, n: int) -> np.ndarray:
-        """The ``n`` most recent descriptors, shape ``(<=n, D)``."""
-        items = list(self._items)[-n:]
-        return np.stack(items) if items else np.zeros((0, 0))
+        """The ``n`` most recent descriptors, shape ``(<=n, D)`` (a copy)."""
+        if not self._n or n <= 0:
+            return np.zeros((0, 0))
+        return self._a[max(0, self._n - n):self._n].copy()
 
     def distance(self, query: np.ndarray) -> float:
         """Eq. 7: ``s_a = min_a (1 - cos(query, a))`` over the gallery; ``nan`` if empty."""
-        if not self._items:
+        if not self._n:
             return float("nan")
         return float(1.0 - np.max(self.matrix() @ _unit(query)))
 
     def distances(self, queries: np.ndarray) -> np.ndarray:
         """Eq. 7 for each row of ``queries`` ``(n, D)``; ``nan`` where the gallery is empty."""
         queries = np.atleast_2d(queries)
-        if not self._items or queries.size == 0:
+        if not self._n or queries.size == 0:
             return np.full(len(queries), np.nan)
         Q = queries / np.maximum(np.linalg.norm(queries, axis=1, keepdims=True), 1e-12)
         return 1.0 - (Q @ self.matrix().T).max(axis=1)
 
     def distance_to(self, other: "Gallery") -> float:
         """Minimum cosine distance between any two descriptors of two galleries (re-id score)."""
-        if not self._items or not other._items:
+        if not self._n or not other._n:
             return float("nan")
         return float(1.0 - np.max(self.matrix() @ other.matrix().T))
 
     def copy(self) -> "Gallery":
-        g = Gallery(self.capacity, self.every, self._items)
+        g = Gallery(self.capacity, self.every)
+        g._a, g._n = self._a[:self._n].copy(), self._n
         g._last_frame = self._last_frame
         return g
