@@ -58,6 +58,38 @@ def test_track_file_reads_back_and_a_restart_appends(tmp_path):
         read_tracks(tmp_path / "bad.csv")
 
 
+def test_track_file_rotates_by_size_keeping_whole_frames(tmp_path):
+    x = np.array([1.0, 2.0, 0.5, 1.7, 0.1, -0.2])
+    path = tmp_path / "tracks_node0.csv"
+    row_bytes = len("0,1000002,1,2,1.000000,2.000000,0.500000,1.700000,0.100000,-0.200000,1,0,,,,\r\n")
+    frames = 40
+    with TrackWriter(path, rotate_bytes=10 * row_bytes, keep=2) as w:  # ~9 two-row frames a file
+        for k in range(frames):
+            w.write([Track((1, 2), k, x, np.eye(6), True, 0), Track((1, 3), k, x, np.eye(6), True, 0)])
+    files = [path, path.with_name(path.name + ".1"), path.with_name(path.name + ".2")]
+    assert all(f.exists() for f in files) and not path.with_name(path.name + ".3").exists()
+    seen = []
+    for f in reversed(files):  # oldest kept first
+        lines = f.read_text().splitlines()
+        assert lines[0] == ",".join(HEADER)  # every file reads on its own
+        ks = [int(line.split(",")[0]) for line in lines[1:]]
+        assert all(ks.count(k) == 2 for k in set(ks))  # whole frames only
+        seen += sorted(set(ks))
+    assert seen == list(range(seen[0], frames))  # newest frames kept, in order, none lost between
+    # the header is shorter than a row, so the 5th two-row frame passes 10 rows' bytes: a file
+    # holds 5 frames, 40 frames make 8 rotations, and the last two full files are 30..39
+    assert len(",".join(HEADER)) + 2 < row_bytes
+    assert w.rotations == frames // 5 and seen == list(range(frames - 10, frames))
+    # logrotate moved the file away: reopen starts a fresh one with a header
+    with TrackWriter(path) as w:
+        w.write([Track((1, 2), 0, x, np.eye(6), True, 0)])
+        path.rename(tmp_path / "moved.csv")
+        w.reopen()
+        w.write([Track((1, 2), 1, x, np.eye(6), True, 0)])
+    assert [[t.frame for t in f] for f in read_tracks(path, 2)] == [[], [1]]
+    assert [[t.frame for t in f] for f in read_tracks(tmp_path / "moved.csv", 2)] == [[0], []]
+
+
 # -- calibration.json -----------------------------------------------------------------------------
 def _camera(cid: int) -> Camera:
     return Camera(id=cid, image_size=(360, 288), G=np.diag([0.01, 0.01, 1.0]), fps=25.0)

@@ -183,6 +183,22 @@ def test_liveliness_loss_is_seen_and_not_waited_for(transports):
 
 
 @pytest.mark.integration
+def test_a_lost_message_costs_no_timeout_once_a_later_one_arrived(transports):
+    a, b, _, _ = _pair(transports, network="tq")
+    assert a.wait_ready(5.0) < 5.0 and b.wait_ready(5.0) < 5.0
+    a.publish(codec.encode(_msg(0, 0, "tq")))
+    assert list(b.collect(0, 5.0)) == [0]
+    a.publish(codec.encode(_msg(0, 2, "tq")))  # frame 1's message is lost on the way
+    assert wait_for(lambda: b.counters()["received_per_link"] == {"0->1": 2})
+    t0 = time.monotonic()
+    assert b.collect(1, 5.0) == {}  # the link is ordered: frame 1 will not come
+    assert time.monotonic() - t0 < 0.5
+    c = b.counters()
+    assert c["lost"] == {"0->1": 1} and c["timeouts"] == {}
+    assert list(b.collect(2, 5.0)) == [0]  # and frame 2's is used as usual
+
+
+@pytest.mark.integration
 def test_drain_hands_over_each_message_once_up_to_k(transports):
     a, b, _, _ = _pair(transports, network="ta")
     a.wait_ready(5.0)

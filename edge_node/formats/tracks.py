@@ -37,26 +37,64 @@ def track_row(t: Track, camera: int | None = None) -> list[Any]:
 
 
 class TrackWriter:
-    """Appends one frame's tracks at a time; ``flush`` is cheap enough to call once a second."""
+    """Appends one frame's tracks at a time; ``flush`` is cheap enough to call once a second.
 
-    def __init__(self, path: Path | None, append: bool = False, camera: int | None = None):
+    Rotation, for a node that runs for months: with ``rotate_bytes`` the file is rotated after
+    the frame that takes it past that size (``tracks.csv`` -> ``tracks.csv.1`` -> ... ->
+    ``tracks.csv.<keep>``, the oldest dropped; each file starts with the header and holds whole
+    frames). :meth:`reopen` starts a new file after an outside tool (logrotate) moved it.
+    """
+
+    def __init__(self, path: Path | None, append: bool = False, camera: int | None = None,
+                 rotate_bytes: int | None = None, keep: int = 5):
         """``append``: a restarted node continues its earlier life's file. ``camera``: the
         node's own camera, whose view the box columns hold."""
         self.path = path
         self.camera = camera
+        self.rotate_bytes = rotate_bytes
+        self.keep = keep
+        self.rotations = 0
         self._f = None
         self._w = None
         if path is not None:
             path.parent.mkdir(parents=True, exist_ok=True)
-            cont = append and path.exists() and path.stat().st_size > 0
-            self._f = open(path, "a" if cont else "w", newline="")
-            self._w = csv.writer(self._f)
-            if not cont:
-                self._w.writerow(HEADER)
+            self._open(append)
+
+    def _open(self, append: bool) -> None:
+        cont = append and self.path.exists() and self.path.stat().st_size > 0
+        self._f = open(self.path, "a" if cont else "w", newline="")
+        self._w = csv.writer(self._f)
+        if not cont:
+            self._w.writerow(HEADER)
 
     def write(self, tracks: Iterable[Track]) -> None:
         if self._w is not None:
             self._w.writerows(track_row(t, self.camera) for t in tracks)
+            if self.rotate_bytes is not None and self._f.tell() >= self.rotate_bytes:
+                self.rotate()
+
+    def rotate(self) -> None:
+        """Close the file, shift the older ones up by one, start a new file."""
+        if self._f is None:
+            return
+        self.close()
+        old = [self.path.with_name(f"{self.path.name}.{i}") for i in range(self.keep + 1)]
+        old[0] = self.path
+        if self.keep == 0:
+            self.path.unlink(missing_ok=True)
+        else:
+            old[-1].unlink(missing_ok=True)
+            for i in range(self.keep - 1, -1, -1):
+                if old[i].exists():
+                    old[i].replace(old[i + 1])
+        self.rotations += 1
+        self._open(append=False)
+
+    def reopen(self) -> None:
+        """Continue in the file at ``path`` (a new one when it was moved away)."""
+        if self._f is not None:
+            self.close()
+            self._open(append=True)
 
     def flush(self) -> None:
         if self._f is not None:

@@ -64,6 +64,9 @@ Schema (defaults in brackets)::
     dir = "out"                     # optional: tracks_node<id>.csv, status_node<id>.json,
                                     # counters_node<id>.json (edge_node/runtime/output.py)
     status_interval_s = 1.0         #                                                      [1.0]
+    rotate_mb = 100.0               # optional: rotate the track file at this size: tracks_node
+                                    # <id>.csv.1 .. .<keep> (SIGHUP reopens it, for logrotate)
+    keep = 5                        # rotated track files kept                               [5]
 
     [viz]                           # optional: live view in Rerun (edge_node/viz/rerun_log.py)
     rerun = "off"                   # "off" | "spawn" | "connect [ADDR]" | "save FILE.rrd" |
@@ -184,6 +187,8 @@ class SourceSettings:
 class OutputSettings:
     dir: Path | None = None
     status_interval_s: float = 1.0
+    rotate_mb: float | None = None  # None: one track file, never rotated
+    keep: int = 5
 
 
 @dataclass(frozen=True)
@@ -477,5 +482,7 @@ def _output(t: Table | None, base: Path) -> OutputSettings:
         return OutputSettings()
     d = t.path("dir", base, None)
     interval = t.number("status_interval_s", 1.0, lo=0, lo_open=True)
+    rotate = t.number("rotate_mb", None, lo=0, lo_open=True)
+    keep = t.integer("keep", 5, lo=0)
     t.finish()
-    return OutputSettings(d, interval)
+    return OutputSettings(d, interval, rotate, keep)

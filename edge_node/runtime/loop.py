@@ -72,6 +72,8 @@ log = logging.getLogger("edge_node.loop")
 SKIP_FRAMES = 2  # a node more frames than this behind its neighbours skips ahead to them
 LATE_PACING_S = 1.0  # a paced loop this far behind its clock re-anchors instead of bursting
 
+COUNTERS_INTERVAL_S = 10.0  # the counters file is rewritten this often while running
+
 EXIT_OK = 0
 EXIT_FAILURE = 1
 EXIT_USAGE = 2
@@ -80,10 +82,12 @@ EXIT_DUPLICATE = 5
 
 
 class Shutdown:
-    """SIGINT / SIGTERM -> ``event`` (finish the frame, then stop). Restores the old handlers."""
+    """SIGINT / SIGTERM -> ``event`` (finish the frame, then stop); SIGHUP -> ``reopen`` (start
+    new output files after a log rotator moved them). Restores the old handlers."""
 
     def __init__(self, install: bool = True):
         self.event = threading.Event()
+        self.reopen = threading.Event()
         self.signal: int | None = None
         self._old: dict[int, Any] = {}
         self._install = install and threading.current_thread() is threading.main_thread()
@@ -100,6 +104,7 @@ class Shutdown:
         if self._install:
             for s in (signal.SIGINT, signal.SIGTERM):
                 self._old[s] = signal.signal(s, self._handler)
+            self._old[signal.SIGHUP] = signal.signal(signal.SIGHUP, lambda *_: self.reopen.set())
         return self
 
     def __exit__(self, *exc) -> None:
@@ -163,7 +168,8 @@ class FrameLoop:
                  status: StatusWriter | None = None, stop: threading.Event | None = None,
                  first_frame: int = 0, status_extra: Callable[[], dict] | None = None,
                  faults: FaultPlan = NO_FAULTS, state_file: Path | None = None,
-                 sink: Any = None):
+                 sink: Any = None, reopen: threading.Event | None = None,
+                 checkpoint: Callable[[], None] | None = None):
         if mode not in ("sync", "async"):
             raise ValueError(f"mode must be 'sync' or 'async', got {mode!r}")
         if mode == "async" and not supports_stale(node):
@@ -182,6 +188,9 @@ class FrameLoop:
         self.started_at = time.time()
         self._status_extra = status_extra
         self.sink = sink or NullSink()  # edge_node.viz: Rerun logging, a no-op when off
+        self.reopen = reopen or threading.Event()  # set: start new output files (SIGHUP)
+        self.checkpoint = checkpoint  # writes the counters file (every COUNTERS_INTERVAL_S)
+        self._checkpoint_at = time.monotonic()
         self._dets: list = []  # this frame's detections (for the sink)
         self.faults = faults
         self.state_file = state_file  # persists the tracker counter: a restart reuses no id
@@ -313,6 +322,14 @@ class FrameLoop:
             if self.status.due():
                 self.writer.flush()
                 self.write_status("running")
+                if self.checkpoint is not None \
+                        and time.monotonic() - self._checkpoint_at >= COUNTERS_INTERVAL_S:
+                    self.checkpoint()
+                    self._checkpoint_at = time.monotonic()
+            if self.reopen.is_set():
+                self.reopen.clear()
+                self.writer.reopen()
+                log.info("node %d: SIGHUP: reopened %s", self.node.id, self.writer.path)
             i += 1
             k += 1
             ahead = self._network_frame() if fps > 0 else None  # unpaced: every frame counts
@@ -479,11 +496,17 @@ def run_node(cfg: NodeConfig, *, frames: int | None = None, mode: str | None = N
                                       keep_existing=join)
             except SinkError as e:
                 raise NodeConfigError(cfg.name, "viz.rerun", str(e)) from None
+            o = cfg.output
             writer = TrackWriter(tracks_path(out, cfg.node) if out else None, append=join,
-                                 camera=source.camera.id)
+                                 camera=source.camera.id, keep=o.keep,
+                                 rotate_bytes=None if o.rotate_mb is None
+                                 else int(o.rotate_mb * 1e6))
             loop = FrameLoop(cfg, node, source, transport, mode=mode, frames=total,
                              writer=writer, status=status, stop=shutdown.event,
-                             faults=faults, state_file=state_file, sink=sink)
+                             faults=faults, state_file=state_file, sink=sink,
+                             reopen=shutdown.reopen,
+                             checkpoint=(lambda: write_counters(cfg, loop, node, transport, None))
+                             if out is not None else None)
             loop.write_status("starting")
             if cfg.neighbours:
                 try:
@@ -540,20 +563,30 @@ def run_node(cfg: NodeConfig, *, frames: int | None = None, mode: str | None = N
                     if status.path is not None:
                         write_json_atomic(status.path, d)
                     if out is not None:
-                        st = loop.stats
-                        write_json_atomic(counters_path(out, cfg.node), {
-                            "node": cfg.node, "network": cfg.network, "mode": mode,
-                            "exit_code": code, "frames_done": st.frames_done,
-                            "frames_total": st.frames_total, "stopped": st.stopped,
-                            "startup_s": st.startup_s, "latency": lat, **counters,
-                            "rejected": rejected(counters, node),
-                            **wire_counters(loop.outbox),
-                            "timing_s": {"prepare": st.prepare_s, "wait": st.wait_s,
-                                         "update": st.update_s},
-                            "node_stats": dict(vars(node.stats)),
-                        })
+                        write_counters(cfg, loop, node, None, code, counters, lat)
                 except OSError as e:
                     log.warning("cannot write the exit files: %s", e)
             if sink.url and code == EXIT_OK:  # --rerun serve: keep serving until Ctrl-C
                 log.warning("node %d: Rerun web viewer at %s until Ctrl-C", cfg.node, sink.url)
                 shutdown.event.wait()
+
+
+def write_counters(cfg: NodeConfig, loop: FrameLoop, node: CameraNode, transport, code: int | None,
+                   counters: dict | None = None, lat: dict | None = None) -> None:
+    """``counters_node<id>.json``: rewritten while running (``exit_code`` null) and at exit.
+    ``counters`` / ``lat``: the transport's, when it is already closed."""
+    if counters is None:
+        counters = transport.counters()
+        lat = latency_summary(transport.latency_samples())
+    st = loop.stats
+    write_json_atomic(counters_path(cfg.output.dir, cfg.node), {
+        "node": cfg.node, "network": cfg.network, "mode": loop.mode,
+        "exit_code": code, "frames_done": st.frames_done,
+        "frames_total": st.frames_total, "stopped": st.stopped,
+        "startup_s": st.startup_s, "latency": lat, **counters,
+        "rejected": rejected(counters, node),
+        **wire_counters(loop.outbox),
+        "timing_s": {"prepare": st.prepare_s, "wait": st.wait_s, "update": st.update_s},
+        "rotations": loop.writer.rotations,
+        "node_stats": dict(vars(node.stats)),
+    })

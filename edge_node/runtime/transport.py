@@ -23,11 +23,12 @@ import json
 import logging
 import threading
 import time
-from collections import defaultdict, deque
+from collections import defaultdict
 from collections.abc import Iterable, Sequence
 from pathlib import Path
 from typing import Any
 
+import numpy as np
 import zenoh
 
 from protocol import codec
@@ -43,6 +44,25 @@ LATENCY_SAMPLES = 200_000  # newest one-hop latency samples kept for the summary
 
 ID_SETTLE_S = 0.5  # how long a starting node listens for its own id before it takes it
 GONE_GRACE_S = 0.25  # how long frame k still waits for a neighbour whose liveliness just ended
+
+
+class LatencyRing:
+    """The newest ``size`` samples in an array allocated (and touched) at start: a node's memory
+    does not creep up over its first hours as a growing buffer would."""
+
+    def __init__(self, size: int):
+        self._a = np.full(size, np.nan)
+        self._next = 0
+        self._full = False
+
+    def append(self, v: float) -> None:
+        self._a[self._next] = v
+        self._next += 1
+        if self._next == len(self._a):
+            self._next, self._full = 0, True
+
+    def values(self) -> np.ndarray:
+        return self._a.copy() if self._full else self._a[:self._next].copy()
 
 
 class StartupError(RuntimeError):
@@ -150,11 +170,12 @@ class ZenohTransport:
         self.messages_received: dict[int, int] = defaultdict(int)
         self.rejected: dict[str, int] = defaultdict(int)
         self.late: dict[int, int] = defaultdict(int)
+        self.lost: dict[int, int] = defaultdict(int)  # sync: frames a newer message showed lost
         self.duplicates: dict[int, int] = defaultdict(int)
         self.overflow: dict[int, int] = defaultdict(int)
         self.timeouts: dict[int, int] = defaultdict(int)  # sync: frames a live neighbour missed
         self.liveliness_events: list[tuple[float, int, str]] = []
-        self._latency: deque[float] = deque(maxlen=LATENCY_SAMPLES)
+        self._latency = LatencyRing(LATENCY_SAMPLES)
 
         conf = zenoh_config(listen, connect, scouting, config_file, gossip=gossip,
                             lease_ms=lease_ms)
@@ -438,7 +459,10 @@ class ZenohTransport:
         that is alive (one whose liveliness is lost is not waited for). A neighbour that misses
         the timeout is lagging: it is not waited for again until one of its messages arrives in
         time, so one slow or frozen box costs its neighbours one timeout, not one per frame.
-        Messages of earlier frames are discarded (counted as late), now and when they arrive."""
+        A neighbour whose later frame has arrived is not waited for either: a link delivers in
+        order, so its frame-``frame`` message was lost (counted in ``lost``), and a lossy link
+        costs a frame period, not the timeout. Messages of earlier frames are discarded
+        (counted as late), now and when they arrive."""
         deadline = time.monotonic() + timeout
         with self._cond:
             self._frame_now = frame
@@ -447,6 +471,7 @@ class ZenohTransport:
                 del self._inbox[key]
                 self._pending[key[0]] -= 1
                 self.late[key[0]] += 1
+            lost: set[int] = set()
             while True:
                 have = {s for s in self.neighbours if (s, frame) in self._inbox}
                 # A neighbour that just left (its last frame done) may have its last message
@@ -454,6 +479,11 @@ class ZenohTransport:
                 now = time.monotonic()
                 leaving = {s for s, t in self._gone_at.items() if now - t < GONE_GRACE_S}
                 missing = (self._alive | leaving) - have - self._lagging
+                gone = {s for s in missing if self._newest.get(s, -1) > frame}
+                for s in gone - lost:
+                    self.lost[s] += 1
+                lost |= gone
+                missing -= gone
                 if not missing or (stop is not None and stop.is_set()):
                     break
                 remaining = deadline - time.monotonic()
@@ -510,16 +540,17 @@ class ZenohTransport:
                 "received_per_link": links_in(self.messages_received),
                 "rejected": dict(sorted(self.rejected.items())),
                 "late": links_in(self.late),
+                "lost": links_in(self.lost),
                 "duplicates": links_in(self.duplicates),
                 "overflow": links_in(self.overflow),
                 "timeouts": links_in(self.timeouts),
                 "alive_neighbours": sorted(self._alive),
             }
 
-    def latency_samples(self) -> list[float]:
-        """One-hop latencies (seconds, receipt time minus the sender's ``sent_at``)."""
+    def latency_samples(self) -> np.ndarray:
+        """The newest one-hop latencies (seconds, receipt time minus the sender's ``sent_at``)."""
         with self._cond:
-            return list(self._latency)
+            return self._latency.values()
 
     # -- teardown ---------------------------------------------------------------------------------
     def close(self) -> None:
