@@ -22,7 +22,7 @@ from edge_node.settings import SettingsError
 from protocol.keys import is_valid_network
 from sim_cluster.cluster import commands as cluster
 from sim_cluster.cluster.state import ClusterError
-from sim_cluster.experiments import ablation, bench, bench_cluster, faultreport, fuzz, run
+from sim_cluster.experiments import ablation, bench, bench_cluster, faultreport, fuzz, run, soak
 from sim_cluster.experiments.ablation import AblationError
 from sim_cluster.network.topology import TopologyError
 from sim_cluster.scenarios import commands as scenarios
@@ -204,6 +204,27 @@ def build_parser() -> argparse.ArgumentParser:
     fz.add_argument("--out", default="runs/fuzz")
     fz.add_argument("--quiet", action="store_true")
     fz.set_defaults(func=fuzz.main)
+
+    sk = sub.add_parser("soak", help="real processes at camera rate for minutes, with seeded "
+                        "kills, restarts, freezes, loss and partitions: RSS, frame rate, "
+                        "timeouts, rejections, exits and ground MOTA/IDF1 per minute (PNG + JSON)")
+    sk.add_argument("--minutes", type=integer(1), default=30)
+    sk.add_argument("-n", "--nodes", type=integer(2), default=4)
+    sk.add_argument("--chaos", type=integer(0), default=None, metavar="SEED",
+                    help="inject the seeded fault schedule (default: no faults)")
+    sk.add_argument("--every", type=integer(1), default=3, help="minutes between faults")
+    sk.add_argument("--scenario", default=None,
+                    help="default: terrace-sim for <= 4 nodes, ring8-sim for <= 8")
+    sk.add_argument("--topology", default="ring")
+    sk.add_argument("--config", default="dkf+lda+dtm", choices=CONFIG_NAMES)
+    sk.add_argument("--fps", type=number(0, above=True), default=None,
+                    help="camera rate (default: the scenario's)")
+    sk.add_argument("--seed", type=integer(0), default=0)
+    sk.add_argument("--no-reference", action="store_true",
+                    help="skip the fault-free in-process run the MOTA check compares with")
+    sk.add_argument("--out", default="runs/soak")
+    sk.add_argument("--quiet", action="store_true")
+    sk.set_defaults(func=soak.main)
 
     e = sub.add_parser("export-detections",
                        help="write a scenario's detections (det.txt + .npy), truth and calibration")

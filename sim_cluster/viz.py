@@ -53,8 +53,10 @@ def log_world(sink, data, *, cameras: bool = True) -> None:
 
 
 def log_truth(sink, data, frames: int) -> None:
-    for k in range(min(frames, len(data.truth.ids))):
-        sink.log_truth(k, data.truth.ids[k], data.truth.xy[k])
+    """Frames ``0..frames-1`` of ``data``'s ground truth (a scenario, streamed or not)."""
+    for k in range(min(frames, data.frames)):
+        f = data.frame(k)
+        sink.log_truth(k, f.ids, f.xy)
 
 
 def log_disagreement(sink, tracks: dict[int, list], frames: int) -> None:

@@ -95,3 +95,17 @@ def test_appearance_cache_is_bounded_and_forgetting_changes_nothing():
     assert len(m._base) <= _KEEP and len(m._identity) <= _KEEP
     assert (1, 0) not in m._base  # forgotten, and derived again identically
     np.testing.assert_array_equal(m.base(1, 0), first)
+
+
+def test_a_camera_process_makes_only_its_camera_and_sees_the_same():
+    full = open_scenario("terrace-sim", frames=300)
+    mine = full.camera(2)
+    for k in (0, 150, 299):
+        a, b = mine(k), full.frame(k).detections[2]
+        assert len(a) == len(b) > 0
+        for x, y in zip(a, b):
+            np.testing.assert_array_equal(x.box, y.box)
+            np.testing.assert_array_equal(x.descriptor, y.descriptor)
+    focused = full.focus([2])(1)
+    assert all(not f.detections[c] for f in focused for c in (0, 1, 3))
+    assert any(f.detections[2] for f in focused)

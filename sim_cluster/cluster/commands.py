@@ -18,7 +18,7 @@ from sim_cluster.cluster.launcher import Cluster
 from sim_cluster.cluster.state import ClusterError, node_status
 from sim_cluster.evaluation.report import latency_line, run_table
 from sim_cluster.progress import progress_bar
-from sim_cluster.scenarios.loader import scenario_from_args
+from sim_cluster.scenarios.loader import stream_from_args
 from sim_cluster.scenarios.synthetic.render import RenderError, ensure_rendered
 from sim_cluster.viz import ClusterViz, spec_from_args
 
@@ -28,14 +28,11 @@ def up(args) -> int:
     Rerun option, node configs) is checked before the first write to ``--out``, so a mistake
     leaves a previous run's files there as they were."""
     spec = spec_from_args(getattr(args, "rerun", None))  # --rerun (sim_cluster/viz.py)
-    data = scenario_from_args(args)
+    data = stream_from_args(args)  # frames on demand: nothing is generated up front
     n = data.num_cameras if args.nodes is None else args.nodes
     if not 1 <= n <= data.num_cameras:
         raise ClusterError(f"--nodes {n}: scenario {data.name} has {data.num_cameras} cameras")
-    if n < data.num_cameras:
-        data.cameras = data.cameras[:n]
-        data.detections = [d[:n] for d in data.detections]
-        data.truth.boxes = data.truth.boxes[:n]
+    data = data.first_cameras(n)
     cluster = Cluster.prepare(args.out, network=args.network, scenario=args.scenario,
                               seed=args.seed, frames=args.frames, mode=args.mode,
                               topology=args.topology, nodes=n, data_root=args.data_root)
@@ -80,7 +77,7 @@ def up(args) -> int:
             cluster.wait(plan=plan, on_poll=progress)
         finally:
             close()
-        summary = cluster.gather(data, frames, args.config)
+        summary = cluster.gather(data.materialise(), frames, args.config)
         (out / "summary.json").write_text(json.dumps(summary, indent=2, sort_keys=True))
         print(run_table(summary))
         print(latency_line(summary))

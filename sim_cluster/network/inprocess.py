@@ -128,8 +128,11 @@ def run_network(data: ScenarioData, adjacency: Adjacency | str, cfg: TrackerConf
                 frames: int | None = None, mode: str = "sync",
                 faults: FaultPlan = NO_FAULTS, trigger: TriggerConfig | None = None,
                 progress: Callable[[int, int], None] | None = None,
-                registration_history: bool = False) -> RunResult:
-    """Run ``data`` through the network ``adjacency`` (or ``"centralized"``) with ``cfg``.
+                registration_history: bool = False,
+                on_frame: Callable[[int, dict[int, list[Track]]], None] | None = None
+                ) -> RunResult:
+    """Run ``data`` (a ``ScenarioData`` or a ``ScenarioStream``) through the network
+    ``adjacency`` (or ``"centralized"``) with ``cfg``.
 
     ``mode="sync"``: every node fuses its neighbours' frame-``k`` messages at frame ``k`` (a
     message that arrives late is useless, as in the synchronous runtime). ``mode="async"``: the
@@ -138,14 +141,15 @@ def run_network(data: ScenarioData, adjacency: Adjacency | str, cfg: TrackerConf
     messages and crashes / restarts nodes, deterministically from its seed.
     ``registration_history``: keep a copy of every camera's registration after every frame
     (``RunResult.registration_history``; memory grows with the frames); the final state is
-    always in ``RunResult.registration``.
+    always in ``RunResult.registration``. ``on_frame(k, {node: tracks})``: each frame's tracks go
+    there instead of into ``RunResult.tracks`` (a long run over a stream holds no history).
     """
     if mode not in ("sync", "async"):
         raise ValueError(f"mode must be 'sync' or 'async', got {mode!r}")
     frames = data.frames if frames is None else min(frames, data.frames)
     cfg = cfg.with_(fps=data.fps, units_per_metre=data.units_per_metre)
     if adjacency == CENTRALIZED:
-        return _run_centralized(data, cfg, frames, progress)
+        return _run_centralized(data, cfg, frames, progress, on_frame)
     n = data.num_cameras
     if sorted(adjacency) != list(range(n)):
         raise ValueError(f"topology has nodes {sorted(adjacency)}, scenario has cameras 0..{n - 1}")
@@ -184,12 +188,13 @@ def run_network(data: ScenarioData, adjacency: Adjacency | str, cfg: TrackerConf
                 for j in adjacency[i]:  # its neighbours see it come back and resync it
                     resync[j].add(i)
         arrived: dict[int, list[FrameMessage]] = {i: [] for i in range(n)}
+        dets = data.frame(k).detections
         for i, node in nodes.items():
             if node is None:
                 continue
             ob = outboxes[i]
             deliveries = ob.due(k)
-            msg = node.prepare(k, data.detections[k][i])
+            msg = node.prepare(k, dets[i])
             deliveries += ob.send(msg, resync={j for j in resync[i] if nodes[j] is not None},
                                   resync_message=node.resync_message)
             resync[i].clear()
@@ -198,16 +203,20 @@ def run_network(data: ScenarioData, adjacency: Adjacency | str, cfg: TrackerConf
                     arrived[dst].append(codec.decode(payload, expect_network=network,
                                                      expect_sender=i,
                                                      allowed_senders=adjacency[dst]))
+        now: dict[int, list[Track]] = {}
         for i, node in nodes.items():
             if node is None:
-                tracks[i].append([])
+                now[i] = []
                 continue
-            if mode == "async":
-                tracks[i].append(node.update(arrived[i], stale_ok=True))
-            else:
-                tracks[i].append(node.update(arrived[i]))
+            now[i] = node.update(arrived[i], stale_ok=True) if mode == "async" \
+                else node.update(arrived[i])
             if registration_history:
                 history[i].append({c: r.snapshot() for c, r in node.registrations.items()})
+        if on_frame is not None:
+            on_frame(k, now)
+        else:
+            for i in range(n):
+                tracks[i].append(now[i])
         if progress:
             progress(k + 1, frames)
     stats = {i: _add_stats(retired.get(i), nodes[i].stats if nodes[i] else None) for i in range(n)}
@@ -235,20 +244,26 @@ def _add_stats(a: NodeStats | None, b: NodeStats | None) -> NodeStats:
     return a.add(b)
 
 
-def _run_centralized(data: ScenarioData, cfg: TrackerConfig, frames: int, progress) -> RunResult:
+def _run_centralized(data: ScenarioData, cfg: TrackerConfig, frames: int, progress,
+                     on_frame=None) -> RunResult:
     """One tracker fed every camera's detections (same LDA, manager and parameters); its
     bandwidth is every camera's raw detections sent to it."""
     central = CameraNode(data.cameras, (), cfg, "central", node_id=0)
     wire = WireCounters()
     out: list[list[Track]] = []
     for k in range(frames):
-        dets = {c.id: data.detections[k][c.id] for c in data.cameras}
+        frame = data.frame(k).detections
+        dets = {c.id: frame[c.id] for c in data.cameras}
         for c in data.cameras:
             payload = raw_detection_bytes(dets[c.id], c.id, k)
             wire.bytes_per_link[(c.id, -1)] = wire.bytes_per_link.get((c.id, -1), 0) + len(payload)
             wire.messages += 1
         central.prepare(k, dets)
-        out.append(central.update(()))
+        tracks = central.update(())
+        if on_frame is not None:
+            on_frame(k, {c.id: tracks for c in data.cameras})
+        else:
+            out.append(tracks)
         if progress:
             progress(k + 1, frames)
     tracks = {c.id: out for c in data.cameras}  # every camera is served by the one tracker

@@ -63,6 +63,16 @@ class ScenarioData:
     def num_cameras(self) -> int:
         return len(self.cameras)
 
+    def frame(self, k: int) -> "Frame":
+        """Frame ``k`` as a :class:`Frame` (the interface a :class:`ScenarioStream` shares)."""
+        if not 0 <= k < self.frames:
+            raise IndexError(f"frame {k} outside 0..{self.frames - 1} of scenario {self.name}")
+        t, C = self.truth, self.num_cameras
+        return Frame(detections=self.detections[k],
+                     detection_truth=(self.detection_truth[k] if self.detection_truth
+                                      else [np.zeros(0, np.int64)] * C),
+                     ids=t.ids[k], xy=t.xy[k], wh=t.wh[k], boxes=[t.boxes[c][k] for c in range(C)])
+
     def has_descriptors(self) -> bool:
         """Whether any detection carries an appearance descriptor (a detector with re-id)."""
         return any(d.descriptor is not None for frame in self.detections for cam in frame
@@ -111,6 +121,9 @@ class ScenarioStream:
     chunk_frames: int
     area: tuple[float, float, float, float] = (0.0, 1.0, 0.0, 1.0)
     seed: int = 0
+    #: optional: ``focus(cameras)`` -> a chunk maker that makes the detections and image ground
+    #: truth of these cameras only (the others' are empty), the same as ``chunk``'s
+    focus: Callable[[list[int]], ChunkMaker] | None = field(default=None, repr=False)
     _held: tuple[int, list[Frame]] | None = field(default=None, repr=False)
 
     @property
@@ -130,8 +143,11 @@ class ScenarioStream:
         return (self.frame(k) for k in range(self.frames))
 
     def camera(self, c: int) -> Callable[[int], list[Detection]]:
-        """Camera ``c``'s detections as ``read(k)``: what a camera process replays."""
-        return lambda k: self.frame(k).detections[c]
+        """Camera ``c``'s detections as ``read(k)``: what a camera process replays (a stream of
+        its own that makes camera ``c``'s frames only, where the source can)."""
+        s = self if self.focus is None else replace(self, chunk=self.focus([c]), focus=None,
+                                                     _held=None)
+        return lambda k: s.frame(k).detections[c]
 
     def first_cameras(self, n: int) -> "ScenarioStream":
         """The same stream seen by cameras ``0..n-1`` only (``sim_cluster up --nodes n``)."""
@@ -143,7 +159,7 @@ class ScenarioStream:
             return [replace(f, detections=f.detections[:n], detection_truth=f.detection_truth[:n],
                             boxes=f.boxes[:n]) for f in full(j)]
 
-        return replace(self, cameras=self.cameras[:n], chunk=chunk, _held=None)
+        return replace(self, cameras=self.cameras[:n], chunk=chunk, focus=None, _held=None)
 
     def materialise(self) -> "ScenarioData":
         """Every frame in lists: the :class:`ScenarioData` of this stream."""
@@ -166,16 +182,9 @@ class ScenarioStream:
     @classmethod
     def of(cls, data: "ScenarioData", chunk_frames: int = 100) -> "ScenarioStream":
         """A materialised scenario as a stream (its frames are already in memory)."""
-        C, t = data.num_cameras, data.truth
-        empty = np.zeros(0, np.int64)
-
         def chunk(j: int) -> list[Frame]:
-            lo, hi = j * chunk_frames, min((j + 1) * chunk_frames, data.frames)
-            return [Frame(detections=data.detections[k],
-                          detection_truth=(data.detection_truth[k] if data.detection_truth
-                                           else [empty] * C),
-                          ids=t.ids[k], xy=t.xy[k], wh=t.wh[k],
-                          boxes=[t.boxes[c][k] for c in range(C)]) for k in range(lo, hi)]
+            return [data.frame(k) for k in range(j * chunk_frames,
+                                                 min((j + 1) * chunk_frames, data.frames))]
 
         return cls(name=data.name, cameras=list(data.cameras), frames=data.frames, fps=data.fps,
                    units_per_metre=data.units_per_metre, chunk=chunk, chunk_frames=chunk_frames,

@@ -483,8 +483,11 @@ class WorldStream:
     run has 100 frames or 100,000, and whether the frames before it were made or skipped.
     """
 
-    def __init__(self, config: WorldConfig):
+    def __init__(self, config: WorldConfig, cameras: list[int] | None = None):
+        """``cameras``: make these cameras' detections and image ground truth only (a camera
+        process needs its own); the others' are empty. Each camera's are the same either way."""
         self.config = config
+        self.cameras = cameras
         self.appearance = AppearanceModel(config.appearance, int(config.seed))
         self.walk = self._walk()
 
@@ -499,7 +502,7 @@ class WorldStream:
             self.walk = self._walk()
         self.walk.skip(k0 - self.walk.k)
         steps = [self.walk.next() for _ in range(CHUNK_FRAMES)]
-        return _chunk(self.config, self.appearance, k0, j, _trajectories(steps))
+        return _chunk(self.config, self.appearance, k0, j, _trajectories(steps), self.cameras)
 
 
 def stream(config: WorldConfig) -> ScenarioStream:
@@ -510,7 +513,7 @@ def stream(config: WorldConfig) -> ScenarioStream:
         believed = [believed_camera(cam, E) for cam, E in zip(cams, config.calibration.errors(cams))]
     return ScenarioStream(name=config.name, cameras=believed, frames=config.frames, fps=config.fps,
                           units_per_metre=1.0, chunk=WorldStream(config),
-                          chunk_frames=CHUNK_FRAMES,
+                          chunk_frames=CHUNK_FRAMES, focus=lambda c: WorldStream(config, c),
                           area=tuple(float(v) for v in config.area), seed=int(config.seed))
 
 
@@ -520,8 +523,9 @@ def generate(config: WorldConfig) -> ScenarioData:
 
 
 def _chunk(config: WorldConfig, appearance: AppearanceModel, k0: int, j: int,
-           traj: Trajectories) -> list[Frame]:
-    """Frames ``k0 .. k0 + F - 1`` (chunk ``j``) of the world, the people's paths ``traj``."""
+           traj: Trajectories, only: list[int] | None = None) -> list[Frame]:
+    """Frames ``k0 .. k0 + F - 1`` (chunk ``j``) of the world, the people's paths ``traj``;
+    detections and image ground truth of cameras ``only`` (default all)."""
     seed = int(config.seed)
     F, N = traj.xy.shape[:2]
     present = traj.present
@@ -562,8 +566,10 @@ def _chunk(config: WorldConfig, appearance: AppearanceModel, k0: int, j: int,
         frames.append(Frame(detections=[[] for _ in range(C)],
                             detection_truth=[np.zeros(0, np.int64)] * C,
                             ids=traj.ids[sel], xy=traj.xy[k, sel], wh=traj.wh[sel],
-                            boxes=[None] * C))
+                            boxes=[(np.zeros(0, np.int64), np.zeros((0, 4)))] * C))
     for c, cam in enumerate(cams):
+        if only is not None and c not in only:
+            continue
         # Candidates: in front and at least partly in the image, packed per frame for occlusion.
         ck, ci, slot, width = _pack(inimg[c] > 0)
         packed_b = np.full((F, width, 4), np.nan)
