@@ -15,9 +15,11 @@ Errors are one line on stderr.
 from __future__ import annotations
 
 import argparse
+import importlib
 import json
 import logging
 import sys
+import threading
 from dataclasses import replace
 
 from edge_node.perception import PerceptionError, calibrate
@@ -148,8 +150,20 @@ def _run(args) -> int:
     return report.exit_code
 
 
+def warm_up(modules: tuple[str, ...] = ("scipy.optimize",)) -> threading.Thread:
+    """Import the heavy libraries the first frame needs in the background, while the process
+    reads its config, opens its source and waits for Zenoh and its neighbours (start-up time is
+    spawn to frame 0; the core imports them on first use)."""
+    t = threading.Thread(target=lambda: [importlib.import_module(m) for m in modules],
+                         name="warm-up", daemon=True)
+    t.start()
+    return t
+
+
 def main(argv: list[str] | None = None) -> int:
     args = _parser().parse_args(argv)
+    if args.command == "run":
+        warm_up()
     if args.command == "check":
         return _check(args)
     if args.command == "calibrate":

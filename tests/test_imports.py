@@ -7,9 +7,11 @@
 * No import circles among module-level imports (importing ``a.b.c`` also runs the package
   ``a.b``'s ``__init__``, and ``from a.b import c`` names ``a.b``: both count as edges).
 * Nobody imports a ``cli`` module: the command lines are argparse over library modules.
-* Imports inside functions are for heavy optional dependencies only (torch, OpenCV, Rerun,
-  matplotlib, or one of our modules that imports them at module level), each with a comment on
-  its line or the line above saying why.
+* Imports inside functions are for heavy dependencies only (torch, OpenCV, Rerun, matplotlib,
+  or one of our modules that imports them at module level; and SciPy, which the core needs
+  from its first assignment on but which is two thirds of a camera process's import time, so
+  ``edge_node run`` loads it while it waits for its network), each with a comment on its line
+  or the line above saying why.
 
 Every failure names ``file:line``, the rule and the import. The last tests run the checker on a
 small fake tree that breaks each rule once, so a checker that finds nothing is caught too.
@@ -18,6 +20,7 @@ from __future__ import annotations
 
 import ast
 import io
+import subprocess
 import sys
 import tokenize
 from collections import defaultdict
@@ -29,7 +32,7 @@ import pytest
 ROOT = Path(__file__).resolve().parent.parent
 OURS = ("protocol", "edge_node", "sim_cluster")
 CORE_BANNED = ("zenoh", "rerun", "torch", "cv2")
-HEAVY = ("torch", "torchvision", "cv2", "rerun", "rerun_cli", "matplotlib")
+HEAVY = ("torch", "torchvision", "cv2", "rerun", "rerun_cli", "matplotlib", "scipy")
 CLI_MODULES = ("sim_cluster.cli", "edge_node.cli")
 
 RULES = ("protocol", "edge_node", "core", "circle", "cli", "inner")
@@ -332,3 +335,13 @@ def test_checker_finds_inner_imports_that_are_light_or_unexplained(fake):
     assert got[0].startswith("edge_node/perception/reid.py:5: import torch (a heavy import "
                              "inside a function needs a comment")
     assert got[1].startswith("sim_cluster/a.py:5: import json (inside a function: only heavy")
+
+
+def test_a_camera_process_imports_no_scipy_before_it_needs_it():
+    """Start-up time: ``edge_node``'s command line and core import without SciPy (the run
+    command loads it in the background while it waits for its network)."""
+    code = ("import sys, edge_node.cli, edge_node.core.node; "
+            "print(sorted(m for m in sys.modules if m.split('.')[0] in ('scipy', 'torch', 'cv2')))")
+    out = subprocess.run([sys.executable, "-c", code], cwd=ROOT, capture_output=True, text=True,
+                         check=True).stdout.strip()
+    assert out == "[]"

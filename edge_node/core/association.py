@@ -6,7 +6,8 @@ distance to the tracker's gallery (eq. 7). Pairs outside the gate are never assi
 (our addition) pairs whose appearance distance exceeds ``appearance_gate``, because the product
 cost lets a detection very close to a prediction win whatever it looks like. The
 assignment minimises the total cost (Hungarian, ``scipy.optimize.linear_sum_assignment``), not
-a greedy pick.
+a greedy pick. SciPy is imported at the first assignment, not with the core: it is most of a
+camera process's import time, which ``edge_node run`` spends while it waits for its network.
 """
 from __future__ import annotations
 
@@ -14,13 +15,20 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.optimize import linear_sum_assignment
 
 from edge_node.core.config import TrackerConfig
 from edge_node.core.gallery import Gallery
 
 FORBIDDEN = 1e9
 
+
+
+
+def _hungarian(cost: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """``scipy.optimize.linear_sum_assignment`` (imported on first use: see the module docstring)."""
+    # SciPy is heavy (see the module docstring): imported here, on first use
+    from scipy.optimize import linear_sum_assignment
+    return linear_sum_assignment(cost)
 
 @dataclass(frozen=True)
 class Candidate:
@@ -95,7 +103,7 @@ def assign(cost: np.ndarray) -> list[tuple[int, int]]:
     """Minimum-cost assignment over the allowed pairs; returns ``(row, col)`` sorted by row."""
     if cost.size == 0:
         return []
-    rows, cols = linear_sum_assignment(cost)
+    rows, cols = _hungarian(cost)
     return sorted((int(r), int(c)) for r, c in zip(rows, cols) if cost[r, c] < FORBIDDEN)
 
 
