@@ -98,6 +98,11 @@ class Frame:
     boxes: list[tuple[np.ndarray, np.ndarray]]
 
 
+#: Frames per chunk of every scenario source that makes its frames in chunks (the synthetic
+#: world, EPFL gt-replay, det-files): the unit in which frames are made and held, and the unit
+#: of a source's random streams (a camera's detector draws chunk ``j`` from its own generator).
+CHUNK_FRAMES = 100
+
 #: ``chunk(j)`` -> frames ``j * chunk_frames .. (j + 1) * chunk_frames - 1`` (all of them, also past
 #: the scenario's last frame where the source can make them; :class:`ScenarioStream` truncates).
 ChunkMaker = Callable[[int], list[Frame]]
@@ -180,7 +185,7 @@ class ScenarioStream:
                             area=self.area, seed=self.seed)
 
     @classmethod
-    def of(cls, data: "ScenarioData", chunk_frames: int = 100) -> "ScenarioStream":
+    def of(cls, data: "ScenarioData", chunk_frames: int = CHUNK_FRAMES) -> "ScenarioStream":
         """A materialised scenario as a stream (its frames are already in memory)."""
         def chunk(j: int) -> list[Frame]:
             return [data.frame(k) for k in range(j * chunk_frames,

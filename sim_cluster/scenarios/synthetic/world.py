@@ -51,7 +51,7 @@ import numpy as np
 
 from edge_node.core.types import Detection
 from edge_node.geometry import Camera
-from sim_cluster.scenarios.data import Frame, ScenarioData, ScenarioStream
+from sim_cluster.scenarios.data import CHUNK_FRAMES, Frame, ScenarioData, ScenarioStream
 from sim_cluster.scenarios.synthetic.appearance import AppearanceModel, AppearanceParams
 from sim_cluster.scenarios.synthetic.calibration import (CalibrationError, believed_camera,
                                                          moved_camera)
@@ -467,10 +467,8 @@ def _pack(mask: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, int]:
 
 
 # -- the whole scenario -------------------------------------------------------------------------
-
-#: Frames per chunk: the unit in which a world is made (one vectorised projection, occlusion
-#: and detector pass per camera) and the unit of the detector's random streams.
-CHUNK_FRAMES = 100
+# A world is made a chunk of CHUNK_FRAMES at a time (data.py): one vectorised projection,
+# occlusion and detector pass per camera, and the unit of the detector's random streams.
 
 
 class WorldStream:
