@@ -7,8 +7,9 @@ import pytest
 from edge_node.core.types import Detection
 from edge_node.geometry import Camera
 from sim_cluster.scenarios.data import GroundTruth, ScenarioData
+from edge_node.formats.detfile import open_det, open_gt, open_gt_ground
 from sim_cluster.scenarios.detfiles import (DetFilesError, export_detections, load_det_files,
-                                            read_det, scenario_from_table)
+                                            scenario_from_table)
 from sim_cluster.scenarios.files import ScenarioError
 from sim_cluster.scenarios.loader import load_scenario
 from sim_cluster.scenarios.synthetic.schema import camera_from_pose
@@ -118,14 +119,14 @@ def test_errors_name_the_file(tmp_path):
     bad = tmp_path / "det.txt"
     bad.write_text("1,-1,1,2,3,4,0.9,-1,-1,-1\n2,-1,1,two,3,4,0.9,-1,-1,-1\n")
     with pytest.raises(DetFilesError, match=r"det.txt:2"):
-        read_det(bad)
+        open_det(bad)
     bad.write_text("0,-1,1,2,3,4,0.9,-1,-1,-1\n")
     with pytest.raises(DetFilesError, match="1-based"):
-        read_det(bad)
+        open_det(bad)
     bad.write_text("1,-1,1,2,3,4,0.9,-1,-1,-1\n")
     np.save(tmp_path / "det.npy", np.zeros((2, 8)))
     with pytest.raises(DetFilesError, match=r"det.npy.*1 rows"):
-        read_det(bad, descriptors=tmp_path / "det.npy")
+        open_det(bad, descriptors=tmp_path / "det.npy")
 
 
 def test_scenario_kind_from_a_toml_table(tmp_path):
@@ -162,14 +163,14 @@ def test_a_bad_box_is_an_error_naming_file_line_and_field(tmp_path, row, field):
     det = tmp_path / "det.txt"
     det.write_text(f"# a comment\n{GOOD_ROW}\n\n{row}\n{GOOD_ROW}\n")
     with pytest.raises(DetFilesError) as e:
-        read_det(det)
+        open_det(det)
     assert str(e.value) == f"{det}:4: det.txt field {field}"
 
 
 def test_a_nan_confidence_still_reads_as_one(tmp_path):
     det = tmp_path / "det.txt"
     det.write_text("1,-1,10,20,30,60,nan,-1,-1,-1\n")
-    assert read_det(det)[0][0][0].score == 1.0
+    assert open_det(det).detections(0)[0].score == 1.0
 
 
 def test_a_partly_nan_or_inf_descriptor_is_an_error(tmp_path):
@@ -178,26 +179,24 @@ def test_a_partly_nan_or_inf_descriptor_is_an_error(tmp_path):
     desc = np.ones((3, 4))
     desc[0] = np.nan  # all NaN: no descriptor, fine
     np.save(tmp_path / "det.npy", desc)
-    dets, _ = read_det(det, descriptors=tmp_path / "det.npy")
-    assert dets[0][0].descriptor is None and dets[0][1].descriptor is not None
+    dets = open_det(det, descriptors=tmp_path / "det.npy").detections(0)
+    assert dets[0].descriptor is None and dets[1].descriptor is not None
     desc[2, 1] = np.inf
     np.save(tmp_path / "det.npy", desc)
     with pytest.raises(DetFilesError, match=r"det.npy: row 2 \(descriptor of det.txt's data row "
                                             r"3\) has NaN or inf values"):
-        read_det(det, descriptors=tmp_path / "det.npy")
+        open_det(det, descriptors=tmp_path / "det.npy")
 
 
 def test_ground_truth_files_need_finite_fields_too(tmp_path):
-    from edge_node.formats.detfile import read_gt, read_gt_ground
-
     gt = tmp_path / "gt.txt"
     gt.write_text("1,4,10,20,30,60,1,1,1\n1,5,nan,0,9,9,1,1,1\n")
     with pytest.raises(DetFilesError, match=r"gt.txt:2: gt.txt field 'x' must be a finite"):
-        read_gt(gt, 1)
+        open_gt(gt, 1)
     ground = tmp_path / "gt_ground.csv"
     ground.write_text("# frame,id,x,y,w,h\n1,4,1.0,inf,0.5,1.7\n")
     with pytest.raises(DetFilesError, match=r"gt_ground.csv:2: gt_ground.csv field 'y'"):
-        read_gt_ground(ground, 1)
+        open_gt_ground(ground, 1)
 
 
 def test_a_nan_box_in_a_scenario_folder_is_exit_2_naming_the_line(tmp_path, capsys):

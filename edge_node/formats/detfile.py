@@ -14,6 +14,13 @@ Boxes are pixels, top-left corner and size::
                    than 1, pedestrian, are skipped, as MOTChallenge evaluation does)
     gt_ground.csv  frame,id,x,y,w,h in ground units (may start with # comment lines)
 
+Frames are read on demand: :func:`open_det`, :func:`open_gt` and :func:`open_gt_ground` parse a
+file once into one numpy table (a few numbers per row: the file, not the run), validate it, and
+give frame ``k``'s rows when asked (a binary search in the rows sorted by frame; nothing is held
+per frame). ``DetFile.detections(k)`` builds frame ``k``'s :class:`Detection` objects then; its
+descriptors stay on disk (the ``.npy`` is memory-mapped) and are read per frame. So a camera
+process replaying 100,000 frames holds its det file's table, not 100,000 lists of detections.
+
 Every row's first six fields must be finite numbers, ``frame`` a whole number >= 1 and ``id`` a
 whole number; a ``det.txt`` box must have ``w > 0`` and ``h > 0``; a descriptor row is all finite
 or all NaN. Anything else is a :class:`DetFilesError` naming the file, the line and the field
@@ -23,6 +30,8 @@ sixth may be NaN (a NaN confidence reads as 1.0).
 from __future__ import annotations
 
 import os
+from collections.abc import Iterator
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -62,93 +71,188 @@ def _check_columns(path: Path, what: str, columns: tuple[str, ...], positive: tu
         raise DetFilesError(f"{path}:{lines[r]}: {what} field {name!r} {rule}, got {got:g}")
 
 
+PARSE_BLOCK = 8192  # rows of a text table held as Python lists at once while parsing
+
+
 def read_table(path: Path, columns: tuple[str, ...], what: str,
                positive: tuple[str, ...] = ()) -> np.ndarray:
     """A comma-separated numeric table (``#`` comments, blank lines and CRLF allowed) whose
     rows start with the fields ``columns``: finite, ``frame`` / ``id`` whole, ``frame >= 1``,
-    the fields named in ``positive`` > 0. Errors name the file, the line and the field."""
+    the fields named in ``positive`` > 0. Errors name the file, the line and the field.
+
+    Rows are padded with NaN to the widest row. The file is parsed :data:`PARSE_BLOCK` rows at a
+    time, so parsing holds the table's numbers and one block of Python lists, not a list per
+    row of the whole file."""
     if not path.is_file():
         raise DetFilesError(f"{what} file not found: {path}")
-    rows: list[list[float]] = []
-    lines: list[int] = []
-    for i, line in enumerate(path.read_text(encoding="utf-8").splitlines(), start=1):
-        s = line.strip()
-        if not s or s.startswith("#"):
-            continue
-        f = [x.strip() for x in s.split(",")]
-        if len(f) < len(columns):
-            raise DetFilesError(f"{path}:{i}: {what} row needs at least {len(columns)} fields "
-                                f"({','.join(columns)}), got {len(f)}")
-        try:
-            rows.append([float(x) for x in f])
-        except ValueError as exc:
-            raise DetFilesError(f"{path}:{i}: non-numeric field in {what} row: {s!r}") from exc
-        lines.append(i)
-    width = max((len(r) for r in rows), default=len(columns))
-    out = np.full((len(rows), width), np.nan)
-    for i, r in enumerate(rows):
-        out[i, :len(r)] = r
+    blocks = list(_parsed_blocks(path, columns, what))
+    width = max((b.shape[1] for b, _ in blocks), default=len(columns))
+    out = np.full((sum(len(b) for b, _ in blocks), width), np.nan)
+    r = 0
+    for b, _ in blocks:
+        out[r:r + len(b), :b.shape[1]] = b
+        r += len(b)
+    lines = np.concatenate([at for _, at in blocks]) if blocks else np.zeros(0, np.int64)
     _check_columns(path, what, columns, positive, out, lines)
     return out
 
 
-def group_rows(frames0: np.ndarray, n: int) -> list[np.ndarray]:
-    """Row indices per scenario frame ``0..n-1``, in file order."""
-    groups: list[list[int]] = [[] for _ in range(n)]
-    for r, k in enumerate(frames0):
-        if 0 <= k < n:
-            groups[k].append(r)
-    return [np.array(g, dtype=int) for g in groups]
+def _parsed_blocks(path: Path, columns: tuple[str, ...], what: str
+                   ) -> Iterator[tuple[np.ndarray, np.ndarray]]:
+    """The data rows of ``path`` as ``(numbers, file lines)``, :data:`PARSE_BLOCK` rows a block
+    (each block NaN-padded to its widest row)."""
+    rows: list[list[float]] = []
+    lines: list[int] = []
+    with path.open(encoding="utf-8") as fh:
+        for i, line in enumerate(fh, start=1):
+            s = line.strip()
+            if not s or s.startswith("#"):
+                continue
+            f = [x.strip() for x in s.split(",")]
+            if len(f) < len(columns):
+                raise DetFilesError(f"{path}:{i}: {what} row needs at least {len(columns)} "
+                                    f"fields ({','.join(columns)}), got {len(f)}")
+            try:
+                rows.append([float(x) for x in f])
+            except ValueError as exc:
+                raise DetFilesError(f"{path}:{i}: non-numeric field in {what} row: {s!r}") from exc
+            lines.append(i)
+            if len(rows) == PARSE_BLOCK:
+                yield _padded(rows), np.array(lines, dtype=np.int64)
+                rows, lines = [], []
+    if rows:
+        yield _padded(rows), np.array(lines, dtype=np.int64)
 
 
-def read_det(path: str | os.PathLike[str], frames: int | None = None,
+def _padded(rows: list[list[float]]) -> np.ndarray:
+    out = np.full((len(rows), max(len(r) for r in rows)), np.nan)
+    for i, r in enumerate(rows):
+        out[i, :len(r)] = r
+    return out
+
+
+# -- frames on demand -------------------------------------------------------------------------------
+@dataclass(frozen=True)
+class FrameTable:
+    """A parsed table read frame by frame: :meth:`rows` ``(k)`` are the row numbers of run frame
+    ``k`` (file frame ``k + 1``) in file order, found by binary search in the rows sorted by
+    frame. Nothing is held per frame (a run of 100,000 frames holds the table and its order)."""
+
+    path: Path
+    table: np.ndarray  # (rows, fields) as the file has them
+    frames: int  # run frames 0..frames-1; rows of later frames are never returned
+    order: np.ndarray  # row numbers sorted by frame (stable: file order within a frame)
+    sorted_frames: np.ndarray  # the run frame of each row in that order
+
+    @classmethod
+    def of(cls, path: Path, table: np.ndarray, frames: int | None = None) -> FrameTable:
+        """``table`` by frame; ``frames`` defaults to the last frame in it."""
+        f0 = table[:, 0].astype(np.int64) - 1
+        n = int(f0.max()) + 1 if frames is None and len(f0) else (frames or 0)
+        order = np.argsort(f0, kind="stable")
+        return cls(path, table, n, order, f0[order])
+
+    def rows(self, k: int) -> np.ndarray:
+        """Row numbers of frame ``k`` (none outside ``0..frames-1``)."""
+        if not 0 <= k < self.frames:
+            return self.order[:0]
+        lo, hi = np.searchsorted(self.sorted_frames, (k, k + 1))
+        return self.order[lo:hi]
+
+
+@dataclass(frozen=True)
+class DetFile:
+    """One camera's ``det.txt`` and descriptors, a frame's :class:`Detection` built when asked
+    (:func:`open_det`): boxes float64 as parsed, descriptors float32 read from the ``.npy``
+    (memory-mapped: a frame's rows come from disk), all-NaN row = no descriptor, a NaN or
+    missing confidence = 1.0."""
+
+    rows: FrameTable
+    descriptors: np.ndarray | None  # (rows, D) read-only memmap, det.txt's row order
+
+    @property
+    def frames(self) -> int:
+        return self.rows.frames
+
+    def detections(self, k: int) -> list[Detection]:
+        """Frame ``k``'s detections, in file order (``[]`` outside ``0..frames-1``)."""
+        t, rows = self.rows.table, self.rows.rows(k)
+        conf = t[rows, 6] if t.shape[1] > 6 else np.ones(len(rows))
+        conf = np.where(np.isfinite(conf), conf, 1.0)
+        return [Detection(box=t[r, 2:6].copy(), descriptor=self._descriptor(r), score=float(c))
+                for r, c in zip(rows, conf)]
+
+    def true_ids(self, k: int) -> np.ndarray:
+        """The ``id`` column of frame ``k``'s rows (the true person, or -1)."""
+        return self.rows.table[self.rows.rows(k), 1].astype(np.int64)
+
+    def _descriptor(self, r: int) -> np.ndarray | None:
+        if self.descriptors is None:
+            return None
+        d = np.array(self.descriptors[r], dtype=np.float32)
+        return None if np.all(np.isnan(d)) else d
+
+
+def open_det(path: str | os.PathLike[str], frames: int | None = None,
              descriptors: str | os.PathLike[str] | None = None, require_descriptors: bool = False
-             ) -> tuple[list[list[Detection]], list[np.ndarray]]:
-    """One camera's ``det.txt`` (and its descriptors ``.npy``) as detections per frame.
+             ) -> DetFile:
+    """One camera's ``det.txt`` (and its descriptors ``.npy``), frames read on demand.
 
-    Returns ``(detections[k], true_ids[k])`` for ``k`` in ``0..frames-1`` (``frames`` defaults to
-    the last frame in the file). A missing descriptor file is an error only when required; an
-    all-NaN descriptor row means "no descriptor" (``None``).
+    ``frames`` defaults to the last frame in the file. Everything is validated here, at opening
+    (the table, and the descriptors' shape, dtype and rows, scanned in blocks); a missing
+    descriptor file is an error only when required.
     """
     path = Path(path)
     t = read_table(path, DET_COLUMNS, "det.txt", positive=("w", "h"))
-    desc = no_desc = None
     if descriptors is not None and require_descriptors and not Path(descriptors).is_file():
         raise DetFilesError(f"descriptor file not found: {descriptors} (named for {path})")
+    desc = None
     if descriptors is not None and Path(descriptors).is_file():
-        try:
-            desc = np.load(descriptors, allow_pickle=False)
-        except ValueError as exc:
-            raise DetFilesError(f"{descriptors}: not a numeric .npy array ({exc})") from exc
-        if desc.ndim != 2 or len(desc) != len(t):
-            raise DetFilesError(f"{descriptors}: shape {desc.shape} does not match {len(t)} rows "
-                                f"of {path} (want ({len(t)}, D))")
-        if desc.dtype.kind not in "fiu":
-            raise DetFilesError(f"{descriptors}: descriptors must be numbers, got dtype "
-                                f"{desc.dtype}")
-        desc = desc.astype(np.float32, copy=False)
-        no_desc = np.all(np.isnan(desc), axis=1)
-        bad = ~no_desc & ~np.all(np.isfinite(desc), axis=1)
+        desc = _open_descriptors(Path(descriptors), path, len(t))
+    return DetFile(FrameTable.of(path, t, frames), desc)
+
+
+def _open_descriptors(path: Path, det: Path, rows: int) -> np.ndarray:
+    """The descriptor ``.npy`` of ``det`` (``rows`` data rows) memory-mapped, checked: shape
+    ``(rows, D)``, numbers, every row all finite or all NaN (after the float32 conversion the
+    detections get), scanned :data:`PARSE_BLOCK` rows at a time."""
+    try:
+        desc = np.load(path, mmap_mode="r", allow_pickle=False)
+    except (ValueError, OSError) as exc:
+        raise DetFilesError(f"{path}: not a numeric .npy array ({exc})") from exc
+    if not isinstance(desc, np.ndarray):
+        raise DetFilesError(f"{path}: not a numeric .npy array (an archive of several arrays)")
+    if desc.ndim != 2 or len(desc) != rows:
+        raise DetFilesError(f"{path}: shape {desc.shape} does not match {rows} rows "
+                            f"of {det} (want ({rows}, D))")
+    if desc.dtype.kind not in "fiu":
+        raise DetFilesError(f"{path}: descriptors must be numbers, got dtype {desc.dtype}")
+    for a in range(0, rows, PARSE_BLOCK):
+        block = np.asarray(desc[a:a + PARSE_BLOCK], dtype=np.float32)
+        bad = ~np.all(np.isnan(block), axis=1) & ~np.all(np.isfinite(block), axis=1)
         if np.any(bad):
-            r = int(np.argmax(bad))
-            raise DetFilesError(f"{descriptors}: row {r} (descriptor of {path.name}'s data row "
+            r = a + int(np.argmax(bad))
+            raise DetFilesError(f"{path}: row {r} (descriptor of {det.name}'s data row "
                                 f"{r + 1}) has NaN or inf values: a row is all finite, or all "
                                 "NaN for no descriptor")
-    f0 = t[:, 0].astype(int) - 1
-    n = int(f0.max()) + 1 if frames is None and len(f0) else (frames or 0)
-    dets, ids = [], []
-    for rows in group_rows(f0, n):
-        conf = t[rows, 6] if t.shape[1] > 6 else np.ones(len(rows))
-        conf = np.where(np.isfinite(conf), conf, 1.0)
-        dets.append([Detection(box=t[r, 2:6].copy(),
-                               descriptor=None if desc is None or no_desc[r] else desc[r],
-                               score=float(c)) for r, c in zip(rows, conf)])
-        ids.append(t[rows, 1].astype(np.int64))
-    return dets, ids
+    return desc
 
 
-def read_gt(path: str | os.PathLike[str], frames: int) -> list[tuple[np.ndarray, np.ndarray]]:
-    """One camera's MOTChallenge ``gt.txt`` as ``(ids, boxes)`` per frame ``0..frames-1``."""
+@dataclass(frozen=True)
+class GtFile:
+    """One camera's MOTChallenge ``gt.txt`` by frame (:func:`open_gt`)."""
+
+    rows: FrameTable
+
+    def boxes(self, k: int) -> tuple[np.ndarray, np.ndarray]:
+        """``(ids (m,), boxes (m, 4))`` of frame ``k``."""
+        t, r = self.rows.table, self.rows.rows(k)
+        return t[r, 1].astype(np.int64), t[r, 2:6]
+
+
+def open_gt(path: str | os.PathLike[str], frames: int) -> GtFile:
+    """One camera's ``gt.txt`` for frames ``0..frames-1``: rows with ``consider = 0`` or a class
+    other than pedestrian (1, or -1 / NaN for unknown) are dropped here."""
     path = Path(path)
     t = read_table(path, DET_COLUMNS, "gt.txt")
     keep = np.ones(len(t), dtype=bool)
@@ -156,18 +260,30 @@ def read_gt(path: str | os.PathLike[str], frames: int) -> list[tuple[np.ndarray,
         keep &= ~(t[:, 6] == 0)  # consider flag
     if t.shape[1] > 7:
         keep &= np.isnan(t[:, 7]) | (t[:, 7] == 1) | (t[:, 7] == -1)  # pedestrians only
-    t = t[keep]
-    return [(t[rows, 1].astype(np.int64), t[rows, 2:6].copy())
-            for rows in group_rows(t[:, 0].astype(int) - 1, frames)]
+    return GtFile(FrameTable.of(path, t[keep], frames))
 
 
-def read_gt_ground(path: str | os.PathLike[str], frames: int
-                   ) -> tuple[list[np.ndarray], list[np.ndarray], list[np.ndarray]]:
-    """``gt_ground.csv`` (``frame,id,x,y,w,h``) as ``(ids, xy, wh)`` per frame ``0..frames-1``."""
-    t = read_table(Path(path), DET_COLUMNS, "gt_ground.csv")
-    groups = group_rows(t[:, 0].astype(int) - 1, frames)
-    return ([t[g, 1].astype(np.int64) for g in groups], [t[g, 2:4].copy() for g in groups],
-            [t[g, 4:6].copy() for g in groups])
+@dataclass(frozen=True)
+class GroundFile:
+    """``gt_ground.csv`` by frame (:func:`open_gt_ground`)."""
+
+    rows: FrameTable
+
+    def truth(self, k: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """``(ids (n,), xy (n, 2), wh (n, 2))`` of frame ``k``."""
+        t, r = self.rows.table, self.rows.rows(k)
+        return t[r, 1].astype(np.int64), t[r, 2:4], t[r, 4:6]
+
+    def positions(self) -> np.ndarray:
+        """Every ground position ``(x, y)`` of frames ``0..frames-1`` (rows, 2)."""
+        t = self.rows.table
+        return t[t[:, 0] <= self.rows.frames, 2:4]
+
+
+def open_gt_ground(path: str | os.PathLike[str], frames: int) -> GroundFile:
+    """``gt_ground.csv`` (``frame,id,x,y,w,h``) for frames ``0..frames-1``."""
+    path = Path(path)
+    return GroundFile(FrameTable.of(path, read_table(path, DET_COLUMNS, "gt_ground.csv"), frames))
 
 
 def last_frame(path: Path) -> int:

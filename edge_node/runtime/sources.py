@@ -2,13 +2,16 @@
 
 A source is this node's camera and a callable ``source(k) -> [Detection]`` over frames
 ``0..frames-1`` (plus ``fps``, ``units_per_metre`` and a one-line ``description``). Kinds
-(``[source] kind`` of a camera config):
+(``[source] kind`` of a camera config), each making or reading a frame when it is asked for, so
+a node's memory does not grow with the number of frames of its run:
 
 ``det-file``
     one camera of a det-files directory, read with :mod:`edge_node.formats`, the reader the
     simulator uses too: the very same ``Detection`` objects (boxes float64 as parsed from
     det.txt, descriptors float32 from the ``.npy``, all-NaN rows = no descriptor, NaN
     confidence = 1.0), so a multi-process run equals the in-process reference run on the files.
+    Frame ``k``'s detections are built when it is read: the node holds det.txt's table and a
+    memory map of the descriptors, not a list of detections per frame.
 ``video`` | ``images`` | ``epfl`` | ``camera``
     frames through a detector and re-id (``edge_node/perception``; a ``FrameDetections``).
 plug-ins
@@ -34,7 +37,7 @@ from typing import Any, Protocol
 
 from edge_node.core.types import Detection
 from edge_node.formats.calibration import read_calibration
-from edge_node.formats.detfile import DetFilesError, read_det
+from edge_node.formats.detfile import DetFilesError, open_det
 from edge_node.geometry import Camera
 from edge_node.perception import PerceptionError
 from edge_node.perception.frames import FRAME_KINDS
@@ -99,7 +102,8 @@ def source_plugin(kind: str) -> SourcePlugin:
 def load_det_file_camera(calibration: Path, index: int, node: int,
                          frames: int | None = None) -> Source:
     """Camera ``index`` of a det-files directory, as node ``node`` (its camera id): the same
-    ``Detection`` objects the simulator's det-files loader builds (edge_node.formats)."""
+    ``Detection`` objects the simulator's det-files loader builds (edge_node.formats), made
+    when ``read(k)`` asks for frame ``k`` (the files are validated here, at start-up)."""
     try:
         cal = read_calibration(calibration)
         if index >= len(cal.cameras):
@@ -110,11 +114,11 @@ def load_det_file_camera(calibration: Path, index: int, node: int,
         if n <= 0:
             raise SourceError(f"source.path: {cal.path}: no frames")
         f = cal.files[index]
-        dets, _ = read_det(f.det, n, f.descriptors, f.descriptors_required)
+        det = open_det(f.det, n, f.descriptors, f.descriptors_required)
     except DetFilesError as e:
         raise SourceError(f"source.path: {e}") from None
     cam = replace(cal.cameras[index], id=node)
-    return Source(cam, n, cal.fps, cal.units_per_metre, dets.__getitem__,
+    return Source(cam, n, cal.fps, cal.units_per_metre, det.detections,
                   f"det-file {calibration} camera {index}")
 
 

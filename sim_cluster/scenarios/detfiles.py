@@ -7,6 +7,11 @@ module alike. In ``det.txt`` the ``id`` column is ``-1`` in MOTChallenge files; 
 :func:`export_detections` put the true person id there (``-1`` for false positives), read back
 as ``ScenarioData.detection_truth`` (diagnostics only, the tracker never sees it). Without ground
 truth files the scenario's ground truth is empty and metrics are undefined.
+
+Frames come on demand (:func:`open_det_files`, what the scenario loader uses): the files are
+parsed and validated once into one table each, and a chunk of ``CHUNK_FRAMES`` frames is built
+from those tables when it is asked for (descriptors read from the memory-mapped ``.npy``), so
+memory does not grow with the number of frames. :func:`load_det_files` materialises them.
 """
 from __future__ import annotations
 
@@ -18,48 +23,74 @@ import numpy as np
 
 from edge_node.formats.calibration import (GT_GROUND, camera_entry, read_calibration,
                                            write_calibration)
-from edge_node.formats.detfile import (DetFilesError, read_det, read_gt, read_gt_ground,
-                                       write_det, write_gt, write_gt_ground)
-from sim_cluster.scenarios.data import GroundTruth, ScenarioData
+from edge_node.formats.detfile import (DetFile, DetFilesError, GroundFile, GtFile, open_det,
+                                       open_gt, open_gt_ground, write_det, write_gt,
+                                       write_gt_ground)
+from sim_cluster.scenarios.data import CHUNK_FRAMES, Frame, ScenarioData, ScenarioStream
 from sim_cluster.scenarios.files import ScenarioError, scenario_table
+
+
+class DetFilesChunks:
+    """The ``chunk`` of a det-files :class:`~sim_cluster.scenarios.data.ScenarioStream`: frames
+    ``j * CHUNK_FRAMES ..`` built from every camera's files (edge_node.formats' readers, which
+    hold each file's table and find a frame's rows when asked)."""
+
+    def __init__(self, dets: list[DetFile], gts: list[GtFile | None], ground: GroundFile | None,
+                 frames: int):
+        self.dets, self.gts, self.ground, self.frames = dets, gts, ground, frames
+
+    def __call__(self, j: int) -> list[Frame]:
+        lo = j * CHUNK_FRAMES
+        return [self.frame(k) for k in range(lo, min(lo + CHUNK_FRAMES, self.frames))]
+
+    def frame(self, k: int) -> Frame:
+        """Frame ``k``, every camera (empty ground truth where a file is missing)."""
+        no_boxes = (np.zeros(0, np.int64), np.zeros((0, 4)))
+        if self.ground is not None:
+            ids, xy, wh = self.ground.truth(k)
+        else:
+            ids, xy, wh = np.zeros(0, np.int64), np.zeros((0, 2)), np.zeros((0, 2))
+        return Frame(detections=[d.detections(k) for d in self.dets],
+                     detection_truth=[d.true_ids(k) for d in self.dets], ids=ids, xy=xy, wh=wh,
+                     boxes=[g.boxes(k) if g is not None else no_boxes for g in self.gts])
+
+
+def open_det_files(directory: str | os.PathLike[str], frames: int | None = None,
+                   name: str | None = None, seed: int | None = None) -> ScenarioStream:
+    """A det-files directory (or its ``calibration.json``) as a ``ScenarioStream``: every file
+    is opened and validated here, frames are built a chunk at a time when asked.
+
+    ``seed`` (for the tracker's own randomness) defaults to the one recorded by the export.
+    ``area`` defaults to the extent of the ground truth's positions over the run's frames.
+    """
+    cal = read_calibration(directory)
+    frames = cal.frame_count() if frames is None else int(frames)
+    if frames <= 0:
+        raise DetFilesError(f"{cal.path}: no frames (frames={frames})")
+    dets = [open_det(f.det, frames, f.descriptors, f.descriptors_required) for f in cal.files]
+    gts = [open_gt(f.gt, frames) if f.gt.is_file() else None for f in cal.files]
+    ground = open_gt_ground(cal.gt_ground, frames) if cal.gt_ground.is_file() else None
+    area = cal.area
+    if area is None:
+        allxy = ground.positions() if ground is not None else np.zeros((0, 2))
+        allxy = allxy if len(allxy) else np.zeros((1, 2))
+        area = (float(allxy[:, 0].min()), float(allxy[:, 0].max()),
+                float(allxy[:, 1].min()), float(allxy[:, 1].max()))
+    return ScenarioStream(
+        name=name or str(cal.name if cal.name is not None else cal.path.parent.name),
+        cameras=cal.cameras, frames=frames, fps=cal.fps, units_per_metre=cal.units_per_metre,
+        chunk=DetFilesChunks(dets, gts, ground, frames), chunk_frames=CHUNK_FRAMES,
+        area=tuple(float(v) for v in area), seed=int((cal.seed or 0) if seed is None else seed))
 
 
 def load_det_files(directory: str | os.PathLike[str], frames: int | None = None,
                    name: str | None = None, seed: int | None = None) -> ScenarioData:
-    """Read a det-files directory (or its ``calibration.json``) into a ``ScenarioData``.
-
-    ``seed`` (for the tracker's own randomness) defaults to the one recorded by the export.
-    """
-    cal = read_calibration(directory)
-    cams = cal.cameras
-    frames = cal.frame_count() if frames is None else int(frames)
-    if frames <= 0:
-        raise DetFilesError(f"{cal.path}: no frames (frames={frames})")
-    per_cam = [read_det(f.det, frames, f.descriptors, f.descriptors_required) for f in cal.files]
-    detections = [[per_cam[c][0][k] for c in range(len(cams))] for k in range(frames)]
-    det_truth = [[per_cam[c][1][k] for c in range(len(cams))] for k in range(frames)]
-    empty = (np.zeros(0, np.int64), np.zeros((0, 4)))
-    boxes = [read_gt(f.gt, frames) if f.gt.is_file() else [empty] * frames for f in cal.files]
-    if cal.gt_ground.is_file():
-        ids, xy, wh = read_gt_ground(cal.gt_ground, frames)
-    else:
-        ids = [np.zeros(0, np.int64)] * frames
-        xy = wh = [np.zeros((0, 2))] * frames
-    area = cal.area
-    if area is None:
-        allxy = np.vstack([a for a in xy if len(a)] or [np.zeros((1, 2))])
-        area = (float(allxy[:, 0].min()), float(allxy[:, 0].max()),
-                float(allxy[:, 1].min()), float(allxy[:, 1].max()))
-    return ScenarioData(
-        name=name or str(cal.name if cal.name is not None else cal.path.parent.name),
-        cameras=cams, frames=frames, fps=cal.fps, units_per_metre=cal.units_per_metre,
-        detections=detections, truth=GroundTruth(ids=ids, xy=xy, wh=wh, boxes=boxes),
-        detection_truth=det_truth, area=tuple(float(v) for v in area),
-        seed=int((cal.seed or 0) if seed is None else seed))
+    """:func:`open_det_files` with every frame in memory (in-process runs, tests)."""
+    return open_det_files(directory, frames, name, seed).materialise()
 
 
 def scenario_from_table(raw: dict[str, Any], path: Path, seed: int,
-                        frames: int | None) -> ScenarioData:
+                        frames: int | None) -> ScenarioStream:
     """The scenario loader of kind ``det-files`` (``loader.SCENARIO_KINDS``).
 
     Top level: ``name``, ``description``, ``seed``, ``frames`` (the ``frames`` argument overrides
@@ -81,7 +112,7 @@ def scenario_from_table(raw: dict[str, Any], path: Path, seed: int,
     if not d.is_absolute():
         d = Path(path).parent / d
     try:
-        return load_det_files(d, n, name=name, seed=seed)
+        return open_det_files(d, n, name=name, seed=seed)
     except DetFilesError as exc:
         raise ScenarioError(file, None, str(exc)) from None
 

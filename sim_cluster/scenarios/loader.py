@@ -21,7 +21,7 @@ import numpy as np
 
 from sim_cluster.scenarios import detfiles, epfl
 from sim_cluster.scenarios.data import ScenarioData, ScenarioStream
-from sim_cluster.scenarios.detfiles import load_det_files
+from sim_cluster.scenarios.detfiles import open_det_files
 from sim_cluster.scenarios.files import (ScenarioError, read_scenario_toml, resolve_scenario_path,
                                          scenario_table)
 from sim_cluster.scenarios.synthetic.schema import load_synthetic
@@ -61,7 +61,7 @@ def open_scenario(name_or_path: str | Path, seed: int | None = None,
 def _open(name_or_path, seed, frames, data_root) -> ScenarioStream | ScenarioData:
     candidate = Path(str(name_or_path))
     if candidate.is_dir() or candidate.suffix == ".json":
-        return load_det_files(candidate, frames=frames, seed=seed)
+        return open_det_files(candidate, frames=frames, seed=seed)
     path = resolve_scenario_path(name_or_path)
     raw = read_scenario_toml(path)
     file = path.name
