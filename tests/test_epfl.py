@@ -114,7 +114,7 @@ def test_mini_scenario_through_a_table(tmp_path):
     raw = {"name": "mini-gt", "frames": 2, "source": {"kind": "epfl-gt", "sequence": "mini",
            "units_per_metre": 30.0, "data_root": str(tmp_path)},
            "detector": {"miss_rate": 0.0, "false_positives_per_frame": 0.0, "box_noise_px": 0.0}}
-    sc = scenario_from_table(raw, tmp_path / "mini.toml", 0, None)
+    sc = scenario_from_table(raw, tmp_path / "mini.toml", 0, None).materialise()
     assert (sc.name, sc.frames, sc.num_cameras, sc.units_per_metre) == ("mini-gt", 2, 2, 30.0)
     np.testing.assert_array_equal(sc.detection_truth[0][0], [0])
     np.testing.assert_allclose(sc.detections[0][1][0].box, [0, 22, 10, 30])  # no noise
@@ -138,7 +138,7 @@ def _real_root() -> Path:
 
 def _preset(name: str, frames: int):
     p = PRESETS / f"{name}.toml"
-    return scenario_from_table(tomllib.loads(p.read_text()), p, 0, frames)
+    return scenario_from_table(tomllib.loads(p.read_text()), p, 0, frames).materialise()
 
 
 @pytest.mark.epfl

@@ -35,6 +35,13 @@ same miss / false-positive / box-noise model as the synthetic world, with the vi
 each box computed from the boxes in front of it in the same image (a larger bottom edge is closer to
 the camera), and synthetic appearance per real identity from ``AppearanceModel``.
 
+Frames come on demand (:func:`open_epfl_gt`, a ``ScenarioStream``; :func:`load_epfl_gt`
+materialises): the annotation files are read once (they are the sequence, not the run), and so
+are each person's typical size and the scenario's ``area``; the ground truth and the detections
+are made a chunk of ``CHUNK_FRAMES`` frames at a time (:class:`GtReplay`), camera ``c``'s
+detector drawing chunk ``j`` from its own generator ``default_rng([seed, c, j])``. Frame ``k``
+is therefore the same whatever the run's length and whichever frames were read before it.
+
 Data root resolution (first that applies): an explicit ``data_root`` argument (the CLI's
 ``--data-root``, or ``[source] data_root`` in a scenario file) > environment ``DMTT_DATA`` >
 ``<repo root>/../shared/data`` (repo root = parent of the ``sim_cluster`` package directory) >
@@ -49,11 +56,11 @@ from typing import Any
 
 import numpy as np
 
-from edge_node.core.types import Detection
 from edge_node.formats.homographies import (FILE, HomographiesError, read_homographies,
                                             sequence_cameras, sequence_entry)
 from edge_node.geometry import Camera
-from sim_cluster.scenarios.data import GroundTruth, ScenarioData
+from sim_cluster.scenarios.data import (CHUNK_FRAMES, Frame, GroundTruth, ScenarioData,
+                                        ScenarioStream)
 from sim_cluster.scenarios.files import ScenarioError, scenario_table
 from sim_cluster.scenarios.synthetic.appearance import AppearanceModel, AppearanceParams
 from sim_cluster.scenarios.synthetic.detector_model import DetectorParams, detect_frames
@@ -342,19 +349,33 @@ def _typical_sizes(seq: EpflSequence, units_per_metre: float) -> dict[int, np.nd
             for pid in ids}
 
 
-def build_ground_truth(seq: EpflSequence, start: int, frames: int,
-                       units_per_metre: float) -> GroundTruth:
-    """Ground truth for sequence frames ``start .. start+frames-1`` (scenario frames ``0..``)."""
-    all_ids = sorted({int(i) for a in seq.annotations for i in np.unique(a.ids)})
-    col = {pid: j for j, pid in enumerate(all_ids)}
-    n_id = len(all_ids)
-    sum_xy = np.zeros((frames, n_id, 2))
-    count = np.zeros((frames, n_id), dtype=int)
+def _camera_rows(ann: Annotations, start: int, frames: int
+                 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """A camera's annotations of sequence frames ``start .. start+frames-1``: ``(frame, ids,
+    boxes)`` in frame order, frames counted from ``start``."""
+    lo, hi = np.searchsorted(ann.frames, [start, start + frames])
+    return ann.frames[lo:hi] - start, ann.ids[lo:hi], ann.boxes[lo:hi]
+
+
+def _people(seq: EpflSequence, units_per_metre: float) -> tuple[np.ndarray, np.ndarray]:
+    """Every annotated person id, sorted, and their typical cylinder (w, h) (``_typical_sizes``):
+    computed once per sequence from its annotations, whatever frames a run reads."""
+    ids = np.array(sorted({int(i) for a in seq.annotations for i in np.unique(a.ids)}),
+                   dtype=np.int64)
+    sizes = _typical_sizes(seq, units_per_metre)
+    return ids, np.array([sizes[int(p)] for p in ids]).reshape(-1, 2)
+
+
+def _ground_truth(seq: EpflSequence, start: int, frames: int, people: np.ndarray,
+                  sizes: np.ndarray) -> GroundTruth:
+    """Ground truth for sequence frames ``start .. start+frames-1`` (the module docstring);
+    ``people`` (sorted ids) and ``sizes`` from :func:`_people`."""
+    sum_xy = np.zeros((frames, len(people), 2))
+    count = np.zeros((frames, len(people)), dtype=int)
     boxes: list[list[tuple[np.ndarray, np.ndarray]]] = []
     for cam, ann in zip(seq.cameras, seq.annotations):
-        lo, hi = np.searchsorted(ann.frames, [start, start + frames])
-        fr, ids, bx = ann.frames[lo:hi] - start, ann.ids[lo:hi], ann.boxes[lo:hi]
-        cols = np.array([col[int(i)] for i in ids], dtype=int)
+        fr, ids, bx = _camera_rows(ann, start, frames)
+        cols = np.searchsorted(people, ids)
         xy = _foot_points(cam, bx)
         ok = np.all(np.isfinite(xy), axis=1)
         np.add.at(sum_xy, (fr[ok], cols[ok]), xy[ok])
@@ -362,16 +383,44 @@ def build_ground_truth(seq: EpflSequence, start: int, frames: int,
         cuts = np.searchsorted(fr, np.arange(frames + 1))
         boxes.append([(ids[cuts[k]:cuts[k + 1]].copy(), bx[cuts[k]:cuts[k + 1]].copy())
                       for k in range(frames)])
-    sizes = _typical_sizes(seq, units_per_metre)
-    id_arr = np.array(all_ids, dtype=np.int64)
-    size_arr = np.array([sizes[p] for p in all_ids]).reshape(-1, 2)
     t_ids, t_xy, t_wh = [], [], []
     for k in range(frames):
         present = count[k] > 0
-        t_ids.append(id_arr[present])
+        t_ids.append(people[present])
         t_xy.append(sum_xy[k, present] / count[k, present][:, None])
-        t_wh.append(size_arr[present].copy())
+        t_wh.append(sizes[present].copy())
     return GroundTruth(ids=t_ids, xy=t_xy, wh=t_wh, boxes=boxes)
+
+
+def build_ground_truth(seq: EpflSequence, start: int, frames: int,
+                       units_per_metre: float) -> GroundTruth:
+    """Ground truth for sequence frames ``start .. start+frames-1`` (scenario frames ``0..``)."""
+    return _ground_truth(seq, start, frames, *_people(seq, units_per_metre))
+
+
+def _area(seq: EpflSequence, start: int, frames: int,
+          people: np.ndarray) -> tuple[float, float, float, float]:
+    """The extent of the ground truth's positions over sequence frames ``start ..
+    start+frames-1`` plus 5 % of its larger side, from the annotation arrays (the mean foot
+    point per person and frame, as :func:`_ground_truth`), without building the frames."""
+    fr, col, xy = [], [], []
+    for cam, ann in zip(seq.cameras, seq.annotations):
+        f, ids, bx = _camera_rows(ann, start, frames)
+        p = _foot_points(cam, bx)
+        ok = np.all(np.isfinite(p), axis=1)
+        fr.append(f[ok])
+        col.append(np.searchsorted(people, ids[ok]))
+        xy.append(p[ok])
+    key = np.concatenate(fr) * max(len(people), 1) + np.concatenate(col)
+    _, slot = np.unique(key, return_inverse=True)
+    pts = np.vstack(xy)
+    n = np.bincount(slot)
+    allxy = (np.stack([np.bincount(slot, pts[:, 0]) / n, np.bincount(slot, pts[:, 1]) / n], axis=1)
+             if len(slot) else np.zeros((1, 2)))
+    lo, hi = allxy.min(axis=0), allxy.max(axis=0)
+    margin = 0.05 * float(np.max(hi - lo)) if len(allxy) > 1 else 1.0
+    return (float(lo[0] - margin), float(hi[0] + margin), float(lo[1] - margin),
+            float(hi[1] + margin))
 
 
 def visible_fractions(boxes: np.ndarray, frame: np.ndarray | None = None,
@@ -412,38 +461,48 @@ def visible_fractions(boxes: np.ndarray, frame: np.ndarray | None = None,
 
 
 # -- the scenario -----------------------------------------------------------------------------------
-def replay_detections(seq_truth: GroundTruth, cameras: list[Camera], detector: Any,
-                      appearance: Any, seed: int
-                      ) -> tuple[list[list[list[Detection]]], list[list[np.ndarray]]]:
-    """GT-replay: every camera's annotated boxes through ``detector_model.detect_frames``.
+class GtReplay:
+    """The ``chunk`` of an ``epfl-gt`` :class:`~sim_cluster.scenarios.data.ScenarioStream`.
 
-    One random stream per camera (``default_rng([seed, c])``), so a camera's detections do not
-    depend on the other cameras. Returns ``(detections[k][c], true_ids[k][c])``.
+    Chunk ``j`` is scenario frames ``j * CHUNK_FRAMES ..`` (sequence frames from ``start`` on),
+    always whole, also past the run's last frame: its ground truth is built from those frames'
+    annotations, and each camera's annotated boxes go through ``detector_model.detect_frames``
+    with the camera's own generator for the chunk, ``default_rng([seed, c, j])``. So frame ``k``
+    depends neither on the run's length nor on the frames read before it, and a camera's
+    detections not on the other cameras.
     """
-    frames = len(seq_truth.ids)
-    dets: list[list[list[Detection]]] = [[[] for _ in cameras] for _ in range(frames)]
-    truth: list[list[np.ndarray]] = [[np.zeros(0, np.int64) for _ in cameras] for _ in range(frames)]
-    for c, cam in enumerate(cameras):
-        per = seq_truth.boxes[c]
-        fr = np.repeat(np.arange(frames), [len(ids) for ids, _ in per])
-        ids = np.concatenate([np.asarray(i, dtype=np.int64) for i, _ in per]) if frames else np.zeros(0)
-        bx = np.vstack([np.asarray(b, dtype=float).reshape(-1, 4) for _, b in per]) if frames \
-            else np.zeros((0, 4))
-        out = detect_frames(cam, fr, ids, bx, visible_fractions(bx, fr), frames, detector,
-                            appearance, np.random.default_rng([seed, c]))
-        for k, (d, t) in enumerate(out):
-            dets[k][c] = list(d)
-            truth[k][c] = np.asarray(t, dtype=np.int64)
-    return dets, truth
+
+    def __init__(self, seq: EpflSequence, start: int, units_per_metre: float, detector: Any,
+                 appearance: AppearanceModel, seed: int):
+        self.seq, self.start, self.seed = seq, start, seed
+        self.detector, self.appearance = detector, appearance
+        self.people, self.sizes = _people(seq, units_per_metre)
+
+    def __call__(self, j: int) -> list[Frame]:
+        F = CHUNK_FRAMES
+        truth = _ground_truth(self.seq, self.start + j * F, F, self.people, self.sizes)
+        C = len(self.seq.cameras)
+        frames = [Frame(detections=[[] for _ in range(C)], detection_truth=[None] * C,
+                        ids=truth.ids[k], xy=truth.xy[k], wh=truth.wh[k],
+                        boxes=[truth.boxes[c][k] for c in range(C)]) for k in range(F)]
+        for c, (cam, ann) in enumerate(zip(self.seq.cameras, self.seq.annotations)):
+            fr, ids, bx = _camera_rows(ann, self.start + j * F, F)
+            out = detect_frames(cam, fr, ids, bx, visible_fractions(bx, fr), F, self.detector,
+                                self.appearance, np.random.default_rng([self.seed, c, j]))
+            for f, (dets, true_ids) in zip(frames, out):
+                f.detections[c] = dets
+                f.detection_truth[c] = np.asarray(true_ids, dtype=np.int64)
+        return frames
 
 
-def load_epfl_gt(sequence: str, *, seed: int = 0, frames: int | None = None,
+def open_epfl_gt(sequence: str, *, seed: int = 0, frames: int | None = None,
                  start_frame: int | None = None, units_per_metre: float = 30.0,
                  detector: Any = None, appearance: Any = None,
                  data_root: str | os.PathLike[str] | None = None, name: str | None = None,
                  annotations: list[str] | None = None, calibration: str | None = None,
-                 fmt: str = "auto", fps: float = DEFAULT_FPS) -> ScenarioData:
-    """An EPFL sequence as a ``ScenarioData`` with GT-replay detections.
+                 fmt: str = "auto", fps: float = DEFAULT_FPS) -> ScenarioStream:
+    """An EPFL sequence as a ``ScenarioStream`` with GT-replay detections, frames on demand
+    (:class:`GtReplay`; the annotation files are read here, once).
 
     ``start_frame`` defaults to the first annotated frame; ``frames`` to the rest of the sequence
     (clipped to the last annotated frame). ``detector``/``appearance`` are ``DetectorParams`` and
@@ -460,23 +519,22 @@ def load_epfl_gt(sequence: str, *, seed: int = 0, frames: int | None = None,
     n = last - start + 1 if frames is None else min(int(frames), last - start + 1)
     if n <= 0:
         raise EpflFormatError(f"frames must be positive, got {frames}")
-    truth = build_ground_truth(seq, start, n, units_per_metre)
     detector = detector if detector is not None else DetectorParams()
     app = AppearanceModel(appearance if appearance is not None else AppearanceParams(), seed)
-    dets, det_truth = replay_detections(truth, seq.cameras, detector, app, seed)
-    allxy = np.vstack([xy for xy in truth.xy if len(xy)] or [np.zeros((1, 2))])
-    lo, hi = allxy.min(axis=0), allxy.max(axis=0)
-    margin = 0.05 * float(np.max(hi - lo)) if len(allxy) > 1 else 1.0
-    return ScenarioData(
+    replay = GtReplay(seq, start, float(units_per_metre), detector, app, seed)
+    return ScenarioStream(
         name=name or f"{sequence}-gt", cameras=seq.cameras, frames=n, fps=fps,
-        units_per_metre=float(units_per_metre), detections=dets, truth=truth,
-        detection_truth=det_truth,
-        area=(float(lo[0] - margin), float(hi[0] + margin), float(lo[1] - margin), float(hi[1] + margin)),
-        seed=seed)
+        units_per_metre=float(units_per_metre), chunk=replay, chunk_frames=CHUNK_FRAMES,
+        area=_area(seq, start, n, replay.people), seed=seed)
+
+
+def load_epfl_gt(sequence: str, **kwargs: Any) -> ScenarioData:
+    """:func:`open_epfl_gt` (same arguments) with every frame in memory."""
+    return open_epfl_gt(sequence, **kwargs).materialise()
 
 
 def scenario_from_table(raw: dict[str, Any], path: Path, seed: int, frames: int | None,
-                        data_root: str | os.PathLike[str] | None = None) -> ScenarioData:
+                        data_root: str | os.PathLike[str] | None = None) -> ScenarioStream:
     """The scenario loader of kind ``epfl-gt`` (``loader.SCENARIO_KINDS``).
 
     Top level: ``name``, ``description``, ``seed``, ``frames`` (the ``frames`` argument overrides
@@ -517,7 +575,7 @@ def scenario_from_table(raw: dict[str, Any], path: Path, seed: int, frames: int 
         if not data_root.is_absolute():
             data_root = Path(path).parent / data_root  # relative to the scenario file
     try:
-        return load_epfl_gt(sequence, seed=seed, frames=n, start_frame=start,
+        return open_epfl_gt(sequence, seed=seed, frames=n, start_frame=start,
                             units_per_metre=upm, detector=detector, appearance=appearance,
                             data_root=data_root, name=name, annotations=ann, calibration=cal,
                             fmt=fmt, fps=fps)
