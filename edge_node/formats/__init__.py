@@ -4,7 +4,7 @@ Camera processes (``edge_node``) and the simulator (``sim_cluster``) both use th
 file one of them writes is read by the other with the same code:
 
 ``detfile``      MOTChallenge ``det.txt`` (+ descriptors ``.npy``), ``gt.txt`` and
-                 ``gt_ground.csv``: reading and writing
+                 ``gt_ground.csv``: writing, and reading frame by frame on demand
 ``calibration``  ``calibration.json`` of a det-files directory: its cameras, frame count, units
                  and each camera's files; reading and writing
 ``tracks``       a node's track file ``tracks_node<id>.csv``: reading and writing

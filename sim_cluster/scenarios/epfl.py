@@ -400,9 +400,10 @@ def build_ground_truth(seq: EpflSequence, start: int, frames: int,
 
 def _area(seq: EpflSequence, start: int, frames: int,
           people: np.ndarray) -> tuple[float, float, float, float]:
-    """The extent of the ground truth's positions over sequence frames ``start ..
-    start+frames-1`` plus 5 % of its larger side, from the annotation arrays (the mean foot
-    point per person and frame, as :func:`_ground_truth`), without building the frames."""
+    """``(xmin, xmax, ymin, ymax)``: the extent of the ground truth's positions over sequence
+    frames ``start .. start+frames-1`` (the mean foot point per person and frame, as
+    :func:`_ground_truth`), widened on every side by 5 % of its larger side (1 unit when there
+    is one position or none); from the annotation arrays, without building the frames."""
     fr, col, xy = [], [], []
     for cam, ann in zip(seq.cameras, seq.annotations):
         f, ids, bx = _camera_rows(ann, start, frames)
