@@ -213,14 +213,19 @@ def _long_det_dir(d: Path, frames: int, dim: int) -> np.ndarray:
     return desc
 
 
+def _detections_alive() -> int:
+    return sum(isinstance(o, Detection) for o in gc.get_objects())
+
+
 def test_det_file_source_reads_frames_on_demand(tmp_path):
     """A camera process's det-file source over 20,000 frames holds det.txt's table and a memory
-    map of the descriptors: no Detection exists until a frame is read, and what opening keeps
-    is a fraction of the descriptors alone (a list of detections per frame would be more than
-    them)."""
+    map of the descriptors: opening makes no Detection (a frame's are built when it is read),
+    and what it keeps is a fraction of the descriptors alone (a list of detections per frame
+    would be more than them)."""
     frames, dim = 20_000, 256
     desc = _long_det_dir(tmp_path, frames, dim)
     gc.collect()
+    alive = _detections_alive()  # other tests' (module fixtures) may be
     tracemalloc.start()
     try:
         before = tracemalloc.get_traced_memory()[0]
@@ -229,7 +234,7 @@ def test_det_file_source_reads_frames_on_demand(tmp_path):
     finally:
         tracemalloc.stop()
     assert src.frames == frames
-    assert not any(isinstance(o, Detection) for o in gc.get_objects())
+    assert _detections_alive() == alive  # opening made none
     assert held < desc.nbytes / 4, (held, desc.nbytes)
     assert isinstance(src.read.__self__.descriptors, np.memmap)
     for k in (19_999, 5, 7, 12_345):  # any order: each frame is read from the files
