@@ -144,6 +144,23 @@ def test_a_camera_process_makes_only_its_camera_and_sees_the_same():
     assert any(f.detections[2] for f in focused)
 
 
+def _camera_process_sees_the_same(full: ScenarioStream, c: int, probe) -> None:
+    """``full.camera(c)`` (a camera process's own stream, made through ``focus``) reads frame
+    ``k`` as the whole stream does; the focused chunks leave the other cameras empty."""
+    mine = full.camera(c)
+    for k in probe:
+        a, b = mine(k), full.frame(k).detections[c]
+        assert len(a) == len(b)
+        for x, y in zip(a, b):
+            np.testing.assert_array_equal(x.box, y.box)
+            np.testing.assert_array_equal(x.descriptor, y.descriptor)
+            assert x.score == y.score
+    focused = full.focus([c])(1)
+    others = [o for o in range(full.num_cameras) if o != c]
+    assert all(not f.detections[o] and not len(f.boxes[o][0]) for f in focused for o in others)
+    assert any(f.detections[c] for f in focused)
+
+
 # -- EPFL gt-replay ---------------------------------------------------------------------------------
 def write_long_mini(root: Path, frames: int = 320) -> None:
     """A hand-made two-camera sequence (the layout of ``epfl_pom``) of ``frames`` frames: three
@@ -167,6 +184,11 @@ def test_epfl_gt_frame_independent_of_run_length_and_access_order(tmp_path):
     # Camera c's chunk j has its own random stream: another seed changes the detections.
     other = open_epfl_gt("mini", data_root=tmp_path, seed=5).frame(3).detections[0]
     assert [d.box.tolist() for d in other] != [d.box.tolist() for d in short.detections[3][0]]
+
+
+def test_epfl_gt_camera_process_makes_only_its_camera(tmp_path):
+    write_long_mini(tmp_path)
+    _camera_process_sees_the_same(open_epfl_gt("mini", data_root=tmp_path), 1, (0, 150, 319))
 
 
 def test_epfl_gt_stream_truth_is_the_sequences_ground_truth(tmp_path):
@@ -196,6 +218,7 @@ def test_det_files_frame_independent_of_run_length_and_access_order(tmp_path):
     export_detections(load_scenario("terrace-sim", frames=300), tmp_path)
     short = load_det_files(tmp_path, frames=150)
     _same_as_short_run(short, lambda: open_det_files(tmp_path))
+    _camera_process_sees_the_same(open_det_files(tmp_path), 2, (0, 150, 299))
 
 
 def _long_det_dir(d: Path, frames: int, dim: int) -> np.ndarray:

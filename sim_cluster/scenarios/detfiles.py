@@ -11,7 +11,8 @@ truth files the scenario's ground truth is empty and metrics are undefined.
 Frames come on demand (:func:`open_det_files`, what the scenario loader uses): the files are
 parsed and validated once into one table each, and a chunk of ``CHUNK_FRAMES`` frames is built
 from those tables when it is asked for (descriptors read from the memory-mapped ``.npy``), so
-memory does not grow with the number of frames. :func:`load_det_files` materialises them.
+memory does not grow with the number of frames; a camera process (``ScenarioStream.camera``)
+builds its own camera's detections only (``focus``). :func:`load_det_files` materialises them.
 """
 from __future__ import annotations
 
@@ -33,26 +34,36 @@ from sim_cluster.scenarios.files import ScenarioError, scenario_table
 class DetFilesChunks:
     """The ``chunk`` of a det-files :class:`~sim_cluster.scenarios.data.ScenarioStream`: frames
     ``j * CHUNK_FRAMES ..`` built from every camera's files (edge_node.formats' readers, which
-    hold each file's table and find a frame's rows when asked)."""
+    hold each file's table and find a frame's rows when asked), or from cameras ``cameras``'
+    only (:meth:`only`: the others' detections and image ground truth are empty)."""
 
     def __init__(self, dets: list[DetFile], gts: list[GtFile | None], ground: GroundFile | None,
-                 frames: int):
+                 frames: int, cameras: list[int] | None = None):
         self.dets, self.gts, self.ground, self.frames = dets, gts, ground, frames
+        self.cameras = cameras
+
+    def only(self, cameras: list[int]) -> DetFilesChunks:
+        """The same chunks, cameras ``cameras`` only (the ``focus`` of the stream)."""
+        return DetFilesChunks(self.dets, self.gts, self.ground, self.frames, list(cameras))
 
     def __call__(self, j: int) -> list[Frame]:
         lo = j * CHUNK_FRAMES
         return [self.frame(k) for k in range(lo, min(lo + CHUNK_FRAMES, self.frames))]
 
     def frame(self, k: int) -> Frame:
-        """Frame ``k``, every camera (empty ground truth where a file is missing)."""
+        """Frame ``k`` (empty ground truth where a file is missing)."""
         no_boxes = (np.zeros(0, np.int64), np.zeros((0, 4)))
         if self.ground is not None:
             ids, xy, wh = self.ground.truth(k)
         else:
             ids, xy, wh = np.zeros(0, np.int64), np.zeros((0, 2)), np.zeros((0, 2))
-        return Frame(detections=[d.detections(k) for d in self.dets],
-                     detection_truth=[d.true_ids(k) for d in self.dets], ids=ids, xy=xy, wh=wh,
-                     boxes=[g.boxes(k) if g is not None else no_boxes for g in self.gts])
+        mine = [self.cameras is None or c in self.cameras for c in range(len(self.dets))]
+        return Frame(
+            detections=[d.detections(k) if m else [] for d, m in zip(self.dets, mine)],
+            detection_truth=[d.true_ids(k) if m else np.zeros(0, np.int64)
+                             for d, m in zip(self.dets, mine)],
+            ids=ids, xy=xy, wh=wh,
+            boxes=[g.boxes(k) if g is not None and m else no_boxes for g, m in zip(self.gts, mine)])
 
 
 def open_det_files(directory: str | os.PathLike[str], frames: int | None = None,
@@ -76,10 +87,11 @@ def open_det_files(directory: str | os.PathLike[str], frames: int | None = None,
         allxy = allxy if len(allxy) else np.zeros((1, 2))
         area = (float(allxy[:, 0].min()), float(allxy[:, 0].max()),
                 float(allxy[:, 1].min()), float(allxy[:, 1].max()))
+    chunks = DetFilesChunks(dets, gts, ground, frames)
     return ScenarioStream(
         name=name or str(cal.name if cal.name is not None else cal.path.parent.name),
         cameras=cal.cameras, frames=frames, fps=cal.fps, units_per_metre=cal.units_per_metre,
-        chunk=DetFilesChunks(dets, gts, ground, frames), chunk_frames=CHUNK_FRAMES,
+        chunk=chunks, chunk_frames=CHUNK_FRAMES, focus=chunks.only,
         area=tuple(float(v) for v in area), seed=int((cal.seed or 0) if seed is None else seed))
 
 

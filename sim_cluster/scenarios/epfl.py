@@ -40,7 +40,8 @@ materialises): the annotation files are read once (they are the sequence, not th
 are each person's typical size and the scenario's ``area``; the ground truth and the detections
 are made a chunk of ``CHUNK_FRAMES`` frames at a time (:class:`GtReplay`), camera ``c``'s
 detector drawing chunk ``j`` from its own generator ``default_rng([seed, c, j])``. Frame ``k``
-is therefore the same whatever the run's length and whichever frames were read before it.
+is therefore the same whatever the run's length and whichever frames were read before it. A
+camera process (``ScenarioStream.camera``) replays its own camera's boxes only (``focus``).
 
 Data root resolution (first that applies): an explicit ``data_root`` argument (the CLI's
 ``--data-root``, or ``[source] data_root`` in a scenario file) > environment ``DMTT_DATA`` >
@@ -49,6 +50,7 @@ Data root resolution (first that applies): an explicit ``data_root`` argument (t
 """
 from __future__ import annotations
 
+import copy
 import os
 from dataclasses import dataclass
 from pathlib import Path
@@ -470,7 +472,8 @@ class GtReplay:
     annotations, and each camera's annotated boxes go through ``detector_model.detect_frames``
     with the camera's own generator for the chunk, ``default_rng([seed, c, j])``. So frame ``k``
     depends neither on the run's length nor on the frames read before it, and a camera's
-    detections not on the other cameras.
+    detections not on the other cameras. :meth:`only` makes some cameras' detections and image
+    ground truth (a camera process needs its own), the same as the whole chunk's.
     """
 
     def __init__(self, seq: EpflSequence, start: int, units_per_metre: float, detector: Any,
@@ -478,15 +481,28 @@ class GtReplay:
         self.seq, self.start, self.seed = seq, start, seed
         self.detector, self.appearance = detector, appearance
         self.people, self.sizes = _people(seq, units_per_metre)
+        self.cameras: list[int] | None = None  # all
+
+    def only(self, cameras: list[int]) -> GtReplay:
+        """The same replay making cameras ``cameras``' detections and image ground truth only
+        (the others' are empty); the ``focus`` of the stream."""
+        focused = copy.copy(self)
+        focused.cameras = list(cameras)
+        return focused
 
     def __call__(self, j: int) -> list[Frame]:
         F = CHUNK_FRAMES
         truth = _ground_truth(self.seq, self.start + j * F, F, self.people, self.sizes)
         C = len(self.seq.cameras)
-        frames = [Frame(detections=[[] for _ in range(C)], detection_truth=[None] * C,
+        made = range(C) if self.cameras is None else [c for c in range(C) if c in self.cameras]
+        no_boxes = (np.zeros(0, np.int64), np.zeros((0, 4)))
+        frames = [Frame(detections=[[] for _ in range(C)],
+                        detection_truth=[np.zeros(0, np.int64)] * C,
                         ids=truth.ids[k], xy=truth.xy[k], wh=truth.wh[k],
-                        boxes=[truth.boxes[c][k] for c in range(C)]) for k in range(F)]
-        for c, (cam, ann) in enumerate(zip(self.seq.cameras, self.seq.annotations)):
+                        boxes=[truth.boxes[c][k] if c in made else no_boxes for c in range(C)])
+                  for k in range(F)]
+        for c in made:
+            cam, ann = self.seq.cameras[c], self.seq.annotations[c]
             fr, ids, bx = _camera_rows(ann, self.start + j * F, F)
             out = detect_frames(cam, fr, ids, bx, visible_fractions(bx, fr), F, self.detector,
                                 self.appearance, np.random.default_rng([self.seed, c, j]))
@@ -526,7 +542,7 @@ def open_epfl_gt(sequence: str, *, seed: int = 0, frames: int | None = None,
     return ScenarioStream(
         name=name or f"{sequence}-gt", cameras=seq.cameras, frames=n, fps=fps,
         units_per_metre=float(units_per_metre), chunk=replay, chunk_frames=CHUNK_FRAMES,
-        area=_area(seq, start, n, replay.people), seed=seed)
+        area=_area(seq, start, n, replay.people), seed=seed, focus=replay.only)
 
 
 def load_epfl_gt(sequence: str, **kwargs: Any) -> ScenarioData:
