@@ -191,3 +191,10 @@ def test_own_camera_oracle_scores_perfectly_in_the_image_plane():
             if m["num_objects"]:
                 assert m["mota"] == pytest.approx(1.0), (name, node)
                 assert m["motp"] > 0.999
+
+
+def test_the_default_data_root_is_beside_the_repository(monkeypatch):
+    root = epfl.repo_root()
+    assert (root / "pyproject.toml").is_file() and (root / "sim_cluster").is_dir()
+    monkeypatch.delenv("DMTT_DATA", raising=False)
+    assert root.parent / "shared" / "data" in epfl.data_root_candidates()

@@ -88,7 +88,7 @@ class EpflFormatError(ValueError):
 # -- data root --------------------------------------------------------------------------------------
 def repo_root() -> Path:
     """The repository root: the parent of the ``sim_cluster`` package directory."""
-    return Path(__file__).resolve().parent.parent
+    return Path(__file__).resolve().parents[2]  # sim_cluster/scenarios/epfl.py
 
 
 def data_root_candidates(data_root: str | os.PathLike[str] | None = None) -> list[Path]:
