@@ -19,7 +19,8 @@ Every minute it samples each process: RSS (``/proc``), frames processed per seco
 timeouts, late and rejected messages (the nodes' status files). After the soak each node's track
 file is scored per minute on the ground (MOTA / IDF1 against the scenario's ground truth,
 frames ``[m * 60 * fps, (m + 1) * 60 * fps)``), and so is a fault-free in-process run of the same
-stream (``--no-reference`` skips it): the network at its best on that minute's people. A minute
+stream (``--no-reference`` skips it), which runs beside the soak at the lowest priority (it is
+deterministic; the live nodes keep their CPU): the network at its best on that minute's people. A minute
 *passes* when the survivors' (nodes no kill or freeze hit in that minute) mean ground MOTA is at
 least 0.9 x the reference's; minutes with a planned fault and the minute after are exempt.
 ``soak.json`` and ``soak.png`` (the curves) go to ``--out``.
@@ -29,6 +30,7 @@ from __future__ import annotations
 import csv
 import json
 import math
+import multiprocessing
 import os
 import signal
 import sys
@@ -476,6 +478,16 @@ def soak(minutes: int, nodes: int, out: str | Path, *, chaos: int | None = None,
     say(f"soak: {nodes} nodes ({topology}, sync, {fps:g} fps, scenario {scenario}) for "
         f"{minutes} min in {out}; {len(faults)} planned faults")
     driver = Soak(cluster, faults, fps, say, minute_s)
+    done = minutes * fpm
+    ref_file = out / "reference.json"
+    ref_file.unlink(missing_ok=True)
+    background = None
+    if reference:  # deterministic, so it runs beside the soak at the lowest priority
+        say(f"fault-free reference: {done} frames in process, in the background (nice 19)")
+        background = multiprocessing.get_context("fork").Process(
+            target=_reference_job, args=(ref_file, scenario, seed, frames, nodes, adjacency,
+                                         config, done, fpm), daemon=True)
+        background.start()
     try:
         cluster.start()
         driver.run(minutes * minute_s)
@@ -484,14 +496,16 @@ def soak(minutes: int, nodes: int, out: str | Path, *, chaos: int | None = None,
             driver._signal(node, signal.SIGCONT)
         cluster.stop()
     stream = open_scenario(scenario, seed=seed, frames=frames).first_cameras(nodes)
-    done = minutes * fpm
     say("scoring the nodes' tracks per minute")
     node_scores = score_nodes(out, stream, nodes, done, fpm)
     ref_scores = None
-    if reference:
-        say(f"fault-free reference: {done} frames in process")
-        ref_scores = score_reference(open_scenario(scenario, seed=seed, frames=frames)
-                                     .first_cameras(nodes), adjacency, config, done, fpm, say)
+    if background is not None:
+        say("waiting for the fault-free reference")
+        background.join()
+        if background.exitcode != 0 or not ref_file.exists():
+            raise ClusterError(f"the fault-free reference run failed (exit {background.exitcode})")
+        ref_scores = {int(m): {int(n): v for n, v in row.items()}
+                      for m, row in json.loads(ref_file.read_text()).items()}
     report = {
         "minutes": minutes, "nodes": nodes, "topology": topology, "scenario": scenario,
         "seed": seed, "fps": fps, "chaos": chaos, "config": config, "minute_s": minute_s,
@@ -506,6 +520,17 @@ def soak(minutes: int, nodes: int, out: str | Path, *, chaos: int | None = None,
     (out / "soak.json").write_text(json.dumps(report, indent=1))
     plot(report, out / "soak.png")
     return report
+
+
+def _reference_job(path: Path, scenario: str, seed: int, frames: int, nodes: int,
+                   adjacency: dict[int, list[int]], config: str, done: int, fpm: int) -> None:
+    """The fault-free reference in a child process at the lowest priority: the live nodes
+    keep the CPU they need; its scores go to ``path`` (JSON)."""
+    os.nice(19)
+    stream = open_scenario(scenario, seed=seed, frames=frames).first_cameras(nodes)
+    table = score_reference(stream, adjacency, config, done, fpm, lambda _: None)
+    path.write_text(json.dumps({str(m): {str(n): v for n, v in row.items()}
+                                for m, row in table.items()}))
 
 
 def _toml(plan: dict) -> str:
