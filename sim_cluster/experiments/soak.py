@@ -161,24 +161,29 @@ class Soak:
                             key=lambda f: f.at_s)
 
     def run(self, seconds: float) -> None:
+        """Start the cluster, drive it for ``seconds`` after frame 0, stop it (never leaving a
+        process stopped by SIGSTOP, whatever happens)."""
         c = self.cluster
-        t0 = self._wait_frame0()
-        self._sample(0.0, first=True)
-        next_sample = self.minute_s
-        while True:
-            now = time.monotonic() - t0
-            if now >= seconds:
-                break
-            self._check_exits(now)
-            self._act(now)
-            if now >= next_sample:
-                self._sample(now)
-                next_sample += self.minute_s
-            time.sleep(0.1)
-        for node in list(self._frozen):  # never leave a process stopped
-            self._signal(node, signal.SIGCONT)
-        self._sample(time.monotonic() - t0)
-        c.stop()
+        try:
+            c.start()
+            t0 = self._wait_frame0()
+            self._sample(0.0, first=True)
+            next_sample = self.minute_s
+            while True:
+                now = time.monotonic() - t0
+                if now >= seconds:
+                    break
+                self._check_exits(now)
+                self._act(now)
+                if now >= next_sample:
+                    self._sample(now)
+                    next_sample += self.minute_s
+                time.sleep(0.1)
+            self._sample(time.monotonic() - t0)
+        finally:
+            for node in list(self._frozen):
+                self._signal(node, signal.SIGCONT)
+            c.stop()
 
     def _wait_frame0(self, timeout_s: float = 60.0) -> float:
         c = self.cluster
@@ -488,13 +493,7 @@ def soak(minutes: int, nodes: int, out: str | Path, *, chaos: int | None = None,
             target=_reference_job, args=(ref_file, scenario, seed, frames, nodes, adjacency,
                                          config, done, fpm), daemon=True)
         background.start()
-    try:
-        cluster.start()
-        driver.run(minutes * minute_s)
-    finally:
-        for node in list(driver._frozen):
-            driver._signal(node, signal.SIGCONT)
-        cluster.stop()
+    driver.run(minutes * minute_s)
     stream = open_scenario(scenario, seed=seed, frames=frames).first_cameras(nodes)
     say("scoring the nodes' tracks per minute")
     node_scores = score_nodes(out, stream, nodes, done, fpm)

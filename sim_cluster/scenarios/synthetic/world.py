@@ -350,16 +350,13 @@ def simulate_people(area: tuple[float, float, float, float], fps: float, frames:
     """Walk people through ``frames`` frames (a :class:`PeopleWalk`, kept whole); deterministic
     given ``rng``."""
     walk = PeopleWalk(area, fps, params, rng)
-    steps = [walk.next() for _ in range(frames)]
-    return _trajectories(steps, walk.born)
+    return _trajectories([walk.next() for _ in range(frames)])
 
 
-def _trajectories(steps: list[tuple[np.ndarray, np.ndarray, np.ndarray]],
-                  known: int | None = None) -> Trajectories:
-    """Frames of a walk as one :class:`Trajectories` over the people seen in them."""
+def _trajectories(steps: list[tuple[np.ndarray, np.ndarray, np.ndarray]]) -> Trajectories:
+    """Frames of a walk as one :class:`Trajectories` over the people seen in them (from frame 0
+    that is everybody born: a person is in the frame they are born in)."""
     ids = np.unique(np.concatenate([s[0] for s in steps] + [np.zeros(0, np.int64)]))
-    if known is not None and len(ids):  # everybody born so far, as simulate_people always had
-        ids = np.arange(1, known + 1, dtype=np.int64)
     col = {int(p): j for j, p in enumerate(ids)}
     xy = np.full((len(steps), len(ids), 2), np.nan)
     wh = np.zeros((len(ids), 2))
