@@ -332,7 +332,10 @@ def run(messages: int = 10_000, out: str | Path = "runs/fuzz", *, scenario: str 
             rejected[key] = rejected.get(key, 0) + sum(c.get(key, {}).values())
     rep.rejected = dict(sorted(rejected.items()))
     rep.semantic_rejections = sum(c1["node_stats"]["rejected"].values())
-    rep.used = c1["frames_done"] - sum(n for link, n in c1.get("timeouts", {}).items()
+    # frames node 1 finished without the attacker's message: timed out, or shown lost by a
+    # newer message of the attacker's (its frames ahead) before frame k's answer came
+    rep.used = c1["frames_done"] - sum(n for key in ("timeouts", "lost")
+                                       for link, n in c1.get(key, {}).items()
                                        if link.startswith(f"{ATTACKER}->"))
     rep.expected_rejections = rep.used * (entries + merges)
     rep.identical, rep.tracks_compared = _same_tracks(out / "reference", out / "attack")
