@@ -32,11 +32,16 @@ def apply_homography(Hm: np.ndarray, pts: np.ndarray) -> np.ndarray:
 
 def homography_jacobian(Hm: np.ndarray, p: np.ndarray) -> np.ndarray:
     """``d(H p)/dp`` at the image point ``p`` (2x2), for propagating pixel noise to the ground."""
-    x = np.array([p[0], p[1], 1.0])
-    q = Hm @ x
-    w = q[2]
-    J = (Hm[:2, :2] * w - np.outer(q[:2], Hm[2, :2])) / (w * w)
-    return J
+    return homography_jacobians(Hm, np.asarray(p, float)[None])[0]
+
+
+def homography_jacobians(Hm: np.ndarray, pts: np.ndarray) -> np.ndarray:
+    """``d(H p)/dp`` at each of ``(n, 2)`` image points: ``(n, 2, 2)``, all in one pass.
+
+    With ``q = H (p, 1)`` and ``w = q_3``: ``J = (H_{1:2,1:2} w - q_{1:2} H_{3,1:2}) / w^2``."""
+    q = _h(np.asarray(pts, float).reshape(-1, 2)) @ Hm.T
+    w = q[:, 2, None, None]
+    return (Hm[None, :2, :2] * w - q[:, :2, None] * Hm[None, None, 2, :2]) / (w * w)
 
 
 @dataclass(frozen=True)
@@ -86,7 +91,11 @@ class Camera:
 
     def ground_jacobian(self, uv: np.ndarray) -> np.ndarray:
         """Jacobian of image->ground at pixel ``uv`` (ground units per pixel), 2x2."""
-        return homography_jacobian(self.G, np.asarray(uv, float) * self.pixel_scale) * self.pixel_scale
+        return self.ground_jacobians(np.asarray(uv, float)[None])[0]
+
+    def ground_jacobians(self, uv: np.ndarray) -> np.ndarray:
+        """:meth:`ground_jacobian` at each of ``(n, 2)`` pixels: ``(n, 2, 2)``."""
+        return homography_jacobians(self.G, np.asarray(uv, float) * self.pixel_scale) * self.pixel_scale
 
     def in_front(self, xy: np.ndarray) -> np.ndarray:
         """Whether ground points project in front of the camera (positive depth)."""
@@ -113,24 +122,34 @@ class Camera:
         projected bottom corners. Height: from ``P`` when known (the height whose top projects
         on the box's top edge), else the width times the box's aspect ratio.
         """
-        bx, by, bw, bh = (float(v) for v in box)
-        foot = np.array([bx + bw / 2.0, by + bh])
-        corners = self.to_ground(np.array([[bx, by + bh], [bx + bw, by + bh]]))
-        c = self.to_ground(foot)[0]
-        w = float(np.linalg.norm(corners[1] - corners[0]))
-        h = self._height(c, by) if self.P is not None else w * bh / max(bw, 1e-9)
-        if not np.isfinite(h) or h <= 0:
-            h = w * bh / max(bw, 1e-9)
-        return np.array([c[0], c[1], w, h])
+        return self.boxes_to_cylinders(np.asarray(box, float)[None])[0]
 
-    def _height(self, c: np.ndarray, v_top: float) -> float:
+    def boxes_to_cylinders(self, boxes: np.ndarray) -> np.ndarray:
+        """:meth:`box_to_cylinder` of ``(n, 4)`` boxes at once: ``(n, 4)``."""
+        boxes = np.asarray(boxes, float).reshape(-1, 4)
+        bx, by, bw, bh = boxes.T
+        n = len(boxes)
+        bottom = by + bh
+        # foot (bottom centre), bottom-left and bottom-right corners, through G in one pass
+        pts = np.concatenate([np.stack([bx + bw / 2.0, bottom], axis=1),
+                              np.stack([bx, bottom], axis=1), np.stack([bx + bw, bottom], axis=1)])
+        g = self.to_ground(pts)
+        c, left, right = g[:n], g[n:2 * n], g[2 * n:]
+        w = np.linalg.norm(right - left, axis=1)
+        aspect = w * bh / np.maximum(bw, 1e-9)
+        h = aspect if self.P is None else self._heights(c, by)
+        h = np.where(np.isfinite(h) & (h > 0), h, aspect)
+        return np.stack([c[:, 0], c[:, 1], w, h], axis=1)
+
+    def _heights(self, c: np.ndarray, v_top: np.ndarray) -> np.ndarray:
+        """Heights whose top projects on the image rows ``v_top`` above ground points ``c``
+        (``nan`` where the row is parallel to the vertical's image)."""
         P = self.P
-        p = P[:, :2] @ c + P[:, 3]
+        p = c @ P[:, :2].T + P[:, 3]
         q = P[:, 2]
         den = v_top * q[2] - q[1]
-        if abs(den) < 1e-12:
-            return float("nan")
-        return float((p[1] - v_top * p[2]) / den)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            return np.where(np.abs(den) < 1e-12, np.nan, (p[:, 1] - v_top * p[:, 2]) / den)
 
     def cylinder_to_box(self, cyl: np.ndarray) -> np.ndarray:
         """Cylinder ``(x, y, w, h)`` to the box ``(x, y, w, h)`` px that frames it in this image."""

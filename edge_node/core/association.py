@@ -67,16 +67,24 @@ def mahalanobis_matrix(trackers: Sequence[Candidate], obs: Sequence[Observation]
 
 
 def appearance_matrix(trackers: Sequence[Candidate], obs: Sequence[Observation],
-                      unknown: float) -> np.ndarray:
-    """Eq. 7 for every pair; ``unknown`` where a gallery or a descriptor is missing."""
+                      unknown: float, where: np.ndarray | None = None) -> np.ndarray:
+    """Eq. 7 for every pair; ``unknown`` where a gallery or a descriptor is missing. With
+    ``where`` (a boolean ``(n_trackers, n_obs)`` mask) only those pairs are scored (the others
+    hold ``unknown``): the pairs outside the geometric gate are never assigned, and scoring a
+    query against a gallery is most of the association's arithmetic."""
     A = np.full((len(trackers), len(obs)), float(unknown))
-    with_desc = [j for j, o in enumerate(obs) if o.descriptor is not None]
-    if not with_desc:
+    has = np.array([o.descriptor is not None for o in obs], bool)
+    if not has.any():
         return A
-    Qm = np.stack([obs[j].descriptor for j in with_desc])
+    Q = np.zeros((len(obs), len(next(o.descriptor for o in obs if o.descriptor is not None))))
+    Q[has] = np.stack([o.descriptor for o in obs if o.descriptor is not None])
+    Q /= np.maximum(np.linalg.norm(Q, axis=1, keepdims=True), 1e-12)
     for i, t in enumerate(trackers):
-        if t.gallery is not None and len(t.gallery):
-            A[i, with_desc] = t.gallery.distances(Qm)
+        if t.gallery is None or not len(t.gallery):
+            continue
+        cols = has if where is None else has & where[i]
+        if cols.any():
+            A[i, cols] = t.gallery.unit_distances(Q[cols])
     return A
 
 
@@ -91,7 +99,7 @@ def cost_matrix(trackers: Sequence[Candidate], obs: Sequence[Observation],
     allowed = d < cfg.tau
     cost = s_d
     if appearance:
-        s_a = appearance_matrix(trackers, obs, cfg.unknown_appearance)
+        s_a = appearance_matrix(trackers, obs, cfg.unknown_appearance, where=allowed)
         cost = s_a * s_d
         # With s_d close to 0 the product ignores appearance; a pair that is clearly two
         # different people (s_a above the gate) is never assigned, however close.

@@ -108,6 +108,10 @@ class Gallery:
         Q = queries / np.maximum(np.linalg.norm(queries, axis=1, keepdims=True), 1e-12)
         return 1.0 - (Q @ self.matrix().T).max(axis=1)
 
+    def unit_distances(self, units: np.ndarray) -> np.ndarray:
+        """:meth:`distances` of queries already scaled to unit length ``(n, D)``."""
+        return 1.0 - (units @ self.matrix().T).max(axis=1)
+
     def distance_to(self, other: "Gallery") -> float:
         """Minimum cosine distance between any two descriptors of two galleries (re-id score)."""
         if not self._n or not other._n:

@@ -36,46 +36,55 @@ class BoxMeasurement:
     cut: bool = False  # the image border cuts the box: no use for registration
 
 
-def pixels_per_unit(J: np.ndarray) -> float:
-    """Pixels per ground unit along the image's horizontal axis (``J``: ground per pixel)."""
-    return 1.0 / max(float(np.linalg.norm(J[:, 0])), 1e-12)
+def pixels_per_unit(J: np.ndarray) -> np.ndarray | float:
+    """Pixels per ground unit along the image's horizontal axis (``J``: ground per pixel, one
+    ``(2, 2)`` or a stack ``(n, 2, 2)``)."""
+    out = 1.0 / np.maximum(np.linalg.norm(J[..., :, 0], axis=-1), 1e-12)
+    return float(out) if np.ndim(out) == 0 else out
 
 
 def away_direction(J: np.ndarray) -> np.ndarray:
-    """Unit ground direction of moving up the image at a point with ground Jacobian ``J``."""
-    d = -J[:, 1]
-    return d / max(float(np.linalg.norm(d)), 1e-12)
+    """Unit ground direction of moving up the image at a point with ground Jacobian ``J``
+    (one ``(2, 2)`` or a stack ``(n, 2, 2)``)."""
+    d = -J[..., :, 1]
+    return d / np.maximum(np.linalg.norm(d, axis=-1), 1e-12)[..., None]
 
 
 def box_measurement(camera: Camera, box: np.ndarray, cfg: TrackerConfig) -> BoxMeasurement:
     """``z`` and the pixel-noise ``R`` of one box ``(x, y, w, h)`` px seen by ``camera``."""
-    box = np.asarray(box, dtype=float)
-    z = camera.box_to_cylinder(box)
-    bx, by, bw, bh = box
-    foot = np.array([bx + bw / 2.0, by + bh])
-    J = camera.ground_jacobian(foot)
+    return box_measurements(camera, np.asarray(box, float)[None], cfg)[0]
+
+
+def box_measurements(camera: Camera, boxes: np.ndarray, cfg: TrackerConfig) -> list[BoxMeasurement]:
+    """:func:`box_measurement` of ``(n, 4)`` boxes, computed for all of them at once."""
+    boxes = np.asarray(boxes, dtype=float).reshape(-1, 4)
+    if not len(boxes):
+        return []
+    z = camera.boxes_to_cylinders(boxes)
+    bx, by, bw, bh = boxes.T
+    foot = np.stack([bx + bw / 2.0, by + bh], axis=1)
+    J = camera.ground_jacobians(foot)
     s2 = cfg.pixel_sigma**2
-    R = np.zeros((4, 4))
     # Foot point (u, v): u is the mean of two noisy edges (var s2/2), v one edge (var s2).
-    var_u, var_v = s2 / 2.0, s2
     # A box cut by the image border does not show where the person stands: the cut side's
     # edge is the border, not the person's (var of a uniform offset over the hidden part).
     W, H = camera.image_size
     cut = cfg.border_px
-    if bx <= cut or bx + bw >= W - cut:
-        var_u += bw**2 / 3.0
-    if by + bh >= H - cut:
-        var_v += (0.5 * bh) ** 2 / 3.0
-    R[:2, :2] = J @ np.diag([var_u, var_v]) @ J.T
+    var_u = s2 / 2.0 + np.where((bx <= cut) | (bx + bw >= W - cut), bw**2 / 3.0, 0.0)
+    var_v = s2 + np.where(by + bh >= H - cut, (0.5 * bh) ** 2 / 3.0, 0.0)
+    R = np.zeros((len(boxes), 4, 4))
+    R[:, :2, :2] = (J * np.stack([var_u, var_v], axis=1)[:, None, :]) @ J.transpose(0, 2, 1)
     floor = cfg.m(cfg.size_meas_floor)
     # Width and height are differences of two noisy edges: var 2 s2 in pixels, scaled to ground.
-    sw = z[2] / max(bw, 1e-9) * cfg.pixel_sigma * np.sqrt(2.0)
-    sh = z[3] / max(bh, 1e-9) * cfg.pixel_sigma * np.sqrt(2.0)
-    R[2, 2] = sw**2 + floor**2
-    R[3, 3] = sh**2 + floor**2
-    ppu = pixels_per_unit(J)
-    return BoxMeasurement(z, R, foot, away_direction(J), np.array([bw, bh]) / ppu,
-                          var_u > s2 or var_v > s2)
+    sw = z[:, 2] / np.maximum(bw, 1e-9) * cfg.pixel_sigma * np.sqrt(2.0)
+    sh = z[:, 3] / np.maximum(bh, 1e-9) * cfg.pixel_sigma * np.sqrt(2.0)
+    R[:, 2, 2] = sw**2 + floor**2
+    R[:, 3, 3] = sh**2 + floor**2
+    size = boxes[:, 2:] / pixels_per_unit(J)[:, None]
+    away = away_direction(J)
+    cuts = (var_u > s2) | (var_v > s2)
+    return [BoxMeasurement(z[i], R[i], foot[i], away[i], size[i], bool(cuts[i]))
+            for i in range(len(boxes))]
 
 
 def fixed_R(cfg: TrackerConfig) -> np.ndarray:

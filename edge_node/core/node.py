@@ -36,7 +36,7 @@ from edge_node.core.gallery import Gallery
 from edge_node.core.identity import IdentityBook
 from edge_node.core.initiator import Initiator, Pending
 from edge_node.core.manager import DistributedTrackerManager, IndependentTrackers, MergeView
-from edge_node.core.measurement import box_measurement, fixed_R, pixels_per_unit, uncorrected
+from edge_node.core.measurement import box_measurements, fixed_R, pixels_per_unit, uncorrected
 from edge_node.core.memory import NeighbourMemory
 from edge_node.core.model import birth_covariance, birth_state, process_noise, quantize, transition
 from edge_node.core.registration import Registration
@@ -137,7 +137,7 @@ class CameraNode:
         self._begin(k)
         per_camera = self._split(detections)
         for cam in self.cameras:
-            obs = [self._observe(cam, d) for d in self._usable(per_camera.get(cam.id, ()))]
+            obs = self._observe(cam, self._usable(per_camera.get(cam.id, ())))
             unassigned = self._associate(k, cam.id, obs)
             for chain in self.initiators[cam.id].step(k, unassigned):
                 self._birth(k, cam.id, chain)
@@ -155,11 +155,15 @@ class CameraNode:
         if self._frame is not None and k <= self._frame:
             raise NodeStateError(f"node {self.id}: frame {k} does not follow frame {self._frame}")
         steps = 0 if self._frame is None else k - self._frame
-        for tr in self.trackers.values():
-            if steps:
-                tr.x_bar, tr.P = dkf.predict(tr.x_hat, tr.M, self.A, self.Q)
-                for _ in range(steps - 1):
-                    tr.x_bar, tr.P = dkf.predict(tr.x_bar, tr.P, self.A, self.Q)
+        trs = list(self.trackers.values())
+        if steps and trs:
+            x_bar, P = dkf.predict(np.stack([t.x_hat for t in trs]), np.stack([t.M for t in trs]),
+                                   self.A, self.Q)
+            for _ in range(steps - 1):
+                x_bar, P = dkf.predict(x_bar, P, self.A, self.Q)
+            for tr, x, P_i in zip(trs, x_bar, P):
+                tr.x_bar, tr.P = x, P_i
+        for tr in trs:
             tr.local = LocalInfo()
         self._frame = k
 
@@ -174,27 +178,35 @@ class CameraNode:
                              "pass detections as {camera_id: [...]}")
         return {self.cameras[0].id: detections}
 
-    def _usable(self, dets: Sequence[Detection]) -> list[Detection]:
-        """Detections with a finite box of positive size (others are counted, not measured)."""
-        out = []
-        for d in dets:
-            b = np.asarray(d.box, float)
-            if b.shape == (4,) and np.all(np.isfinite(b)) and b[2] > 0 and b[3] > 0:
-                out.append(d)
-            else:
-                self.stats.bad_detections += 1
-        return out
+    def _usable(self, dets: Sequence[Detection]) -> tuple[list[Detection], np.ndarray]:
+        """Detections with a finite box of positive size and their boxes ``(n, 4)`` (others are
+        counted, not measured)."""
+        if not dets:
+            return [], np.zeros((0, 4))
+        boxes = [np.asarray(d.box, float) for d in dets]
+        B = np.stack([b if b.shape == (4,) else np.full(4, np.nan) for b in boxes])
+        with np.errstate(invalid="ignore"):
+            good = np.all(np.isfinite(B), axis=1) & (B[:, 2] > 0) & (B[:, 3] > 0)
+        self.stats.bad_detections += int(len(B) - good.sum())
+        return [d for d, g in zip(dets, good) if g], B[good]
 
-    def _observe(self, cam: Camera, det: Detection) -> Observation:
-        desc = self.associate.descriptor(det.descriptor)
-        raw = box_measurement(cam, det.box, self.cfg)
+    def _observe(self, cam: Camera, usable: tuple[list[Detection], np.ndarray]) -> list[Observation]:
+        """One camera's usable detections and their boxes as measurements ``z, R``
+        (registration-corrected when the node registers its cameras), all at once."""
+        dets, boxes = usable
+        if not dets:
+            return []
+        raws = box_measurements(cam, boxes, self.cfg)
+        descs = [self.associate.descriptor(d.descriptor) for d in dets]
         reg = self.registrations.get(cam.id)
         if reg is None:
-            return Observation(*uncorrected(raw, self.cfg), desc, raw)
-        z, R = reg.correct(raw)
-        if self.cfg.fixed_R is not None:
-            R = fixed_R(self.cfg)
-        return Observation(z, R, desc, raw)
+            zR = [uncorrected(raw, self.cfg) for raw in raws]
+        else:
+            z, R = reg.corrects(raws)
+            if self.cfg.fixed_R is not None:
+                R = np.broadcast_to(fixed_R(self.cfg), R.shape).copy()
+            zR = list(zip(z, R))
+        return [Observation(z, R, desc, raw) for (z, R), desc, raw in zip(zR, descs, raws)]
 
     def _associate(self, k: int, cam_id: int, obs: list[Observation]) -> list[Observation]:
         """LDA of one camera's measurements; each pair adds its information (eq. 2) and may
@@ -204,9 +216,12 @@ class CameraNode:
                  for t in ids]
         assigned = set()
         pairs = self.associate(cands, obs)
-        for i, j in pairs:
+        if pairs:
+            u, U = dkf.informations(np.stack([obs[j].z for _, j in pairs]),
+                                    np.stack([obs[j].R for _, j in pairs]))
+        for n, (i, j) in enumerate(pairs):
             tr = self.trackers[ids[i]]
-            tr.local.add(cam_id, *dkf.information(obs[j].z, obs[j].R), obs[j].raw)
+            tr.local.add(cam_id, u[n], U[n], obs[j].raw)
             self._saw(tr, cam_id, k, obs[j])
             tr.gallery.offer(obs[j].descriptor, k, self.cfg.gallery_admit)
             assigned.add(j)
@@ -310,8 +325,7 @@ class CameraNode:
         for tid in sorted(received):
             if tid not in self.trackers:
                 self._adopt(k, tid, received[tid])
-        for tid in sorted(self.trackers):
-            self._correct(self.trackers[tid], received.get(tid, []))
+        self._correct(received)
         if self.registrations:
             self._register(received)
         views = [MergeView(t.id, t.x_hat[:2], t.gallery, t.since == k, frozenset(t.local.seen_by),
@@ -364,33 +378,62 @@ class CameraNode:
                     measured[rid] = measured.get(rid, frozenset()) | {m.sender}
         return received, measured
 
-    def _correct(self, tr: Tracker, got: list[TrackerInfo]) -> None:
-        """Eqs. 3-4 for one tracker with its neighbours' entries, then ``ell`` (eq. 8).
+    def _correct(self, received: dict[TrackerId, list[TrackerInfo]]) -> None:
+        """Eqs. 3-4 for every tracker with its neighbours' entries, all at once, then ``ell``
+        (eq. 8).
 
+        Eq. 3 sums this node's information and each neighbour's (``y``, ``S``), in the order
+        the entries arrive (sender order), and the consensus term's differences
+        ``x_bar_j - x_bar`` use this node's prediction as the neighbours received it.
         The entries passed ``Screen`` (``U`` positive semi-definite, bounded), so with ``P``
         positive definite ``I + P S`` is invertible and nothing here can fail; should a
-        correction fail numerically anyway, this tracker alone keeps its prediction for the
+        correction fail numerically anyway, that tracker alone keeps its prediction for the
         frame (counted in ``stats.numerical``) and every other tracker is corrected as usual."""
-        y, S = dkf.fuse([(tr.local.u, tr.local.U)] + [(t.u, t.U) for t in got])
+        ids = sorted(self.trackers)
+        if not ids:
+            return
+        trs = [self.trackers[t] for t in ids]
+        x_bar = np.stack([tr.x_bar for tr in trs])
+        P = np.stack([tr.P for tr in trs])
+        y = np.stack([tr.local.u for tr in trs])
+        S = np.stack([tr.local.U for tr in trs])
+        ref = np.stack([tr.x_bar if tr.local.x_bar_sent is None else tr.local.x_bar_sent
+                        for tr in trs])
+        diff = np.zeros_like(x_bar)
+        got = [received.get(tid, []) for tid in ids]
+        rows = np.array([i for i, g in enumerate(got) for _ in g], dtype=np.intp)
+        if len(rows):
+            entries = [t for g in got for t in g]
+            np.add.at(y, rows, np.stack([t.u for t in entries]))
+            np.add.at(S, rows, np.stack([t.U for t in entries]))
+            np.add.at(diff, rows, np.stack([t.x_bar for t in entries]) - ref[rows])
+        upm = self.cfg.units_per_metre
         try:
-            x_hat, M = dkf.correct(tr.x_bar, tr.P, y, S, [t.x_bar for t in got],
-                                   own_x_bar_sent=tr.local.x_bar_sent,
-                                   units_per_metre=self.cfg.units_per_metre)
-            ok = bool(np.all(np.isfinite(x_hat)) and np.all(np.isfinite(M)))
+            x_hat, M = dkf.corrects(x_bar, P, y, S, diff, upm)
         except (np.linalg.LinAlgError, ValueError, FloatingPointError):
-            ok = False
-        if not ok:
-            self.stats.numerical += 1
-            x_hat, M = tr.x_bar.copy(), tr.P.copy()
-        tr.x_hat, tr.M = x_hat, M
-        ell_before = tr.ell
-        tr.ell = self.manager.ell(tr.local.ell_sent, [t.ell for t in got])
-        tr.coast = tr.coast + 1 if tr.ell > ell_before else 0
+            x_hat, M = np.full_like(x_bar, np.nan), np.full_like(P, np.nan)
+            for i in range(len(ids)):  # one at a time: a failure stays with its tracker
+                try:
+                    x_hat[i:i + 1], M[i:i + 1] = dkf.corrects(x_bar[i:i + 1], P[i:i + 1], y[i:i + 1],
+                                                              S[i:i + 1], diff[i:i + 1], upm)
+                except (np.linalg.LinAlgError, ValueError, FloatingPointError):
+                    pass
+        bad = ~(np.all(np.isfinite(x_hat), axis=1) & np.all(np.isfinite(M), axis=(1, 2)))
+        if bad.any():
+            self.stats.numerical += int(bad.sum())
+            x_hat[bad], M[bad] = x_bar[bad], P[bad]
+        for tr, g, x_i, M_i in zip(trs, got, x_hat, M):
+            tr.x_hat, tr.M = x_i, M_i
+            ell_before = tr.ell
+            tr.ell = self.manager.ell(tr.local.ell_sent, [t.ell for t in g])
+            tr.coast = tr.coast + 1 if tr.ell > ell_before else 0
 
     def _register(self, received: dict[TrackerId, list[TrackerInfo]]) -> None:
         """Registration residuals of this frame (``registration``, R2-R3): each of this node's
         cameras against what the other cameras measured of the same targets in the same frame:
-        the neighbours' ``u, U`` and this node's other cameras."""
+        the neighbours' ``u, U`` and this node's other cameras (their information summed, eq. 3,
+        the ground position's block: ``z_o = U_o^-1 u_o``, ``V_o = U_o^-1``)."""
+        rows: dict[int, tuple[list, list, list]] = {c: ([], [], []) for c in self.registrations}
         for tid in sorted(self.trackers):
             mine = self.trackers[tid].local.per_camera
             if not mine:
@@ -401,11 +444,16 @@ class CameraNode:
                 others = theirs + [(u, U) for c, (u, U, _) in sorted(mine.items()) if c != cam_id]
                 if raw is None or not others:
                     continue
-                U_o = sum(U[:2, :2] for _, U in others)
-                V_o = np.linalg.inv(U_o)
-                z_o = V_o @ sum(u[:2] for u, _ in others)
-                self.registrations[cam_id].observe(raw, z_o, V_o)
+                raws, us, Us = rows[cam_id]
+                raws.append(raw)
+                us.append(sum(u[:2] for u, _ in others))
+                Us.append(sum(U[:2, :2] for _, U in others))
         for cam_id in sorted(self.registrations):
+            raws, us, Us = rows[cam_id]
+            if raws:
+                V_o = np.linalg.inv(np.stack(Us))
+                z_o = (V_o @ np.stack(us)[..., None])[..., 0]
+                self.registrations[cam_id].observe_many(raws, z_o, V_o)
             self.registrations[cam_id].end_frame()
 
     def _adopt(self, k: int, tid: TrackerId, infos: list[TrackerInfo]) -> None:
@@ -479,34 +527,48 @@ class CameraNode:
 
     def tracks(self) -> list[Track]:
         """The current estimates (after the last ``update``): the trackers it reports."""
+        shown = [t for _, t in sorted(self.trackers.items())
+                 if t.x_hat is not None and self._reported(t)]
+        boxes = self.views(shown)
         return [Track(t.id, self._frame, t.x_hat.copy(), t.M.copy(), bool(t.local.seen_by), t.ell,
-                      self.view(t))
-                for _, t in sorted(self.trackers.items())
-                if t.x_hat is not None and self._reported(t)]
+                      b) for t, b in zip(shown, boxes)]
 
     def _saw(self, tr: Tracker, cam_id: int, k: int, obs: Observation) -> None:
         if obs.raw is not None:
             tr.saw(cam_id, k, obs.raw.size, self.cfg.view_rate)
 
     def view(self, tr: Tracker) -> dict[int, np.ndarray]:
-        """The tracker in this node's own image(s): for every camera that measured it within
+        """The tracker in this node's own image(s) (see :meth:`views`)."""
+        return self.views([tr])[0]
+
+    def views(self, trackers: Sequence[Tracker]) -> list[dict[int, np.ndarray]]:
+        """Each tracker in this node's own image(s): for every camera that measured it within
         ``view_frames``, the estimate's ground point mapped back through the camera's own
         registration (where its box's bottom edge lies) with the box size the camera itself
-        measures, smoothed (``Track.boxes``)."""
-        out = {}
+        measures, smoothed (``Track.boxes``). All trackers of a camera at once."""
+        out: list[dict[int, np.ndarray]] = [{} for _ in trackers]
         for cam in self.cameras:
-            seen = tr.views.get(cam.id)
-            reg = self.registrations.get(cam.id)
-            if seen is None or self._frame - seen[0] > self.cfg.view_frames:
-                if not self.cfg.view_unseen:
-                    continue
-                seen = (self._frame, tr.x_hat[2:4])
-            g = tr.x_hat[:2] if reg is None else reg.to_camera(tr.x_hat[:2])
-            foot = cam.to_image(g[None])[0]
-            if not np.all(np.isfinite(foot)):
+            rows, sizes = [], []
+            for i, tr in enumerate(trackers):
+                seen = tr.views.get(cam.id)
+                if seen is None or self._frame - seen[0] > self.cfg.view_frames:
+                    if not self.cfg.view_unseen:
+                        continue
+                    seen = (self._frame, tr.x_hat[2:4])
+                rows.append(i)
+                sizes.append(seen[1])
+            if not rows:
                 continue
-            w, h = seen[1] * pixels_per_unit(cam.ground_jacobian(foot))
-            out[cam.id] = np.array([foot[0] - w / 2.0, foot[1] - h, w, h])
+            xy = np.stack([trackers[i].x_hat[:2] for i in rows])
+            reg = self.registrations.get(cam.id)
+            g = xy if reg is None else reg.to_camera_many(xy)
+            with np.errstate(invalid="ignore", divide="ignore", over="ignore"):
+                foot = cam.to_image(g)
+                wh = np.stack(sizes) * pixels_per_unit(cam.ground_jacobians(foot))[:, None]
+            box = np.concatenate([foot[:, :1] - wh[:, :1] / 2.0, foot[:, 1:] - wh[:, 1:], wh], axis=1)
+            for i, b, ok in zip(rows, box, np.all(np.isfinite(foot), axis=1)):
+                if ok:
+                    out[i][cam.id] = b
         return out
 
     def _reported(self, tr: Tracker) -> bool:

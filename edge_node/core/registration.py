@@ -123,54 +123,86 @@ class Registration:
     # -- R1 and R5 ------------------------------------------------------------------------------
     def basis(self, g: np.ndarray, away: np.ndarray) -> np.ndarray:
         """``A(g)`` of R1 (2 x 5)."""
-        e = np.asarray(g, float) - self.c0
-        return np.column_stack([np.eye(2), _ROT90 @ e, e, away])
+        return self.bases(np.asarray(g, float)[None], np.asarray(away, float)[None])[0]
+
+    def bases(self, g: np.ndarray, away: np.ndarray) -> np.ndarray:
+        """``A(g)`` of R1 at ``(n, 2)`` ground points with their away directions: ``(n, 2, 5)``."""
+        e = g - self.c0
+        A = np.zeros((len(e), 2, N_PARAMS))
+        A[:, 0, 0] = A[:, 1, 1] = 1.0
+        A[:, :, 2] = e @ _ROT90.T
+        A[:, :, 3] = e
+        A[:, :, 4] = away
+        return A
 
     def correct(self, m: BoxMeasurement) -> tuple[np.ndarray, np.ndarray]:
         """R5: the corrected ``(z, R)`` of a box measurement."""
-        A = self.basis(m.z[:2], m.away)
-        z = m.z.copy()
-        z[:2] = m.z[:2] + A @ self.theta
-        C = A @ self.Sigma @ A.T
-        top = float(np.linalg.eigvalsh(C)[-1])
+        z, R = self.corrects([m])
+        return z[0], R[0]
+
+    def corrects(self, ms: list[BoxMeasurement]) -> tuple[np.ndarray, np.ndarray]:
+        """R5 for many box measurements at once: ``z`` ``(n, 4)`` and ``R`` ``(n, 4, 4)``."""
+        z = np.stack([m.z for m in ms])
+        R = np.stack([m.R for m in ms])
+        A = self.bases(z[:, :2], np.stack([m.away for m in ms]))
+        z[:, :2] += A @ self.theta
+        C = A @ self.Sigma @ A.transpose(0, 2, 1)
+        top = np.linalg.eigvalsh(C)[:, -1]
         room = max(self.cap - self.noise_var, 0.0)
-        if top > room:  # an unconverged correction counts at most as calib_sigma
-            C = C * (room / top)
-        R = m.R.copy()
-        R[:2, :2] = m.R[:2, :2] + np.eye(2) * self.noise_var + C
+        # an unconverged correction counts at most as calib_sigma
+        C = np.where((top > room)[:, None, None], C * (room / np.maximum(top, 1e-300))[:, None, None], C)
+        R[:, :2, :2] += np.eye(2) * self.noise_var + C
         return z, R
 
     def to_camera(self, xy: np.ndarray) -> np.ndarray:
         """The foot point this camera would measure for a target at corrected ground point
         ``xy`` (R1 inverted by fixed-point iteration): where its own box's bottom edge lies."""
-        xy = np.asarray(xy, float)
-        g = xy.copy()
-        for _ in range(3):
-            foot = self.camera.to_image(g[None])[0]
-            if not np.all(np.isfinite(foot)):
-                return g
-            a = away_direction(self.camera.ground_jacobian(foot))
-            g = xy - self.basis(g, a) @ self.theta
+        return self.to_camera_many(np.asarray(xy, float)[None])[0]
+
+    def to_camera_many(self, xy: np.ndarray) -> np.ndarray:
+        """:meth:`to_camera` of ``(n, 2)`` ground points at once; a point whose iterate leaves
+        the image's half-plane keeps that iterate."""
+        g = np.array(xy, float)
+        live = np.ones(len(g), bool)
+        with np.errstate(invalid="ignore", divide="ignore", over="ignore"):
+            for _ in range(3):
+                foot = self.camera.to_image(g)
+                live &= np.all(np.isfinite(foot), axis=1)
+                a = away_direction(self.camera.ground_jacobians(foot))
+                step = xy - self.bases(g, a) @ self.theta
+                g = np.where(live[:, None], step, g)
         return g
 
     # -- R2 to R4 --------------------------------------------------------------------------------
     def observe(self, m: BoxMeasurement, z_other: np.ndarray, V_other: np.ndarray) -> bool:
         """One residual of this frame (R2); it is used at ``end_frame``. False when gated out."""
-        if m.cut:
-            return False
-        A = self.basis(m.z[:2], m.away)
-        V = m.R[:2, :2] + np.eye(2) * self.noise_var + V_other
-        r = np.asarray(z_other, float) - (m.z[:2] + A @ self.theta)
-        S = V + A @ self.Sigma @ A.T
-        nis = float(r @ np.linalg.solve(S, r))
-        if not nis <= self.cfg.reg_gate:
-            self.rejected += 1
-            return False
-        W = np.linalg.inv(V)
-        self._info += A.T @ W @ A
-        self._vec += A.T @ W @ r
-        self.residuals += 1
-        return True
+        return bool(self.observe_many([m], np.asarray(z_other, float)[None],
+                                      np.asarray(V_other, float)[None])[0])
+
+    def observe_many(self, ms: list[BoxMeasurement], z_other: np.ndarray,
+                     V_other: np.ndarray) -> np.ndarray:
+        """R2 for ``n`` residuals at once (``z_other`` ``(n, 2)``, ``V_other`` ``(n, 2, 2)``):
+        which were used (not cut by the image border, inside the gate)."""
+        used = np.array([not m.cut for m in ms], bool)
+        if not used.any():
+            return used
+        idx = np.flatnonzero(used)
+        z = np.stack([ms[i].z[:2] for i in idx])
+        A = self.bases(z, np.stack([ms[i].away for i in idx]))
+        V = np.stack([ms[i].R[:2, :2] for i in idx]) + np.eye(2) * self.noise_var + V_other[idx]
+        r = z_other[idx] - (z + A @ self.theta)
+        S = V + A @ self.Sigma @ A.transpose(0, 2, 1)
+        nis = np.einsum("ni,ni->n", r, np.linalg.solve(S, r[..., None])[..., 0])
+        ok = nis <= self.cfg.reg_gate  # False for nan too
+        self.rejected += int(len(idx) - ok.sum())
+        used[idx] = ok
+        if ok.any():
+            A, V, r = A[ok], V[ok], r[ok]
+            AtW = A.transpose(0, 2, 1) @ np.linalg.inv(V)  # A^T V^-1 per residual
+            self._info += (AtW @ A).sum(axis=0)
+            self._vec += (AtW @ r[..., None])[..., 0].sum(axis=0)
+            self.residuals += int(ok.sum())
+        return used
 
     def end_frame(self) -> None:
         """R3: fold this frame's residuals into ``theta``, then step to the next frame (R6's

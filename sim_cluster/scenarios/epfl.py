@@ -321,13 +321,8 @@ def _foot_points(cam: Camera, boxes: np.ndarray) -> np.ndarray:
 
 
 def _cylinder_sizes(cam: Camera, boxes: np.ndarray) -> np.ndarray:
-    """``Camera.box_to_cylinder``'s (w, h) for many boxes; vectorised when the camera has no P."""
-    if cam.P is not None:
-        return np.array([cam.box_to_cylinder(b)[2:] for b in boxes]).reshape(-1, 2)
-    bl = cam.to_ground(np.stack([boxes[:, 0], boxes[:, 1] + boxes[:, 3]], axis=1))
-    br = cam.to_ground(np.stack([boxes[:, 0] + boxes[:, 2], boxes[:, 1] + boxes[:, 3]], axis=1))
-    w = np.linalg.norm(br - bl, axis=1)
-    return np.stack([w, w * boxes[:, 3] / np.maximum(boxes[:, 2], 1e-9)], axis=1)
+    """``Camera.box_to_cylinder``'s (w, h) for many boxes."""
+    return cam.boxes_to_cylinders(boxes)[:, 2:]
 
 
 def _typical_sizes(seq: EpflSequence, units_per_metre: float) -> dict[int, np.ndarray]:

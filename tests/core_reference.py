@@ -1,0 +1,73 @@
+"""Recorded outputs of the tracker core, to check that a faster core computes the same tracks.
+
+``RUNS`` are small in-process network runs covering the core's paths: appearance and geometry
+only, sync and event-triggered, registration, message loss and delay, a kill and restart.
+``record`` writes every node's reported tracks of every frame (ids, ``x``, ``P``) to an ``.npz``;
+``tests/test_core_reference.py`` re-runs ``RUNS`` with the current code and compares.
+
+``tests/data/core_reference.npz`` was recorded with the per-tracker core of commit 5f1f58d
+(before the core was batched, issue 15) by::
+
+    git worktree add --detach /tmp/old 5f1f58d
+    PYTHONPATH=/tmp/old python tests/core_reference.py tests/data/core_reference.npz
+
+Re-record it (from the commit that changes them, saying why in the message) only when the
+tracks are meant to change.
+"""
+from __future__ import annotations
+
+import sys
+
+import numpy as np
+
+FRAMES = 100
+X_EVERY = 3  # x of every third frame, P (its upper triangle) of every sixth: the file stays small
+P_EVERY = 6
+RUNS = {
+    "terrace-ring-async-loss": ("terrace-sim", "ring", "async", "dkf+lda+dtm",
+                                {"seed": 2, "link": [{"loss": 0.2, "delay": 1, "jitter": 2}]}),
+    "terrace-ring-sync-kill": ("terrace-sim", "ring", "sync", "dkf+lda+dtm",
+                               {"seed": 1, "node": [{"node": 1, "kill": 40, "restart": 70}]}),
+    "lab-chain-sync-geometry": ("lab-sim", "chain", "sync", "dkf+dtm", {}),
+    "campus-ring-sync": ("campus-sim", "ring", "sync", "dkf+lda+dtm", {}),
+    "calib-ring-sync": ("terrace-calib", "ring", "sync", "dkf+lda+dtm", {}),
+}
+
+
+def run(name: str) -> dict[int, list[list]]:
+    """Node -> frame -> reported tracks ``[(id, x, P), ...]`` of run ``name``."""
+    from edge_node.core.config import TrackerConfig
+    from edge_node.faults import FaultPlan
+    from sim_cluster.network.inprocess import run_network
+    from sim_cluster.network.topology import build
+    from sim_cluster.scenarios.loader import load_scenario
+
+    scenario, topology, mode, config, plan = RUNS[name]
+    data = load_scenario(scenario, seed=0)
+    result = run_network(data, build(topology, data.num_cameras), TrackerConfig.for_ablation(config),
+                         frames=FRAMES, mode=mode, faults=FaultPlan.from_dict(plan))
+    return {n: [[(t.id, t.x, t.P) for t in frame] for frame in frames]
+            for n, frames in result.tracks.items()}
+
+
+def flatten(tracks: dict[int, list[list]]) -> dict[str, np.ndarray]:
+    """One run's tracks as arrays: rows ``(node, frame, camera, counter)`` of every track;
+    ``x`` of the tracks of every ``X_EVERY``-th frame, ``P`` (upper triangle) of every
+    ``P_EVERY``-th."""
+    ts = [(n, k, t) for n in sorted(tracks) for k, f in enumerate(tracks[n]) for t in f]
+    iu = np.triu_indices(6)
+    return {"rows": np.array([(n, k, *t[0]) for n, k, t in ts], np.int64).reshape(-1, 4),
+            "x": np.array([t[1] for _, k, t in ts if k % X_EVERY == 0], float).reshape(-1, 6),
+            "P": np.array([t[2][iu] for _, k, t in ts if k % P_EVERY == 0], float).reshape(-1, 21)}
+
+
+def record(path: str) -> None:
+    out = {}
+    for name in RUNS:
+        for key, a in flatten(run(name)).items():
+            out[f"{name}/{key}"] = a
+    np.savez_compressed(path, **out)
+
+
+if __name__ == "__main__":
+    record(sys.argv[1])
