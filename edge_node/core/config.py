@@ -107,6 +107,7 @@ class TrackerConfig:
     reid_frames: int = integer(50, lo=0, doc="without appearance: frames a dropped tracker may be re-identified")
     reid_gate: float = positive(1.5, "m, without appearance: how near its birth a dropped tracker must be")
     report_coast: int = integer(1, lo=0, doc="frames a tracker nobody sees is still reported")
+    scope_hops: int = integer(0, lo=0, doc="regional scope (not in the paper; needs the DTM): a node keeps and sends a tracker only within this many hops of the cameras that see it; 0 = every node holds every tracker (the paper)")
 
     # --- trust boundary (edge_node/core/screen.py): what a neighbour's entry may claim -----
     world_radius: float = positive(1000.0, "m, states farther than this from every camera of the node are implausible")

@@ -61,6 +61,7 @@ class NodeStats:
     reactivated: int = 0
     merged: int = 0
     dropped: int = 0
+    out_of_scope: int = 0  # trackers let go because the target is beyond scope_hops (regional scope)
     ignored_messages: int = 0  # other network, not a neighbour, future or too old a frame
     duplicate_messages: int = 0  # a sender's frame already taken
     bad_detections: int = 0  # boxes with NaN, inf or a non-positive size: not measured
@@ -274,6 +275,8 @@ class CameraNode:
         infos = []
         for tid in sorted(self.trackers):
             tr = self.trackers[tid]
+            if not self._sends(tr):
+                continue
             app = None
             if not tr.announced and len(tr.gallery):
                 app = tr.gallery.newest(MAX_DESCRIPTORS)
@@ -336,6 +339,9 @@ class CameraNode:
         for tid in sorted(self.trackers):
             if self.trackers[tid].ell > self.cfg.kappa:
                 self._drop(tid)
+            elif not self._in_scope(self.trackers[tid]):
+                self._drop(tid)
+                self.stats.out_of_scope += 1
         self._prepared = False
         self.book.forget(set(self.trackers))
         return self.tracks()
@@ -461,6 +467,8 @@ class CameraNode:
         ell = min(t.ell for t in infos)
         if ell > self.cfg.kappa or not self.manager.may_adopt(tid, self.book.dropped):
             return
+        if self.cfg.scope_hops and ell >= self.cfg.scope_hops:
+            return  # beyond this node's scope (a neighbour's memory of an entry it stopped sending)
         src = infos[0]  # messages are sorted by sender: deterministic choice
         gallery = Gallery(self.cfg.gallery_size, self.cfg.gallery_every)
         if tid in self.book.old:
@@ -508,6 +516,25 @@ class CameraNode:
             else:
                 old[winner] = g
         self.manager.merged(loser)
+
+    # ------------------------------------------------------------------------------------
+    # regional scope (our addition; cfg.scope_hops, needs the DTM's ell consensus)
+    # ------------------------------------------------------------------------------------
+    # By eq. 8 a node h >= 1 hops from the nearest camera that sees a target holds ell = h - 1,
+    # and while nobody sees it every node's ell grows by one a frame, counted in ``coast``; so
+    # ``ell - coast`` is how far, in hops minus one, the node is from the cameras that saw the
+    # target last, whether it is seen now or not. With scope H a node keeps a tracker while
+    # ell - coast < H (hops <= H) and sends it only while its receivers may keep it: the
+    # cameras within H hops of a target hold it, the ones next to its cameras already hold it
+    # when it walks into their view (the hand-over keeps the id), and the others never hear
+    # of it. A node letting go keeps the gallery for re-identification like any drop (DTM).
+    def _in_scope(self, tr: Tracker) -> bool:
+        """Whether this node keeps ``tr``: within ``scope_hops`` hops (always without scope)."""
+        return not self.cfg.scope_hops or tr.ell - tr.coast < self.cfg.scope_hops
+
+    def _sends(self, tr: Tracker) -> bool:
+        """Whether this frame's message carries ``tr``: a receiver one hop farther keeps it."""
+        return not self.cfg.scope_hops or tr.local.ell_sent - tr.coast < self.cfg.scope_hops
 
     def _drop(self, tid: TrackerId) -> None:
         tr = self.trackers.pop(tid)
