@@ -49,6 +49,31 @@ from protocol.messages import MAX_DESCRIPTORS, FrameMessage, TrackerId, TrackerI
 Manager = DistributedTrackerManager | IndependentTrackers
 
 
+@dataclass(frozen=True)
+class Entries:
+    """The neighbours' entries of a frame against this node's trackers: ``ids`` (sorted),
+    ``got[i]`` the entries for ``ids[i]`` in sender order, and all entries' numbers stacked in
+    that order with ``rows`` the tracker index of each (what batched sums over the inclusive
+    neighbourhood, eq. 3, read)."""
+
+    ids: list[TrackerId]
+    got: list[list[TrackerInfo]]
+    rows: np.ndarray  # (m,)
+    u: np.ndarray  # (m, 6)
+    U: np.ndarray  # (m, 6, 6)
+    x_bar: np.ndarray  # (m, 6)
+
+    @classmethod
+    def of(cls, ids: list[TrackerId], received: dict[TrackerId, list[TrackerInfo]]) -> "Entries":
+        got = [received.get(tid, []) for tid in ids]
+        rows = np.array([i for i, g in enumerate(got) for _ in g], dtype=np.intp)
+        flat = [t for g in got for t in g]
+        if not flat:
+            return cls(ids, got, rows, np.zeros((0, 6)), np.zeros((0, 6, 6)), np.zeros((0, 6)))
+        return cls(ids, got, rows, np.stack([t.u for t in flat]), np.stack([t.U for t in flat]),
+                   np.stack([t.x_bar for t in flat]))
+
+
 class NodeStateError(RuntimeError):
     """``prepare`` and ``update`` called out of order, or frames going backwards."""
 
@@ -328,9 +353,10 @@ class CameraNode:
         for tid in sorted(received):
             if tid not in self.trackers:
                 self._adopt(k, tid, received[tid])
-        self._correct(received)
+        entries = Entries.of(sorted(self.trackers), received)
+        self._correct(entries)
         if self.registrations:
-            self._register(received)
+            self._register(entries)
         views = [MergeView(t.id, t.x_hat[:2], t.gallery, t.since == k, frozenset(t.local.seen_by),
                            t.born, measured.get(t.id, frozenset()))
                  for t in self.trackers.values()]
@@ -384,7 +410,7 @@ class CameraNode:
                     measured[rid] = measured.get(rid, frozenset()) | {m.sender}
         return received, measured
 
-    def _correct(self, received: dict[TrackerId, list[TrackerInfo]]) -> None:
+    def _correct(self, entries: "Entries") -> None:
         """Eqs. 3-4 for every tracker with its neighbours' entries, all at once, then ``ell``
         (eq. 8).
 
@@ -395,7 +421,7 @@ class CameraNode:
         positive definite ``I + P S`` is invertible and nothing here can fail; should a
         correction fail numerically anyway, that tracker alone keeps its prediction for the
         frame (counted in ``stats.numerical``) and every other tracker is corrected as usual."""
-        ids = sorted(self.trackers)
+        ids, got, rows = entries.ids, entries.got, entries.rows
         if not ids:
             return
         trs = [self.trackers[t] for t in ids]
@@ -406,13 +432,10 @@ class CameraNode:
         ref = np.stack([tr.x_bar if tr.local.x_bar_sent is None else tr.local.x_bar_sent
                         for tr in trs])
         diff = np.zeros_like(x_bar)
-        got = [received.get(tid, []) for tid in ids]
-        rows = np.array([i for i, g in enumerate(got) for _ in g], dtype=np.intp)
         if len(rows):
-            entries = [t for g in got for t in g]
-            np.add.at(y, rows, np.stack([t.u for t in entries]))
-            np.add.at(S, rows, np.stack([t.U for t in entries]))
-            np.add.at(diff, rows, np.stack([t.x_bar for t in entries]) - ref[rows])
+            np.add.at(y, rows, entries.u)
+            np.add.at(S, rows, entries.U)
+            np.add.at(diff, rows, entries.x_bar - ref[rows])
         upm = self.cfg.units_per_metre
         try:
             x_hat, M = dkf.corrects(x_bar, P, y, S, diff, upm)
@@ -434,26 +457,31 @@ class CameraNode:
             tr.ell = self.manager.ell(tr.local.ell_sent, [t.ell for t in g])
             tr.coast = tr.coast + 1 if tr.ell > ell_before else 0
 
-    def _register(self, received: dict[TrackerId, list[TrackerInfo]]) -> None:
+    def _register(self, entries: "Entries") -> None:
         """Registration residuals of this frame (``registration``, R2-R3): each of this node's
         cameras against what the other cameras measured of the same targets in the same frame:
         the neighbours' ``u, U`` and this node's other cameras (their information summed, eq. 3,
         the ground position's block: ``z_o = U_o^-1 u_o``, ``V_o = U_o^-1``)."""
+        n = len(entries.ids)
+        u_o, U_o = np.zeros((n, 2)), np.zeros((n, 2, 2))  # the neighbours' measured entries
+        count = np.zeros(n, np.intp)
+        if len(entries.rows):
+            seen = entries.U[:, 0, 0] > 0
+            np.add.at(u_o, entries.rows[seen], entries.u[seen, :2])
+            np.add.at(U_o, entries.rows[seen], entries.U[seen, :2, :2])
+            np.add.at(count, entries.rows[seen], 1)
         rows: dict[int, tuple[list, list, list]] = {c: ([], [], []) for c in self.registrations}
-        for tid in sorted(self.trackers):
+        for i, tid in enumerate(entries.ids):
             mine = self.trackers[tid].local.per_camera
-            if not mine:
-                continue
-            theirs = [(t.u, t.U) for t in received.get(tid, ()) if t.U[0, 0] > 0]
             for cam_id in sorted(mine):
                 raw = mine[cam_id][2]
-                others = theirs + [(u, U) for c, (u, U, _) in sorted(mine.items()) if c != cam_id]
-                if raw is None or not others:
+                own = [(u, U) for c, (u, U, _) in sorted(mine.items()) if c != cam_id]
+                if raw is None or not (count[i] or own):
                     continue
                 raws, us, Us = rows[cam_id]
                 raws.append(raw)
-                us.append(sum(u[:2] for u, _ in others))
-                Us.append(sum(U[:2, :2] for _, U in others))
+                us.append(u_o[i] + sum(u[:2] for u, _ in own) if own else u_o[i])
+                Us.append(U_o[i] + sum(U[:2, :2] for _, U in own) if own else U_o[i])
         for cam_id in sorted(self.registrations):
             raws, us, Us = rows[cam_id]
             if raws:
