@@ -102,6 +102,16 @@ def orderings(name: str, n: int, count: int) -> list[list[int]]:
     return out
 
 
+def lattice(rows: int, cols: int) -> Adjacency:
+    """Cameras on a ``rows x cols`` lattice, numbered row by row (node ``r * cols + c``), each
+    linked to its 4-neighbours: the neighbour graph of a generated layout (one row is a chain)."""
+    if rows < 1 or cols < 1:
+        raise TopologyError(f"a lattice needs rows, cols >= 1, got {rows} x {cols}")
+    edges = [(r * cols + c, r * cols + c + 1) for r in range(rows) for c in range(cols - 1)]
+    edges += [(r * cols + c, (r + 1) * cols + c) for r in range(rows - 1) for c in range(cols)]
+    return _from_edges(rows * cols, edges)
+
+
 def diameter(adj: Adjacency) -> int:
     """Longest shortest path (hops) between connected nodes; 0 for isolated nodes."""
     best = 0

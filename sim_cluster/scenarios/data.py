@@ -58,6 +58,9 @@ class ScenarioData:
     detection_truth: list[list[np.ndarray]] = field(default_factory=list)
     area: tuple[float, float, float, float] = (0.0, 1.0, 0.0, 1.0)  # xmin, xmax, ymin, ymax
     seed: int = 0
+    #: the cameras' neighbour graph when the scenario has one (a generated layout's lattice;
+    #: topology ``layout``), else None
+    neighbours: dict[int, tuple[int, ...]] | None = None
 
     @property
     def num_cameras(self) -> int:
@@ -126,6 +129,8 @@ class ScenarioStream:
     chunk_frames: int
     area: tuple[float, float, float, float] = (0.0, 1.0, 0.0, 1.0)
     seed: int = 0
+    #: the cameras' neighbour graph when the scenario has one (ScenarioData.neighbours)
+    neighbours: dict[int, tuple[int, ...]] | None = None
     #: optional: ``focus(cameras)`` -> a chunk maker that makes the detections and image ground
     #: truth of these cameras only (the others' are empty), the same as ``chunk``'s
     focus: Callable[[list[int]], ChunkMaker] | None = field(default=None, repr=False)
@@ -164,7 +169,10 @@ class ScenarioStream:
             return [replace(f, detections=f.detections[:n], detection_truth=f.detection_truth[:n],
                             boxes=f.boxes[:n]) for f in full(j)]
 
-        return replace(self, cameras=self.cameras[:n], chunk=chunk, focus=None, _held=None)
+        nb = None if self.neighbours is None else {
+            i: tuple(j for j in self.neighbours[i] if j < n) for i in range(n)}
+        return replace(self, cameras=self.cameras[:n], chunk=chunk, focus=None, _held=None,
+                       neighbours=nb)
 
     def materialise(self) -> "ScenarioData":
         """Every frame in lists: the :class:`ScenarioData` of this stream."""
@@ -182,7 +190,7 @@ class ScenarioStream:
         return ScenarioData(name=self.name, cameras=list(self.cameras), frames=self.frames,
                             fps=self.fps, units_per_metre=self.units_per_metre,
                             detections=detections, truth=truth, detection_truth=det_truth,
-                            area=self.area, seed=self.seed)
+                            area=self.area, seed=self.seed, neighbours=self.neighbours)
 
     @classmethod
     def of(cls, data: "ScenarioData", chunk_frames: int = CHUNK_FRAMES) -> "ScenarioStream":
@@ -193,4 +201,4 @@ class ScenarioStream:
 
         return cls(name=data.name, cameras=list(data.cameras), frames=data.frames, fps=data.fps,
                    units_per_metre=data.units_per_metre, chunk=chunk, chunk_frames=chunk_frames,
-                   area=data.area, seed=data.seed)
+                   area=data.area, seed=data.seed, neighbours=data.neighbours)

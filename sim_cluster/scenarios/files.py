@@ -10,6 +10,7 @@ kind reads its tables with the shared reader (``edge_node/settings.py``) through
 """
 from __future__ import annotations
 
+import re
 from pathlib import Path
 from typing import Any
 
@@ -41,9 +42,26 @@ def resolve_scenario_path(name_or_path: str | Path) -> Path:
             raise ScenarioError(p.name or s, None, f"no such scenario file: {s}")
         return p
     preset = PRESET_DIR / f"{s}.toml"
+    param = parametric_layout(s)
+    if param is not None:
+        return PRESET_DIR / f"{param[0]}.toml"
     if not preset.is_file():
-        raise ScenarioError(s, None, f"unknown scenario preset (presets: {', '.join(list_presets())})")
+        raise ScenarioError(s, None, f"unknown scenario preset (presets: {', '.join(list_presets())}; "
+                            "and corridor-<N>, grid-<N>)")
     return preset
+
+
+#: ``corridor-64``, ``grid-256``: a layout preset with its number of cameras
+_PARAMETRIC = re.compile(r"(corridor|grid)-(\d+)")
+
+
+def parametric_layout(name: str | Path) -> tuple[str, int] | None:
+    """``(preset, cameras)`` of a parametric layout name (``corridor-64`` -> the ``corridor``
+    preset with 64 cameras), or None when ``name`` is not one (or is a file or a preset)."""
+    m = _PARAMETRIC.fullmatch(str(name))
+    if m is None or Path(str(name)).exists() or (PRESET_DIR / f"{name}.toml").is_file():
+        return None
+    return m.group(1), int(m.group(2))
 
 
 def read_scenario_toml(path: Path) -> dict:

@@ -8,7 +8,8 @@ A scenario is a TOML file (:mod:`sim_cluster.scenarios.files`: presets, paths, e
 ``det-files``                your own detections (:mod:`sim_cluster.scenarios.detfiles`)
 
 A folder written by ``sim_cluster export-detections`` (or its ``calibration.json``) is a scenario
-too. Same file + same seed gives identical detections. :func:`open_scenario` gives the
+too, and ``corridor-<N>`` / ``grid-<N>`` name the ``corridor`` / ``grid`` layout presets with N
+cameras (:mod:`sim_cluster.scenarios.synthetic.layout`). Same file + same seed gives identical detections. :func:`open_scenario` gives the
 scenario as a :class:`~sim_cluster.scenarios.data.ScenarioStream` (frames on demand: what the
 launcher and camera processes use), :func:`load_scenario` materialised (in-process runs).
 """
@@ -22,8 +23,8 @@ import numpy as np
 from sim_cluster.scenarios import detfiles, epfl
 from sim_cluster.scenarios.data import ScenarioData, ScenarioStream
 from sim_cluster.scenarios.detfiles import open_det_files
-from sim_cluster.scenarios.files import (ScenarioError, read_scenario_toml, resolve_scenario_path,
-                                         scenario_table)
+from sim_cluster.scenarios.files import (ScenarioError, parametric_layout, read_scenario_toml,
+                                         resolve_scenario_path, scenario_table)
 from sim_cluster.scenarios.synthetic.schema import load_synthetic
 
 ScenarioLoader = Callable[[dict, Path, int, "int | None"], "ScenarioStream | ScenarioData"]
@@ -64,6 +65,10 @@ def _open(name_or_path, seed, frames, data_root) -> ScenarioStream | ScenarioDat
         return open_det_files(candidate, frames=frames, seed=seed)
     path = resolve_scenario_path(name_or_path)
     raw = read_scenario_toml(path)
+    param = parametric_layout(name_or_path)
+    if param is not None:  # corridor-64: the corridor preset with 64 cameras
+        raw["name"] = str(name_or_path)
+        raw.setdefault("layout", {})["cameras"] = param[1]
     file = path.name
     top = scenario_table(raw, file)
     if seed is None:

@@ -34,6 +34,10 @@ Synthetic schema (metres, degrees, pixels; see the presets for commented example
                  distances same_camera_distance, cross_camera_distance, different_person_distance
     [truth]      min_visible                         (world module docstring)
 
+    [layout]                   # optional, instead of [area] and [[cameras]]: a generated
+    kind = "corridor"          # corridor | grid of N cameras with people_per_camera people each
+    cameras = 16               # (layout module; presets corridor and grid, names corridor-<N>)
+
     [calibration_error]        # optional: known registration errors (calibration module)
     shift_m = [[dx, dy], ...]  # per camera (file order): the believed ground map's shift, metres
     rotation_deg = [r, ...]    # per camera: its rotation about the camera's reference point
@@ -51,7 +55,6 @@ fields are errors (a typo must not silently fall back to a default). ``[detector
 from __future__ import annotations
 
 from dataclasses import MISSING, fields
-import math
 from pathlib import Path
 from typing import Any
 
@@ -64,6 +67,9 @@ from sim_cluster.scenarios.files import ScenarioError, scenario_table
 from sim_cluster.scenarios.synthetic.appearance import AppearanceError, AppearanceParams
 from sim_cluster.scenarios.synthetic.calibration import CalibrationBump, CalibrationError
 from sim_cluster.scenarios.synthetic.detector_model import DetectorParams, DetectorParamsError
+from sim_cluster.scenarios.synthetic.layout import KINDS as LAYOUT_KINDS
+from sim_cluster.scenarios.synthetic.layout import LayoutParams, layout_cameras, layout_stream
+from sim_cluster.scenarios.synthetic.pose import camera_from_pose, look_at_angles
 from sim_cluster.scenarios.synthetic.world import PeopleParams, WorldConfig, WorldError, stream
 
 CAMERA_KEYS = ("image_size", "homography", "pixel_scale", "projection", "position", "look_at",
@@ -71,57 +77,6 @@ CAMERA_KEYS = ("image_size", "homography", "pixel_scale", "projection", "positio
 
 
 # -- cameras ----------------------------------------------------------------------------------
-
-
-def look_at_angles(position: np.ndarray, target: np.ndarray) -> tuple[float, float]:
-    """``(yaw_deg, pitch_deg)`` of an optical axis from ``position`` towards ``target`` (xyz)."""
-    d = np.asarray(target, float) - np.asarray(position, float)
-    horiz = math.hypot(d[0], d[1])
-    yaw = math.degrees(math.atan2(d[1], d[0])) if horiz > 1e-12 else 0.0
-    pitch = math.degrees(math.atan2(-d[2], horiz))
-    return yaw, pitch
-
-
-def camera_from_pose(
-    id: int,
-    image_size: tuple[int, int],
-    position: np.ndarray,
-    yaw_deg: float,
-    pitch_deg: float,
-    roll_deg: float = 0.0,
-    *,
-    focal_px: float | None = None,
-    fov_deg: float | None = None,
-    principal_point: tuple[float, float] | None = None,
-    fps: float = 25.0,
-) -> Camera:
-    """A pinhole camera: ``P = K [R | -R C]``, ``G = inv(K [r1 r2 -R C])`` (ground z = 0).
-
-    World axes: x, y on the ground, z up. Camera axes: x right, y down, z forward. ``yaw`` is
-    the optical axis' heading counter-clockwise from +x, ``pitch`` its tilt below the horizon,
-    ``roll`` a rotation about it. Give ``focal_px`` or the horizontal ``fov_deg``.
-    """
-    W, H = image_size
-    if (focal_px is None) == (fov_deg is None):
-        raise GeometryError(f"camera {id}: give exactly one of focal_px and fov_deg")
-    f = focal_px if focal_px is not None else (W / 2.0) / math.tan(math.radians(fov_deg) / 2.0)
-    cx, cy = principal_point if principal_point is not None else (W / 2.0, H / 2.0)
-    K = np.array([[f, 0.0, cx], [0.0, f, cy], [0.0, 0.0, 1.0]])
-    y, p, r = (math.radians(a) for a in (yaw_deg, pitch_deg, roll_deg))
-    fwd = np.array([math.cos(p) * math.cos(y), math.cos(p) * math.sin(y), -math.sin(p)])
-    right = np.array([math.sin(y), -math.cos(y), 0.0])
-    down = np.cross(fwd, right)
-    right, down = math.cos(r) * right + math.sin(r) * down, -math.sin(r) * right + math.cos(r) * down
-    R = np.stack([right, down, fwd])
-    C = np.asarray(position, float)
-    t = -R @ C
-    P = K @ np.hstack([R, t[:, None]])
-    Hg = K @ np.stack([R[:, 0], R[:, 1], t], axis=1)  # ground (x, y, 1) -> pixels
-    if abs(np.linalg.det(Hg)) < 1e-12 * max(1.0, np.abs(Hg).max()) ** 3:
-        raise GeometryError(f"camera {id}: the ground plane is seen edge-on (camera at height 0?)")
-    G = np.linalg.inv(Hg)
-    G = G / np.abs(G).max()
-    return Camera(id=id, image_size=(int(W), int(H)), G=G, P=P, pixel_scale=1.0, fps=fps)
 
 
 def _camera(t: Table, cid: int, fps: float) -> Camera:
@@ -192,6 +147,13 @@ def _dataclass_from(t: Table, cls: type, spans: dict[str, dict], numbers: dict[s
 
 def parse_synthetic(raw: dict, path: Path, seed: int, frames: int | None = None) -> WorldConfig:
     """Validate a synthetic scenario's TOML (already parsed) into a :class:`WorldConfig`."""
+    return parse_world(raw, path, seed, frames)[0]
+
+
+def parse_world(raw: dict, path: Path, seed: int, frames: int | None = None
+                ) -> tuple[WorldConfig, LayoutParams | None]:
+    """:func:`parse_synthetic`, and the scenario's generated layout when it has a ``[layout]``
+    (which then makes its area, cameras and number of people)."""
     file = path.name
     top = scenario_table(raw, file)
     src = top.table("source")
@@ -207,18 +169,36 @@ def parse_synthetic(raw: dict, path: Path, seed: int, frames: int | None = None)
         raise top.error("frames", "is required (or pass frames=...)")
     fps = top.number("fps", 25.0, lo=0.0, lo_open=True)
 
-    a = top.table("area")
-    xmin, xmax = a.number("xmin"), a.number("xmax")
-    ymin, ymax = a.number("ymin"), a.number("ymax")
-    if xmax <= xmin:
-        raise a.error("xmax", f"must be > xmin ({xmin:g}), got {xmax:g}")
-    if ymax <= ymin:
-        raise a.error("ymax", f"must be > ymin ({ymin:g}), got {ymax:g}")
-    a.finish()
-
-    cameras = [_camera(t, i, fps) for i, t in enumerate(top.tables("cameras"))]
+    lt = top.optional_table("layout")
+    layout = None if lt is None else layout_from_table(lt)
+    if layout is not None:
+        for key in ("area", "cameras", "calibration_error"):
+            if top.has(key):
+                raise top.error(key, "cannot be combined with [layout] (the layout makes the "
+                                "area and the cameras, and its cameras are exact)")
+        try:
+            cameras = layout_cameras(layout, fps)
+        except WorldError as e:
+            raise lt.error(None, str(e)) from None
+        xmin, xmax, ymin, ymax = layout.area
+    else:
+        a = top.table("area")
+        xmin, xmax = a.number("xmin"), a.number("xmax")
+        ymin, ymax = a.number("ymin"), a.number("ymax")
+        if xmax <= xmin:
+            raise a.error("xmax", f"must be > xmin ({xmin:g}), got {xmax:g}")
+        if ymax <= ymin:
+            raise a.error("ymax", f"must be > ymin ({ymin:g}), got {ymax:g}")
+        a.finish()
+        cameras = [_camera(t, i, fps) for i, t in enumerate(top.tables("cameras"))]
 
     pt = top.table("people")
+    if layout is not None:
+        for key in ("concurrent", "initial"):
+            if pt.has(key):
+                raise pt.error(key, "is set by [layout] people_per_camera")
+        pt = Table({**pt.data, "concurrent": layout.people, "initial": layout.people}, file,
+                   "people", ScenarioError)
     pos = {"lo": 0.0, "lo_open": True}
     try:
         people = _dataclass_from(
@@ -228,7 +208,7 @@ def parse_synthetic(raw: dict, path: Path, seed: int, frames: int | None = None)
             numbers={"entry_gap_s": {"lo": 0.0}, "turn_rate_dps": pos,
                      "pause_probability": {"lo": 0.0, "hi": 1.0}, "spawn_margin_m": {"lo": 0.0},
                      "waypoint_margin_m": {"lo": 0.0}, "personal_space_m": {"lo": 0.0}},
-            ints={"concurrent": {"lo": 0, "hi": 1000}, "initial": {"lo": 0, "hi": 1000}},
+            ints={"concurrent": {"lo": 0, "hi": 100_000}, "initial": {"lo": 0, "hi": 100_000}},
         )
     except WorldError as e:
         raise pt.error(None, str(e)) from None
@@ -246,7 +226,7 @@ def parse_synthetic(raw: dict, path: Path, seed: int, frames: int | None = None)
         return WorldConfig(name=name, area=(xmin, xmax, ymin, ymax), cameras=cameras,
                            frames=n_frames, fps=fps, seed=seed, people=people, detector=detector,
                            appearance=appearance, min_visible=min_visible,
-                           calibration=calibration)
+                           calibration=calibration), layout
     except WorldError as e:
         raise ScenarioError(file, None, str(e)) from None
 
@@ -339,7 +319,43 @@ def detector_params_from_table(t: Table) -> DetectorParams:
         raise t.error(None, str(e)) from None
 
 
+def layout_from_table(t: Table) -> LayoutParams:
+    """``LayoutParams`` from a ``[layout]`` table (:mod:`~sim_cluster.scenarios.synthetic.layout`):
+    ``kind`` (corridor | grid), ``cameras``, ``rows`` (grid), ``cell_m``, ``height_m``,
+    ``back_m``, ``fov_deg``, ``image_size``, ``people_per_camera``, ``trip_m``, ``leg_m``,
+    ``heading_jitter_deg``."""
+    d = LayoutParams()
+    pos = {"lo": 0.0, "lo_open": True}
+    kind = t.string("kind", d.kind, choices=LAYOUT_KINDS)
+    cameras = t.integer("cameras", d.cameras, lo=1, hi=4096)
+    rows = t.integer("rows", None, lo=1)
+    if rows is not None and kind != "grid":
+        raise t.error("rows", "is for a grid (a corridor is one row)")
+    size = t.raw("image_size", list(d.image_size))
+    if (not isinstance(size, list) or len(size) != 2
+            or not all(isinstance(v, int) and not isinstance(v, bool) and v > 0 for v in size)):
+        raise t.error("image_size", f"must be [width, height] positive integers, got {size!r}")
+    try:
+        params = LayoutParams(
+            kind=kind, cameras=cameras, rows=rows, cell_m=t.number("cell_m", d.cell_m, **pos),
+            height_m=t.number("height_m", d.height_m, **pos),
+            back_m=t.number("back_m", d.back_m, lo=0.0),
+            fov_deg=t.number("fov_deg", d.fov_deg, lo=0.0, hi=180.0, lo_open=True, hi_open=True),
+            image_size=(size[0], size[1]),
+            people_per_camera=t.number("people_per_camera", d.people_per_camera, lo=0.0),
+            trip_m=t.span("trip_m", d.trip_m, **pos), leg_m=t.span("leg_m", d.leg_m, **pos),
+            heading_jitter_deg=t.number("heading_jitter_deg", d.heading_jitter_deg, lo=0.0,
+                                        hi=180.0))
+    except WorldError as e:
+        raise t.error(None, str(e)) from None
+    t.finish()
+    return params
+
+
 def load_synthetic(raw: dict, path: Path, seed: int, frames: int | None) -> ScenarioStream:
     """The scenario loader of kind ``synthetic`` (``SCENARIO_KINDS["synthetic"]``): the world,
-    frames on demand."""
-    return stream(parse_synthetic(raw, path, seed, frames))
+    frames on demand (a generated layout's world when the scenario has a ``[layout]``)."""
+    config, layout = parse_world(raw, path, seed, frames)
+    if layout is not None:
+        return layout_stream(config, layout)
+    return stream(config)

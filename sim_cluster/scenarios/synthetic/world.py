@@ -252,6 +252,10 @@ class PeopleWalk:
         p.heading = rng.uniform(-math.pi, math.pi) if inside else math.atan2(d[1], d[0])
         return p
 
+    def _entry_point(self) -> np.ndarray:
+        """Where a newcomer appears: a border point, ``spawn_margin_m`` outside the area."""
+        return _border_point(self.area, self.params.spawn_margin_m, self.rng)
+
     def _schedule(self, k: int) -> None:
         gap = self.rng.exponential(self.params.entry_gap_s) if self.params.entry_gap_s > 0 else 0.0
         heapq.heappush(self._births, (k + max(1, int(round(gap * self.fps))), self._seq))
@@ -262,8 +266,7 @@ class PeopleWalk:
         k = self.k
         while self._births and self._births[0][0] <= k:
             heapq.heappop(self._births)
-            self.active.append(self._new_person(
-                k, _border_point(self.area, self.params.spawn_margin_m, self.rng), inside=False))
+            self.active.append(self._new_person(k, self._entry_point(), inside=False))
         a = self.active
         frame = (np.array([p.pid for p in a], dtype=np.int64),
                  np.array([p.pos for p in a]).reshape(-1, 2),
@@ -497,7 +500,11 @@ class WorldStream:
             self.walk = self._walk()
         self.walk.skip(k0 - self.walk.k)
         steps = [self.walk.next() for _ in range(CHUNK_FRAMES)]
-        return _chunk(self.config, self.appearance, k0, j, _trajectories(steps), self.cameras)
+        return self._frames(k0, j, _trajectories(steps))
+
+    def _frames(self, k0: int, j: int, traj: Trajectories) -> list[Frame]:
+        """Chunk ``j``'s frames from the people's paths over it."""
+        return _chunk(self.config, self.appearance, k0, j, traj, self.cameras)
 
 
 def stream(config: WorldConfig) -> ScenarioStream:
