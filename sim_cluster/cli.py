@@ -2,7 +2,7 @@
 and as real processes on loopback.
 
     sim_cluster run --scenario terrace-sim --topology ring --config dkf+lda+dtm --seed 0 --out DIR
-    sim_cluster bench
+    sim_cluster bench [--cameras 4,16,64 --layout corridor]
     sim_cluster scenarios
     sim_cluster export-detections --scenario terrace-sim --out DIR
     sim_cluster up --topology chain [--detach]; status | kill N | restart N | down
@@ -247,11 +247,27 @@ def build_parser() -> argparse.ArgumentParser:
     s = sub.add_parser("scenarios", help="list the scenario presets")
     s.set_defaults(func=scenarios.scenarios)
 
-    b = sub.add_parser("bench", help="time prepare+update per node per frame; bytes per tracker")
+    b = sub.add_parser("bench", help="time prepare+update per node per frame; bytes per tracker; "
+                       "with --cameras: the scale sweep over generated layouts")
     b.add_argument("--targets", type=integers(0), default="5,20,50")
     b.add_argument("--neighbours", type=integer(0), default=4)
-    b.add_argument("--frames", type=integer(1), default=60)
+    b.add_argument("--frames", type=integer(1), default=None,
+                   help="frames per run (default 60; with --cameras 300)")
     b.add_argument("--repeats", type=integer(1), default=3)
+    b.add_argument("--cameras", type=integers(1), default=None,
+                   help="scale sweep: comma-separated camera counts, e.g. 4,16,64 (scenarios "
+                        "<layout>-<N>, 6.25 people per camera, the layout's neighbour graph)")
+    b.add_argument("--layout", default="corridor", choices=("corridor", "grid"),
+                   help="--cameras: cameras in a line or on a square lattice (N a square)")
+    b.add_argument("--seed", type=integer(0), default=0, help="--cameras: the scenario seed")
+    b.add_argument("--config", default="dkf+lda+dtm", choices=CONFIG_NAMES)
+    b.add_argument("--tracker-config", default=None, help="TOML file overriding tracker parameters")
+    b.add_argument("--ground-threshold", type=number(0, above=True), default=1.0,
+                   help="--cameras: ground matching threshold in metres (default 1)")
+    b.add_argument("--long-walk-cameras", type=integer(1), default=4,
+                   help="--cameras: a long walk crosses at least this many cameras' views")
+    b.add_argument("--out", default="runs/bench-scale", help="--cameras: scale.json, scale.csv")
+    b.add_argument("--quiet", action="store_true", help="no progress")
     b.set_defaults(func=bench.main)
 
     bc = sub.add_parser("bench-cluster", help="real clusters of N processes: frames/s, one-hop "

@@ -3,7 +3,8 @@
 For T targets walking in a 20 m x 20 m area seen by 5 cameras on a complete graph (so every node
 has 4 neighbours), it times ``prepare`` + ``update`` of every node in every frame (the codec is
 timed separately) and reports medians, plus the encoded bytes per tracker per frame and per new
-tracker's appearance. Times are CPU time of this process (``time.process_time``), not wall
+tracker's appearance. With ``--cameras`` it is the scale sweep instead
+(:mod:`~sim_cluster.experiments.bench_scale`). Times are CPU time of this process (``time.process_time``), not wall
 time, so other work on a shared machine inflates them far less; still quote medians and ratios.
 """
 from __future__ import annotations
@@ -19,6 +20,8 @@ from edge_node.core.node import CameraNode
 from edge_node.core.types import Detection
 from edge_node.geometry import Camera
 from protocol import codec
+from sim_cluster.experiments import bench_scale
+from sim_cluster.experiments.run import tracker_config
 
 AREA = 20.0
 
@@ -109,6 +112,12 @@ def bench_targets(targets: int, neighbours: int = 4, frames: int = 60, seed: int
 
 
 def main(args) -> int:
+    """``sim_cluster bench``: the core benchmark, or with ``--cameras`` the scale sweep
+    (:mod:`sim_cluster.experiments.bench_scale`)."""
+    if getattr(args, "cameras", None):
+        cfg = tracker_config(args.config, args.tracker_config)
+        return bench_scale.main(args, cfg)
+    args.frames = args.frames or 60
     targets = [int(t) for t in str(args.targets).split(",") if t.strip()]
     print(f"prepare+update per node per frame, {args.neighbours} neighbours, "
           f"{args.frames} frames, median of {args.repeats} repeats")

@@ -7,6 +7,7 @@ deployment must reproduce.
 """
 from __future__ import annotations
 
+import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
 
@@ -129,7 +130,8 @@ def run_network(data: ScenarioData, adjacency: Adjacency | str, cfg: TrackerConf
                 faults: FaultPlan = NO_FAULTS, trigger: TriggerConfig | None = None,
                 progress: Callable[[int, int], None] | None = None,
                 registration_history: bool = False,
-                on_frame: Callable[[int, dict[int, list[Track]]], None] | None = None
+                on_frame: Callable[[int, dict[int, list[Track]]], None] | None = None,
+                probe: Callable[[int, int, float, CameraNode], None] | None = None
                 ) -> RunResult:
     """Run ``data`` (a ``ScenarioData`` or a ``ScenarioStream``) through the network
     ``adjacency`` (or ``"centralized"``) with ``cfg``.
@@ -143,6 +145,9 @@ def run_network(data: ScenarioData, adjacency: Adjacency | str, cfg: TrackerConf
     (``RunResult.registration_history``; memory grows with the frames); the final state is
     always in ``RunResult.registration``. ``on_frame(k, {node: tracks})``: each frame's tracks go
     there instead of into ``RunResult.tracks`` (a long run over a stream holds no history).
+    ``probe(k, node, cpu_s, camera_node)``: after each live node's frame ``k``, the CPU time
+    (``time.process_time``) its ``prepare`` and ``update`` took, and the node itself (what a
+    benchmark reads: trackers held, ...).
     """
     if mode not in ("sync", "async"):
         raise ValueError(f"mode must be 'sync' or 'async', got {mode!r}")
@@ -188,13 +193,17 @@ def run_network(data: ScenarioData, adjacency: Adjacency | str, cfg: TrackerConf
                 for j in adjacency[i]:  # its neighbours see it come back and resync it
                     resync[j].add(i)
         arrived: dict[int, list[FrameMessage]] = {i: [] for i in range(n)}
+        cpu: dict[int, float] = {}  # probe: each node's prepare time this frame
         dets = data.frame(k).detections
         for i, node in nodes.items():
             if node is None:
                 continue
             ob = outboxes[i]
             deliveries = ob.due(k)
+            t0 = time.process_time() if probe else 0.0
             msg = node.prepare(k, dets[i])
+            if probe:
+                cpu[i] = time.process_time() - t0
             deliveries += ob.send(msg, resync={j for j in resync[i] if nodes[j] is not None},
                                   resync_message=node.resync_message)
             resync[i].clear()
@@ -208,8 +217,11 @@ def run_network(data: ScenarioData, adjacency: Adjacency | str, cfg: TrackerConf
             if node is None:
                 now[i] = []
                 continue
+            t0 = time.process_time() if probe else 0.0
             now[i] = node.update(arrived[i], stale_ok=True) if mode == "async" \
                 else node.update(arrived[i])
+            if probe:
+                probe(k, i, cpu[i] + time.process_time() - t0, node)
             if registration_history:
                 history[i].append({c: r.snapshot() for c, r in node.registrations.items()})
         if on_frame is not None:

@@ -6,7 +6,7 @@ A scenario with a ``[layout]`` table (presets ``corridor`` and ``grid``; the nam
 
 **Cameras.** The ground is a lattice of ``rows x cols`` square cells of ``cell_m`` metres
 (a corridor is one row: ``cell_m`` wide, ``N * cell_m`` long; a grid is ``rows`` rows of
-``cameras / rows``). Camera ``r * cols + c`` watches cell ``(r, c)``: it stands ``back_m``
+``cameras / rows``, ``rows`` by default the integer square root of N: 16 is 4 x 4, 15 is 3 x 5). Camera ``r * cols + c`` watches cell ``(r, c)``: it stands ``back_m``
 south of the cell's south edge at ``height_m``, looks north at the cell's centre with a
 horizontal field of view of ``fov_deg``, and its view reaches into the cells east, west and
 north of its own (about 1.4 cells wide, 1.8 cells deep with the defaults), so every camera's
@@ -68,7 +68,7 @@ class LayoutParams:
 
     kind: str = "corridor"
     cameras: int = 16
-    rows: int | None = None  # grid: rows of cameras (default: the square root of ``cameras``)
+    rows: int | None = None  # grid: rows of cameras (default: isqrt(cameras), which must divide it)
     cell_m: float = 8.0
     height_m: float = 6.0
     back_m: float = 1.0
@@ -86,8 +86,8 @@ class LayoutParams:
             raise LayoutError(f"a layout needs at least one camera, got {self.cameras}")
         rows, cols = self.shape
         if rows * cols != self.cameras:
-            raise LayoutError(f"a grid of {self.cameras} cameras needs rows that divide it "
-                              f"(or a square number of cameras), got rows = {rows}")
+            raise LayoutError(f"a grid of {self.cameras} cameras needs rows that divide it (by "
+                              f"default its integer square root), got rows = {rows}")
         if min(self.cell_m, self.height_m, self.people_per_camera + 1e-12) <= 0:
             raise LayoutError("cell_m, height_m must be > 0 and people_per_camera >= 0")
 
