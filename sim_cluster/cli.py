@@ -139,7 +139,8 @@ def build_parser() -> argparse.ArgumentParser:
     r = sub.add_parser("run", help="run a network in one process and evaluate it")
     scenario_args(r)
     r.add_argument("--topology", default="ring",
-                   help="complete | ring | chain | disconnected | star | centralized | edge-list file")
+                   help="complete | ring | chain | disconnected | star | centralized | layout (a "
+                        "corridor-<N> / grid-<N> scenario's lattice) | edge-list file")
     r.add_argument("--config", default="dkf+lda+dtm", choices=CONFIG_NAMES)
     r.add_argument("--tracker-config", default=None, help="TOML file overriding tracker parameters")
     r.add_argument("--ground-threshold", type=number(0, above=True), default=1.0,

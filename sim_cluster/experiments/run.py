@@ -25,6 +25,10 @@ from sim_cluster.scenarios.loader import scenario_from_args
 from sim_cluster.viz import record_run, spec_from_args
 
 
+#: ``--topology layout``: the scenario's neighbour graph (``ScenarioData.neighbours``)
+LAYOUT = "layout"
+
+
 def tracker_config(ablation: str, file: str | Path | None = None) -> TrackerConfig:
     """The ``ablation`` configuration (``dkf``, ``dkf+lda``, ``dkf+lda+dtm``) with the
     parameters of ``file`` over it: a ``[tracker]`` table, or a file of tracker parameters only.
@@ -61,13 +65,21 @@ def run_once(data: ScenarioData, topology: str, cfg: TrackerConfig, *, order=Non
              faults: FaultPlan | None = None) -> tuple[RunResult, dict]:
     """One in-process run plus its evaluation; returns ``(RunResult, summary dict)``.
 
-    ``topology`` is a name (``topology.NAMES``), ``centralized`` or an edge-list file; ``order``
+    ``topology`` is a name (``topology.NAMES``), ``centralized``, ``layout`` (the scenario's
+    own neighbour graph) or an edge-list file; ``order``
     the camera ordering of a ring or chain."""
-    adj = CENTRALIZED if topology == CENTRALIZED else topo.build(topology, data.num_cameras, order)
+    if topology == LAYOUT:  # the scenario's own neighbour graph (a generated layout's lattice)
+        if data.neighbours is None:
+            raise topo.TopologyError(f"scenario {data.name} has no layout: topology 'layout' is "
+                                     "for corridor-<N> / grid-<N>")
+        adj = data.neighbours
+    else:
+        adj = CENTRALIZED if topology == CENTRALIZED else topo.build(topology, data.num_cameras,
+                                                                     order)
     update, close = progress_bar(f"{data.name} {topology}", data.frames, show_progress)
     try:
         result = run_network(data, adj, cfg, topology_name=Path(topology).stem
-                             if topology not in topo.NAMES + (CENTRALIZED,) else topology,
+                             if topology not in topo.NAMES + (CENTRALIZED, LAYOUT) else topology,
                              progress=update, mode=mode, faults=faults or NO_FAULTS)
     finally:
         close()
