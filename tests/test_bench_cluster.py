@@ -49,6 +49,7 @@ def test_two_node_cluster_monitor_equals_counters(tmp_path):
         assert bw["monitor_bytes_per_frame_total"] == bw["counter_bytes_per_frame_total"]
     figures = {
         "fps": fig["fps"], "fps_wall": fig["fps_wall"], "busy_ms": fig["busy_ms_per_frame"],
+        "cpu ms": fig["cpu_ms_per_frame"],
         "latency median": fig["latency"]["median_of_node_medians_ms"],
         "latency p99": fig["latency"]["max_of_node_p99_ms"],
         "monitor median": fig["latency"]["monitor_pooled_median_ms"],
@@ -63,6 +64,10 @@ def test_two_node_cluster_monitor_equals_counters(tmp_path):
     assert fig["latency"]["samples"] == 2 * FRAMES
     assert fig["startup"]["spawn_to_starting_status_s"] <= fig["startup"]["spawn_to_first_frame_s"]
     assert not any(fig["problems"].values()), fig["problems"]
+    assert fig["timeouts"] == 0
+    # the process's CPU per frame includes the tracker's own (wall) time only when it ran on
+    # a core; it cannot exceed the whole frame period's share of two cores by much
+    assert fig["cpu_ms_per_frame"] < 2 * 1e3 / fig["fps"] + 5
     state = json.loads((tmp_path / "c" / "cluster.json").read_text())
     assert not any(alive(p["pid"]) for p in state["nodes"].values())
 
@@ -70,19 +75,27 @@ def test_two_node_cluster_monitor_equals_counters(tmp_path):
 @pytest.mark.integration
 def test_command_writes_summary_and_table(tmp_path, capsys):
     class Args:
-        nodes, frames, repeats, topology, scenario, seed = "2", 10, 1, "chain", "lab-sim", 0
+        nodes, frames, repeats, topology, scenario, seed = "2", 40, 1, "chain", "lab-sim", 0
         sync_timeout, startup_timeout, out = 10.0, 30.0, str(tmp_path)
+        fps = "0,20"  # unpaced, and paced at 20 frames/s
 
     assert main(Args) == 0
     result = json.loads((tmp_path / RESULT).read_text())
     s = result["summary"]["2"]
     assert s["monitor_agrees_in_every_run"]
     assert s["bytes_per_link_frame_monitor"] == s["bytes_per_link_frame_counters"] > 0
+    paced = result["summary"]["2@20"]
+    assert paced["pacing_fps"] == 20 and paced["timeouts"] == 0
+    # the camera rate, not faster (the rate runs from the later node's frame 0: a start-up
+    # skew of a few tens of ms shortens 39 frame periods a little)
+    assert 15 < paced["fps"] <= 20 * 1.1
     out = capsys.readouterr().out
-    assert "frames/s" in out and table(result).splitlines()[3].split()[0] == "2"
-    pids = [p["pid"] for p in json.loads((tmp_path / "n2" / "r0" / "cluster.json").read_text())
-            ["nodes"].values()]
-    assert pids and not any(alive(p) for p in pids)
+    lines = table(result).splitlines()
+    assert "frames/s" in out and lines[3].split()[:2] == ["2", "-"] and lines[4].split()[:2] == ["2", "20"]
+    for key in ("n2", "n2@20"):
+        pids = [p["pid"] for p in json.loads((tmp_path / key / "r0" / "cluster.json").read_text())
+                ["nodes"].values()]
+        assert pids and not any(alive(p) for p in pids)
 
 
 def test_ring8_preset_loads():

@@ -129,6 +129,7 @@ class LoopStats:
     update_s: float = 0.0
     frames_skipped_behind: int = 0  # frames skipped to catch up with the network
     catch_ups: int = 0  # times it skipped ahead
+    cpu_at_first_frame: float | None = None  # time.process_time() when the first frame began
 
     @property
     def frames_sent(self) -> int:  # frames whose message was published
@@ -237,6 +238,8 @@ class FrameLoop:
 
     def _before_frame(self, k: int) -> None:
         """Delayed (fault-injected) messages now due; neighbours that came back get a resync."""
+        if self.stats.cpu_at_first_frame is None:
+            self.stats.cpu_at_first_frame = time.process_time()
         self._publish(self.outbox.due(k))
         alive_now = getattr(self.transport, "alive_neighbours", None)
         if alive_now is None:
@@ -589,6 +592,10 @@ def write_counters(cfg: NodeConfig, loop: FrameLoop, node: CameraNode, transport
         "rejected": rejected(counters, node),
         **wire_counters(loop.outbox),
         "timing_s": {"prepare": st.prepare_s, "wait": st.wait_s, "update": st.update_s},
+        # CPU of the whole process (all its threads: Zenoh's too), and since its first frame
+        "cpu_s": {"process": time.process_time(),
+                  "frames": None if st.cpu_at_first_frame is None
+                  else time.process_time() - st.cpu_at_first_frame},
         "rotations": loop.writer.rotations,
         "node_stats": dict(vars(node.stats)),
     })

@@ -3,7 +3,9 @@
 For each node count N, ``repeats`` times, a cluster of N ``edge_node run`` processes (the
 :class:`~sim_cluster.cluster.launcher.Cluster` that ``sim_cluster up`` runs, with the configs it
 writes: one listen endpoint per node, connects on both ends of every link) plays
-``frames`` frames of a scenario in sync mode with no pacing, and the benchmark measures:
+``frames`` frames of a scenario in sync mode, unpaced (as fast as it goes) or paced at a camera
+rate (``--fps 25``: each node starts frame ``k`` no earlier than ``k / fps`` after its first),
+and the benchmark measures:
 
 latency
     one hop, from the sender's ``sent_at`` stamp (just before ``put``) to the receiving node's
@@ -19,7 +21,11 @@ frames per second
     moment the last node sent frame ``F - 1`` (``sent_at`` of the messages, seen on the wire).
     ``fps_wall`` = ``F / (last message received - first node's first frame start)`` includes that
     start-up skew. ``busy_ms_per_frame`` (median over nodes of ``(prepare + update) / frames``
-    from ``timing_s``) says how much of a frame period is the tracker's own work.
+    from ``timing_s``, wall time) says how much of a frame period is the tracker's own work;
+    ``cpu_ms_per_frame`` (median over nodes of the process's CPU time from its first frame to its
+    exit, all threads, Zenoh's included, / frames) what a frame costs the box.
+timeouts
+    the frames a node stopped waiting for a neighbour's message (summed over nodes).
 bytes per link per frame
     counted by a **passive subscriber** (``sim_cluster/cluster/monitor.py``): the benchmark opens its own Zenoh peer session,
     subscribed to ``all_links_key(network)`` (``dmtt/<net>/link/**``) before any node starts its
@@ -77,8 +83,8 @@ def run_cluster(scenario: str, n: int, frames: int, out: Path, *, topology: str 
                 seed: int = 0, config: str = "dkf+lda+dtm", network: str | None = None,
                 sync_timeout_s: float = 10.0, startup_timeout_s: float = 60.0,
                 timeout_s: float | None = None, data_root: str | None = None,
-                monitor_connect_back: bool = True) -> dict:
-    """Start an ``n``-node cluster in sync mode without pacing, run ``frames`` frames with the
+                monitor_connect_back: bool = True, fps: float = 0.0) -> dict:
+    """Start an ``n``-node cluster in sync mode (paced at ``fps``, 0: unpaced), run ``frames`` frames with the
     passive monitor attached, stop everything, and return the measured figures (module
     docstring). Raises :class:`ClusterError` when a node fails or the run takes longer than
     ``timeout_s`` (default: generous, from ``frames``). No process outlives this call."""
@@ -89,10 +95,11 @@ def run_cluster(scenario: str, n: int, frames: int, out: Path, *, topology: str 
     *node_ports, mon_port = free_ports(n + 1)
     mon_ep = f"tcp/127.0.0.1:{mon_port}"
     cluster.write_configs(config=config, sync_timeout_s=sync_timeout_s,
-                          startup_timeout_s=startup_timeout_s, fps=0.0, ports=node_ports,
+                          startup_timeout_s=startup_timeout_s, fps=fps, ports=node_ports,
                           # the monitor's endpoint first in every node's connect list
                           connect_first=[mon_ep] if monitor_connect_back else ())
-    timeout_s = timeout_s if timeout_s is not None else startup_timeout_s + 60 + 0.5 * frames
+    timeout_s = timeout_s if timeout_s is not None else \
+        startup_timeout_s + 60 + 0.5 * frames + (frames / fps if fps else 0.0)
     seen: dict[int, dict[str, float]] = {i: {} for i in range(n)}  # phase -> its updated_at
 
     def watch(running: list[int]) -> None:  # the short-lived "starting" and first "running"
@@ -198,6 +205,8 @@ def _figures(state: ClusterState, n: int, frames: int, spawned: dict[int, float]
     busy = [((c.get("timing_s") or {}).get("prepare", 0) + (c.get("timing_s") or {}).get("update", 0))
             / frames * 1e3 for c in counters.values()]
     wait = [(c.get("timing_s") or {}).get("wait", 0) / frames * 1e3 for c in counters.values()]
+    cpu = [None if (c.get("cpu_s") or {}).get("frames") is None
+           else c["cpu_s"]["frames"] / frames * 1e3 for c in counters.values()]
     # -- start-up
     def since_spawn(ts: dict[int, float | None]) -> list[float | None]:
         return [None if ts.get(i) is None else ts[i] - spawned[i] for i in range(n)]
@@ -222,6 +231,7 @@ def _figures(state: ClusterState, n: int, frames: int, spawned: dict[int, float]
     return {"nodes": n, "frames": frames, "topology": state.topology, "scenario": state.scenario,
             "fps": fps, "fps_wall": fps_wall,
             "busy_ms_per_frame": _median(busy), "wait_ms_per_frame": _median(wait),
+            "cpu_ms_per_frame": _median(cpu), "timeouts": problems["timeouts"],
             "latency": latency, "bandwidth": bandwidth, "startup": startup, "problems": problems}
 
 
@@ -230,6 +240,8 @@ HEADLINE = {  # name in the summary -> path in one run's figures
     "fps": ("fps",),
     "fps_wall": ("fps_wall",),
     "busy_ms_per_frame": ("busy_ms_per_frame",),
+    "cpu_ms_per_frame": ("cpu_ms_per_frame",),
+    "timeouts": ("timeouts",),
     "latency_median_ms": ("latency", "median_of_node_medians_ms"),
     "latency_p99_ms": ("latency", "max_of_node_p99_ms"),
     "monitor_latency_median_ms": ("latency", "monitor_pooled_median_ms"),
@@ -253,9 +265,10 @@ def _get(d: dict, path: tuple[str, ...]):
 def bench(node_counts: list[int], frames: int, repeats: int, topology: str, out: Path, *,
           scenario: str = "ring8-sim", seed: int = 0, config: str = "dkf+lda+dtm",
           sync_timeout_s: float = 10.0, startup_timeout_s: float = 60.0,
-          data_root: str | None = None, log=print) -> dict:
-    """Run every node count ``repeats`` times; the summary holds each headline figure's median
-    over repeats (``summary[n]``) and every run's full figures (``runs[n]``)."""
+          data_root: str | None = None, pacing: tuple[float, ...] = (0.0,), log=print) -> dict:
+    """Run every node count at every pacing (``0``: unpaced) ``repeats`` times; the summary
+    holds each headline figure's median over repeats (``summary[key]``, key ``"<n>"`` unpaced,
+    ``"<n>@<fps>"`` paced) and every run's full figures (``runs[key]``)."""
     data = load_scenario(scenario, seed=seed, frames=1, data_root=data_root)
     for n in node_counts:
         if n < 2:
@@ -263,33 +276,39 @@ def bench(node_counts: list[int], frames: int, repeats: int, topology: str, out:
         if n > data.num_cameras:
             raise ClusterError(f"--nodes {n}: scenario {data.name} has only "
                                f"{data.num_cameras} cameras")
-    log(f"bench-cluster: {scenario}, {topology}, nodes {node_counts}, {frames} frames, "
-        f"{repeats} repeat(s), out {out}")
+    log(f"bench-cluster: {scenario}, {topology}, nodes {node_counts}, pacing {list(pacing)}, "
+        f"{frames} frames, {repeats} repeat(s), out {out}")
     out = Path(out)
     result = {"scenario": scenario, "seed": seed, "frames": frames, "repeats": repeats,
-              "topology": topology, "mode": "sync", "fps_pacing": 0.0, "config": config,
+              "topology": topology, "mode": "sync", "pacing": list(pacing), "config": config,
               "cpus": os.cpu_count(), "load_average_at_start": list(os.getloadavg()),
               "runs": {}, "summary": {}}
     for n in node_counts:
-        runs = []
-        for r in range(repeats):
-            t0 = time.time()
-            fig = run_cluster(scenario, n, frames, out / f"n{n}" / f"r{r}", topology=topology,
-                              seed=seed, config=config, network=f"bench{n}r{r}",
-                              sync_timeout_s=sync_timeout_s, startup_timeout_s=startup_timeout_s,
-                              data_root=data_root)
-            runs.append(fig)
-            log(f"  {n} nodes, run {r + 1}/{repeats}: {_fmt(fig['fps'], '.1f')} frames/s, "
-                f"latency {_fmt(_get(fig, HEADLINE['latency_median_ms']), '.2f')} / "
-                f"{_fmt(_get(fig, HEADLINE['latency_p99_ms']), '.2f')} ms, "
-                f"monitor {'agrees' if fig['bandwidth']['agree'] else 'DISAGREES'}, "
-                f"{time.time() - t0:.1f} s")
-        result["runs"][str(n)] = runs
-        result["summary"][str(n)] = {
-            **{k: _median([_get(f, p) for f in runs]) for k, p in HEADLINE.items()},
-            "monitor_agrees_in_every_run": all(f["bandwidth"]["agree"] for f in runs),
-            "problems": {k: sum(f["problems"][k] for f in runs) for k in runs[0]["problems"]},
-        }
+        for fps in pacing:
+            key = f"{n}@{fps:g}" if fps else str(n)
+            runs = []
+            for r in range(repeats):
+                t0 = time.time()
+                fig = run_cluster(scenario, n, frames, out / f"n{key}" / f"r{r}", topology=topology,
+                                  seed=seed, config=config, network=f"bench{n}p{int(fps)}r{r}",
+                                  sync_timeout_s=sync_timeout_s,
+                                  startup_timeout_s=startup_timeout_s, data_root=data_root, fps=fps)
+                fig["pacing_fps"] = fps
+                runs.append(fig)
+                log(f"  {key} nodes, run {r + 1}/{repeats}: {_fmt(fig['fps'], '.1f')} frames/s, "
+                    f"latency {_fmt(_get(fig, HEADLINE['latency_median_ms']), '.2f')} / "
+                    f"{_fmt(_get(fig, HEADLINE['latency_p99_ms']), '.2f')} ms, "
+                    f"cpu {_fmt(fig['cpu_ms_per_frame'], '.2f')} ms/frame, "
+                    f"{fig['timeouts']} timeouts, "
+                    f"monitor {'agrees' if fig['bandwidth']['agree'] else 'DISAGREES'}, "
+                    f"{time.time() - t0:.1f} s")
+            result["runs"][key] = runs
+            result["summary"][key] = {
+                **{k: _median([_get(f, p) for f in runs]) for k, p in HEADLINE.items()},
+                "nodes": n, "pacing_fps": fps,
+                "monitor_agrees_in_every_run": all(f["bandwidth"]["agree"] for f in runs),
+                "problems": {k: sum(f["problems"][k] for f in runs) for k in runs[0]["problems"]},
+            }
     result["load_average_at_end"] = list(os.getloadavg())
     return result
 
@@ -300,17 +319,21 @@ def _fmt(v, spec: str) -> str:
 
 def table(result: dict) -> str:
     rows = [f"bench-cluster: {result['scenario']} seed {result['seed']}, {result['topology']}, "
-            f"sync, no pacing, {result['frames']} frames, median of {result['repeats']} "
-            f"repeat(s)",
-            f"{'nodes':>5} {'frames/s':>8} {'busy ms':>7} {'lat med':>7} {'lat p99':>7} "
+            f"sync, {result['frames']} frames, median of {result['repeats']} repeat(s)",
+            f"{'nodes':>7} {'pacing':>6} {'frames/s':>8} {'busy ms':>7} {'cpu ms':>6} "
+            f"{'lat med':>7} {'lat p99':>7} {'timeouts':>8} "
             f"{'B/link/frame':>12} {'(counters)':>10} {'B/frame':>8} {'(counters)':>10} "
             f"{'to frame 0':>10} {'to start':>8} {'barrier':>7}",
-            f"{'':>5} {'':>8} {'':>7} {'ms':>7} {'ms':>7} {'monitor':>12} {'':>10} "
-            f"{'monitor':>8} {'':>10} {'s':>10} {'s':>8} {'s':>7}"]
-    for n, s in result["summary"].items():
+            f"{'':>7} {'fps':>6} {'':>8} {'':>7} {'':>6} {'ms':>7} {'ms':>7} {'':>8} "
+            f"{'monitor':>12} {'':>10} {'monitor':>8} {'':>10} {'s':>10} {'s':>8} {'s':>7}"]
+    for key, s in result["summary"].items():
+        pacing = s.get("pacing_fps") or 0
         rows.append(
-            f"{n:>5} {_fmt(s['fps'], '.1f'):>8} {_fmt(s['busy_ms_per_frame'], '.2f'):>7} "
+            f"{s.get('nodes', key):>7} {('-' if not pacing else format(pacing, 'g')):>6} "
+            f"{_fmt(s['fps'], '.1f'):>8} {_fmt(s['busy_ms_per_frame'], '.2f'):>7} "
+            f"{_fmt(s.get('cpu_ms_per_frame'), '.2f'):>6} "
             f"{_fmt(s['latency_median_ms'], '.2f'):>7} {_fmt(s['latency_p99_ms'], '.2f'):>7} "
+            f"{_fmt(s.get('timeouts'), '.0f'):>8} "
             f"{_fmt(s['bytes_per_link_frame_monitor'], '.0f'):>12} "
             f"{_fmt(s['bytes_per_link_frame_counters'], '.0f'):>10} "
             f"{_fmt(s['bytes_per_frame_total_monitor'], '.0f'):>8} "
@@ -319,10 +342,11 @@ def table(result: dict) -> str:
             f"{_fmt(s['spawn_to_starting_status_s'], '.2f'):>8} {_fmt(s['barrier_s'], '.2f'):>7}")
     rows.append("latency: one hop, median of node medians / max of node p99s (nodes write "
                 "summaries only); frames/s: lock-step rate from the last node's frame 0 to its "
-                "frame F-1; busy: prepare+update per frame (median node); to frame 0 / to start: "
-                "spawn to the node's frame 0 on the wire / to its 'starting' status; barrier: "
-                "the nodes' startup_s (medians over nodes)")
-    for n, s in result["summary"].items():
+                "frame F-1; busy: prepare+update wall time per frame, cpu: the process's CPU "
+                "time per frame, all threads (median node); timeouts: summed over nodes; to "
+                "frame 0 / to start: spawn to the node's frame 0 on the wire / to its 'starting' "
+                "status; barrier: the nodes' startup_s (medians over nodes)")
+    for key, s in result["summary"].items():
         extra = [f"monitor pooled latency {_fmt(s['monitor_latency_median_ms'], '.2f')} / "
                  f"{_fmt(s['monitor_latency_p99_ms'], '.2f')} ms",
                  f"frames/s incl. start-up skew {_fmt(s['fps_wall'], '.1f')}"]
@@ -331,7 +355,7 @@ def table(result: dict) -> str:
         bad = {k: v for k, v in s["problems"].items() if v}
         if bad:
             extra.append(f"problems {bad}")
-        rows.append(f"{n:>5} nodes: " + "; ".join(extra))
+        rows.append(f"{key:>7} nodes: " + "; ".join(extra))
     return "\n".join(rows)
 
 
@@ -346,9 +370,15 @@ def main(args) -> int:
     if (out / STATE).exists():
         raise ClusterError(f"{out} holds a cluster (sim_cluster up); use another --out")
     out.mkdir(parents=True, exist_ok=True)
+    try:
+        pacing = tuple(float(x) for x in str(args.fps).split(",") if x.strip())
+    except ValueError:
+        raise ClusterError(f"--fps {args.fps!r}: give frame rates like 0,25 (0: unpaced)") from None
+    if not pacing or any(f < 0 for f in pacing):
+        raise ClusterError(f"--fps {args.fps!r}: give frame rates >= 0 like 0,25 (0: unpaced)")
     result = bench(counts, args.frames, args.repeats, args.topology, out, scenario=args.scenario,
                    seed=args.seed, sync_timeout_s=args.sync_timeout,
-                   startup_timeout_s=args.startup_timeout)
+                   startup_timeout_s=args.startup_timeout, pacing=pacing)
     (out / RESULT).write_text(json.dumps(result, indent=2, sort_keys=True))
     print(table(result))
     print(f"wrote {out / RESULT}")
