@@ -37,3 +37,16 @@ def test_example_network_configs_validate(tmp_path):
         assert cfg.runtime.mode == "async"
     # the four boxes form a ring, each link configured on both ends
     assert neighbours == {0: {3, 1}, 1: {0, 2}, 2: {1, 3}, 3: {2, 0}}
+
+
+@pytest.mark.parametrize("name", [None, "peer.json5"])
+def test_shared_memory_is_off_unless_asked(name):
+    """Zenoh 1.x enables its shared-memory transport by default, and a receiver keeps every
+    same-host sender's 16 MB pool mapped for its lifetime: one more per neighbour restart."""
+    from edge_node.runtime.transport import zenoh_config
+
+    file = DEPLOY / "zenoh" / name if name else None
+    assert zenoh_config([], [], config_file=file).get_json(
+        "transport/shared_memory/enabled") == "false"
+    assert zenoh_config([], [], config_file=file, shared_memory=True).get_json(
+        "transport/shared_memory/enabled") == "true"

@@ -18,6 +18,8 @@ Schema (defaults in brackets)::
     gossip = false                  # gossip scouting (turns a chain into a full mesh)      [false]
     lease_ms = 1000                 # optional: link lease (how soon a frozen peer is gone) [Zenoh's]
     config_file = "peer.json5"      # optional: a Zenoh json5 config to start from (TLS, ACL...)
+    shared_memory = false           # Zenoh's shared-memory transport between processes on one
+                                    # host (a restarted neighbour's pool stays mapped) [false]
 
     [runtime]
     mode = "sync"                   # "sync" | "async"                                     ["sync"]
@@ -143,6 +145,7 @@ class ZenohSettings:
     gossip: bool = False
     lease_ms: int | None = None
     config_file: Path | None = None
+    shared_memory: bool = False
 
 
 @dataclass(frozen=True)
@@ -337,8 +340,9 @@ def _zenoh(t: Table | None, base: Path) -> ZenohSettings:
     cf = t.path("config_file", base, None)
     if cf is not None and not cf.is_file():
         raise t.error("config_file", f"names a file that does not exist: {cf}")
+    shm = t.boolean("shared_memory", False)
     t.finish()
-    return ZenohSettings(listen, connect, scouting, gossip, lease, cf)
+    return ZenohSettings(listen, connect, scouting, gossip, lease, cf, shm)
 
 
 def _runtime(t: Table | None) -> RuntimeSettings:

@@ -481,7 +481,8 @@ def run_node(cfg: NodeConfig, *, frames: int | None = None, mode: str | None = N
     with Shutdown(install_signals) as shutdown:
         try:
             transport = factory(cfg.network, cfg.node, cfg.neighbours, z.listen, z.connect,
-                                z.scouting, z.config_file, gossip=z.gossip, lease_ms=z.lease_ms)
+                                z.scouting, z.config_file, gossip=z.gossip, lease_ms=z.lease_ms,
+                                shared_memory=z.shared_memory)
         except tr.TransportError as e:
             # an id already alive: its status file belongs to the process that holds the id
             if status.path is not None and not isinstance(e, tr.DuplicateNodeError):

@@ -16,6 +16,13 @@ Zenoh is peer-to-peer with explicit endpoints: multicast scouting off, gossip of
 ``scouting/delay`` 0 (else ``open`` waits 500 ms when a neighbour is not listening yet). Peers do
 not forward for each other, so every logical link must also be a Zenoh connection (configure
 ``connect`` on both sides of a link: reconnection after a restart is then fast).
+
+Zenoh's shared-memory transport is off unless asked (``shared_memory``). Zenoh 1.x turns it on
+by default between processes on one host, and a receiver keeps every sender's 16 MB pool and
+1.25 MB metadata segment mapped (and locked) for its own lifetime, one pair per sending process
+*generation* (eclipse-zenoh/zenoh#2787): each restart of a neighbour on the same host then
+raised the survivor's resident memory by ~17 MB for good. Camera boxes are one per host, where
+it never applied anyway.
 """
 from __future__ import annotations
 
@@ -113,9 +120,10 @@ class RateLimitedLog:
 
 def zenoh_config(listen: Sequence[str] = (), connect: Sequence[str] = (), scouting: bool = False,
                  config_file: str | Path | None = None, *, gossip: bool = False,
-                 lease_ms: int | None = None):
+                 lease_ms: int | None = None, shared_memory: bool = False):
     """A peer-mode ``zenoh.Config``: from ``config_file`` when given, then our settings on top
-    (``listen``/``connect`` replace the file's when non-empty, or always without a file)."""
+    (``listen``/``connect`` replace the file's when non-empty, or always without a file;
+    ``shared_memory`` always: see the module docstring)."""
     try:
         conf = zenoh.Config.from_file(str(config_file)) if config_file else zenoh.Config()
         conf.insert_json5("mode", '"peer"')
@@ -126,6 +134,7 @@ def zenoh_config(listen: Sequence[str] = (), connect: Sequence[str] = (), scouti
         conf.insert_json5("scouting/multicast/enabled", json.dumps(bool(scouting)))
         conf.insert_json5("scouting/gossip/enabled", json.dumps(bool(gossip)))
         conf.insert_json5("scouting/delay", "0")
+        conf.insert_json5("transport/shared_memory/enabled", json.dumps(bool(shared_memory)))
         if lease_ms is not None:
             conf.insert_json5("transport/link/tx/lease", json.dumps(int(lease_ms)))
     except zenoh.ZError as e:
@@ -140,7 +149,7 @@ class ZenohTransport:
                  listen: Sequence[str] = (), connect: Sequence[str] = (), scouting: bool = False,
                  config_file: str | Path | None = None, *, gossip: bool = False,
                  lease_ms: int | None = None, max_pending_frames: int = 256,
-                 id_wait_s: float | None = None):
+                 id_wait_s: float | None = None, shared_memory: bool = False):
         self.network = network
         self.node = int(node)
         self.neighbours = tuple(sorted(set(int(n) for n in neighbours) - {self.node}))
@@ -178,7 +187,7 @@ class ZenohTransport:
         self._latency = LatencyRing(LATENCY_SAMPLES)
 
         conf = zenoh_config(listen, connect, scouting, config_file, gossip=gossip,
-                            lease_ms=lease_ms)
+                            lease_ms=lease_ms, shared_memory=shared_memory)
         try:
             self.session = zenoh.open(conf)
         except zenoh.ZError as e:
