@@ -36,6 +36,9 @@ def router_config(config_file: str | None, listen: Sequence[str], connect: Seque
             conf.insert_json5("connect/endpoints", json.dumps(list(connect)))
         if not config_file:
             conf.insert_json5("scouting/multicast/enabled", "false")
+        # as for the nodes (edge_node.runtime.transport): Zenoh's same-host shared memory keeps
+        # every restarted sender's pool mapped for the receiver's life (eclipse-zenoh/zenoh#2787)
+        conf.insert_json5("transport/shared_memory/enabled", "false")
     except zenoh.ZError as e:
         raise TransportError(f"bad router configuration: {str(e).split(' at /')[0]}") from None
     return conf
