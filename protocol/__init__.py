@@ -1,4 +1,4 @@
-"""The wire contract between camera nodes: message types, msgpack codec, key expressions.
+"""The wire contract between camera nodes: message types, codec, key expressions.
 
 Depends on nothing else of ours (numpy and msgpack only), so any implementation that
 speaks these bytes can join a network.
@@ -24,6 +24,7 @@ from protocol.messages import (
     STATE_DIM,
     FrameMessage,
     Merge,
+    TrackerBlock,
     TrackerId,
     TrackerInfo,
 )
@@ -40,6 +41,7 @@ __all__ = [
     "Limits",
     "Merge",
     "ProtocolError",
+    "TrackerBlock",
     "TrackerId",
     "TrackerInfo",
     "alive_key",
