@@ -178,27 +178,54 @@ def test_decode_accepts_bytearray_and_memoryview() -> None:
 # Sizes: the headline bandwidth figures
 
 
-def _size_with(n: int, **kw: Any) -> int:
+def _size_with(n: int, measured: bool = True, **kw: Any) -> int:
     rng = np.random.default_rng(0)
     ts = []
     for i in range(n):
         a = rng.normal(size=(6, 6))
-        ts.append(TrackerInfo((3, 1000 + i), rng.normal(size=6) * 500, rng.normal(size=6), a @ a.T, 4,
-                              born=45_000, **kw))
+        u, U = (rng.normal(size=6), a @ a.T) if measured else (np.zeros(6), np.zeros((6, 6)))
+        ts.append(TrackerInfo((3, 1000 + i), rng.normal(size=6) * 500, u, U, 4, born=45_000, **kw))
     return len(encode(FrameMessage("terrace", 3, 123456, tuple(ts), sent_at=1.7e9)))
 
 
 def test_bytes_per_tracker_under_200() -> None:
-    per_tracker = (_size_with(11) - _size_with(1)) / 10
+    per_tracker = (_size_with(41) - _size_with(9)) / 32  # both blocks have a bin16 header
     assert per_tracker < 200, per_tracker
-    # array, camera, counter, born (uint16), ell, bin header, floats
-    assert per_tracker == 1 + 1 + 3 + 3 + 1 + 2 + 4 * 33
+    # camera (u1), counter (u2), born (u2), ell (u1), one mask bit, x_bar, u, triu(U) as float32
+    # (version 1 sent 143 here: array, camera, counter, born, ell, bin header, floats)
+    assert per_tracker == 1 + 2 + 2 + 1 + 1 / 8 + 4 * 33
+
+
+def test_bytes_per_tracker_without_measurement() -> None:
+    per_tracker = (_size_with(41, measured=False) - _size_with(9, measured=False)) / 32
+    assert per_tracker == 1 + 2 + 2 + 1 + 1 / 8 + 4 * 6  # version 1: 35
+
+
+def test_bytes_per_tracker_small_ids() -> None:
+    """Ids, birth frames and ell below 256: 4 bytes of integers a row (version 1: 139 and 31)."""
+    def size(n: int, measured: bool) -> int:
+        z = np.zeros(6)
+        ts = tuple(TrackerInfo((1, i), np.ones(6), z + measured, np.eye(6) * measured, 3, born=200)
+                   for i in range(n))
+        return len(encode(FrameMessage("n", 1, 7, ts)))
+
+    assert (size(48, True) - size(16, True)) / 32 == 4 + 1 / 8 + 4 * 33  # bin16 headers both
+    assert (size(48, False) - size(16, False)) / 32 == 4 + 1 / 8 + 4 * 6
+
+
+def test_header_bytes() -> None:
+    """The message header without trackers: about 31 bytes for a real network name."""
+    empty = encode(FrameMessage("terrace", 3, 123456, sent_at=1.7e9))
+    # array, version, network, sender, frame (uint32), sent_at (float64), n, widths, merges,
+    # appearances, empty bin
+    assert len(empty) == 1 + 1 + (1 + 7) + 1 + 5 + 9 + 1 + 1 + 1 + 1 + 2
 
 
 def test_bytes_per_appearance_2x512() -> None:
     app = np.random.default_rng(1).normal(size=(2, 512))
     per_appearance = _size_with(1, appearance=app) - _size_with(1)
-    assert per_appearance == 2 * 512 * 2 + 8  # float16 payload + [n, D, bin16] framing
+    # float16 payload + [row, n, D] entry (array, 1, 1, uint16) + the bin header growing to bin16
+    assert per_appearance == 2 * 512 * 2 + 6 + 1
 
 
 # ------------------------------------------------------------------------------------------------
@@ -313,8 +340,11 @@ INF32 = struct.pack("<f", math.inf)
 NAN16 = np.array([np.nan], dtype="<f2").tobytes()
 INF16 = np.array([np.inf], dtype="<f2").tobytes()
 
-# wire_obj() layout: [version, network, sender, frame, sent_at, trackers, merges];
-# trackers[0] = [cam, counter, ell, nums(132 B), [2, 8, f16 bytes]]; trackers[1] without appearance.
+# wire_obj() layout (schema 2): [version, network, sender, frame, sent_at, n, widths, merges,
+# appearances, block]; sample_message(): 2 trackers (1, 100) and (1, 101), both measured,
+# ell 0 and 1, born 0, so every integer column is 1 byte wide (widths 0); tracker 0 carries a
+# (2, 8) appearance. Its block's sections, by byte offset:
+OFF = dict(camera=0, counter=2, born=4, ell=6, mask=8, x_bar=9, info=57, descriptors=273, end=305)
 
 
 def _edit(path: tuple[int, ...], value: Any) -> Callable[[list[Any]], Any]:
@@ -325,26 +355,34 @@ def _edit(path: tuple[int, ...], value: Any) -> Callable[[list[Any]], Any]:
     return f
 
 
-def _nums_with(bad: bytes, at: int) -> Callable[[list[Any]], Any]:
+def _block_with(bad: bytes, at: int) -> Callable[[list[Any]], Any]:
+    """Overwrite the tracker block's bytes at offset ``at``."""
     def f(o: list[Any]) -> list[Any]:
-        b = o[5][0][4]
-        o[5][0][4] = b[: 4 * at] + bad + b[4 * at + 4 :]
+        o[9] = o[9][:at] + bad + o[9][at + len(bad):]
         return o
 
     return f
 
 
-def _app_with(bad: bytes) -> Callable[[list[Any]], Any]:
+def _block_resized(delta: int) -> Callable[[list[Any]], Any]:
     def f(o: list[Any]) -> list[Any]:
-        o[5][0][5][2] = bad + o[5][0][5][2][2:]
+        o[9] = o[9][:delta] if delta < 0 else o[9] + b"\x00" * delta
         return o
 
     return f
 
 
-def _dup_tracker(o: list[Any]) -> list[Any]:
-    o[5][1][0], o[5][1][1] = o[5][0][0], o[5][0][1]
-    return o
+def _column(k: int, values: list[int], code: int) -> Callable[[list[Any]], Any]:
+    """Integer column ``k`` (camera, counter, born, ell) rewritten with width code ``code``."""
+    def f(o: list[Any]) -> list[Any]:
+        dtype = ("<u1", "<u2", "<u4", "<i8")[code]
+        cols = [o[9][2 * j : 2 * j + 2] for j in range(4)]
+        cols[k] = np.array(values, dtype=dtype).tobytes()
+        o[6] = (o[6] & ~(3 << 2 * k)) | (code << 2 * k)
+        o[9] = b"".join(cols) + o[9][OFF["mask"]:]
+        return o
+
+    return f
 
 
 def _append(path: tuple[int, ...], value: Any) -> Callable[[list[Any]], Any]:
@@ -367,14 +405,15 @@ STRUCTURE_CASES: dict[str, tuple[Callable[[list[Any]], Any], str]] = {
     "top-level map": (lambda o: {"v": 1}, "malformed"),
     "top-level int": (lambda o: 1, "malformed"),
     "empty array": (lambda o: [], "malformed"),
-    "version 2": (_edit((0,), SCHEMA_VERSION + 1), "version"),
+    "version 3": (_edit((0,), SCHEMA_VERSION + 1), "version"),
+    "version 1 (old layout)": (_edit((0,), 1), "version"),
     "version 0": (_edit((0,), 0), "version"),
     "version negative": (lambda o: [-1], "version"),
     "future version, other layout": (lambda o: [SCHEMA_VERSION + 1, {"x": 1}], "version"),
-    "version as string": (_edit((0,), "1"), "malformed"),
+    "version as string": (_edit((0,), "2"), "malformed"),
     "version as bool": (_edit((0,), True), "malformed"),
     "extra message field": (_append((), 0), "malformed"),
-    "missing message field": (_delete((6,)), "malformed"),
+    "missing message field": (_delete((9,)), "malformed"),
     "network int": (_edit((1,), 7), "malformed"),
     "network empty": (_edit((1,), ""), "malformed"),
     "network slash": (_edit((1,), "a/b"), "malformed"),
@@ -392,39 +431,56 @@ STRUCTURE_CASES: dict[str, tuple[Callable[[list[Any]], Any], str]] = {
     "sent_at inf": (_edit((4,), math.inf), "non_finite"),
     "sent_at negative": (_edit((4,), -1.0), "malformed"),
     "sent_at int": (_edit((4,), 0), "malformed"),
-    "trackers map": (_edit((5,), {}), "malformed"),
-    "tracker not array": (_edit((5, 0), 3), "malformed"),
-    "tracker too short": (_delete((5, 1, 3)), "malformed"),
-    "tracker extra field": (_append((5, 0), 0), "malformed"),
-    "tracker camera negative": (_edit((5, 0, 0), -1), "malformed"),
-    "tracker counter float": (_edit((5, 0, 1), 2.0), "malformed"),
-    "ell negative": (_edit((5, 0, 3), -1), "malformed"),
-    "born negative (wire)": (_edit((5, 0, 2), -1), "malformed"),
-    "born as float": (_edit((5, 0, 2), 1.5), "malformed"),
-    "ell bool": (_edit((5, 0, 3), False), "malformed"),
-    "duplicate tracker ids": (_dup_tracker, "malformed"),
-    "x_bar NaN": (_nums_with(NAN32, 0), "non_finite"),
-    "u inf": (_nums_with(INF32, 7), "non_finite"),
-    "U NaN": (_nums_with(NAN32, 32), "non_finite"),
-    "nums short": (_edit((5, 0, 4), b"\x00" * 23), "malformed"),
-    "nums 7 floats": (_edit((5, 0, 4), b"\x00" * 28), "malformed"),
-    "nums as str": (_edit((5, 0, 4), "x" * 24), "malformed"),
-    "nums as list": (_edit((5, 0, 4), [0.0] * 6), "malformed"),
-    "appearance nil": (_edit((5, 0, 5), None), "malformed"),
-    "appearance NaN": (_app_with(NAN16), "non_finite"),
-    "appearance inf": (_app_with(INF16), "non_finite"),
-    "appearance length mismatch": (_edit((5, 0, 5, 1), 7), "malformed"),
-    "appearance n=0": (_edit((5, 0, 5, 0), 0), "malformed"),
-    "appearance D=0": (_edit((5, 0, 5, 1), 0), "malformed"),
-    "appearance n too big": (_edit((5, 0, 5, 0), MAX_DESCRIPTORS + 1), "oversize"),
-    "appearance D too big": (_edit((5, 0, 5, 1), 5000), "oversize"),
-    "appearance bytes as str": (_edit((5, 0, 5, 2), "ab"), "malformed"),
-    "merges map": (_edit((6,), {}), "malformed"),
-    "merge short": (_delete((6, 0, 3)), "malformed"),
-    "merge negative": (_edit((6, 0, 2), -1), "malformed"),
-    "self merge": (_edit((6, 0), [1, 1, 1, 1]), "malformed"),
-    "ext type": (_edit((5, 0, 4), msgpack.ExtType(5, b"abcd")), "malformed"),
-    "map with int key": (_edit((6, 0), {1: 2}), "malformed"),
+    "count negative": (_edit((5,), -1), "malformed"),
+    "count float": (_edit((5,), 2.0), "malformed"),
+    "count bool": (_edit((5,), True), "malformed"),
+    "count beyond the block": (_edit((5,), 3), "malformed"),
+    "count short of the block": (_edit((5,), 1), "malformed"),
+    "count zero with a block": (_edit((5,), 0), "malformed"),
+    "widths float": (_edit((6,), 1.5), "malformed"),
+    "widths negative": (_edit((6,), -1), "malformed"),
+    "widths beyond a byte": (_edit((6,), 256), "malformed"),
+    "widths wider than the block": (_edit((6,), 1), "malformed"),
+    "block not bin": (_edit((9,), 3), "malformed"),
+    "block as str": (_edit((9,), "x" * 8), "malformed"),
+    "block as list": (_edit((9,), [0.0] * 6), "malformed"),
+    "block one byte short": (_block_resized(-1), "malformed"),
+    "block four bytes short": (_block_resized(-4), "malformed"),
+    "block trailing byte": (_block_resized(1), "malformed"),
+    "camera beyond 2**63 - 1": (_column(0, [-1, 1], 3), "malformed"),
+    "born beyond 2**63 - 1": (_column(2, [-5, 0], 3), "malformed"),
+    "ell beyond 2**63 - 1": (_column(3, [0, -(2**63)], 3), "malformed"),
+    "counter wider than needed": (_column(1, [100, 101], 1), "malformed"),
+    "ell wider than needed": (_column(3, [0, 1], 3), "malformed"),
+    "duplicate tracker ids": (_column(1, [100, 100], 0), "malformed"),
+    "mask bit beyond the last row": (_block_with(b"\x07", OFF["mask"]), "malformed"),
+    "mask drops a measured row": (_block_with(b"\x01", OFF["mask"]), "malformed"),
+    "measured row of zeros": (_block_with(b"\x00" * 108, OFF["info"]), "malformed"),
+    "x_bar NaN": (_block_with(NAN32, OFF["x_bar"]), "non_finite"),
+    "x_bar of row 1 inf": (_block_with(INF32, OFF["x_bar"] + 4 * 6 + 8), "non_finite"),
+    "u inf": (_block_with(INF32, OFF["info"] + 4 * 1), "non_finite"),
+    "U NaN": (_block_with(NAN32, OFF["descriptors"] - 4), "non_finite"),
+    "appearances map": (_edit((8,), {}), "malformed"),
+    "appearances as str": (_edit((8,), "ab"), "malformed"),
+    "appearance nil": (_edit((8, 0), None), "malformed"),
+    "appearance short": (_delete((8, 0, 2)), "malformed"),
+    "appearance NaN": (_block_with(NAN16, OFF["descriptors"]), "non_finite"),
+    "appearance inf": (_block_with(INF16, OFF["end"] - 2), "non_finite"),
+    "appearance length mismatch": (_edit((8, 0, 2), 7), "malformed"),
+    "appearance n=0": (_edit((8, 0, 1), 0), "malformed"),
+    "appearance D=0": (_edit((8, 0, 2), 0), "malformed"),
+    "appearance n too big": (_edit((8, 0, 1), MAX_DESCRIPTORS + 1), "oversize"),
+    "appearance D too big": (_edit((8, 0, 2), 5000), "oversize"),
+    "appearance row beyond n": (_edit((8, 0, 0), 2), "malformed"),
+    "appearance row negative": (_edit((8, 0, 0), -1), "malformed"),
+    "appearance rows repeated": (_append((8,), [0, 1, 1]), "malformed"),
+    "more appearances than rows": (lambda o: _edit((8,), [[0, 1, 1]] * 3)(o), "malformed"),
+    "merges map": (_edit((7,), {}), "malformed"),
+    "merge short": (_delete((7, 0, 3)), "malformed"),
+    "merge negative": (_edit((7, 0, 2), -1), "malformed"),
+    "self merge": (_edit((7, 0), [1, 1, 1, 1, 0]), "malformed"),
+    "ext type": (_edit((9,), msgpack.ExtType(5, b"abcd")), "malformed"),
+    "map with int key": (_edit((7, 0), {1: 2}), "malformed"),
 }
 
 
@@ -438,7 +494,12 @@ def test_reason_tags(name: str) -> None:
 
 
 def test_edit_helpers_leave_a_valid_base() -> None:
-    assert decode(pack(wire_obj())) == quantize(sample_message())
+    o = wire_obj()
+    assert o[5:7] == [2, 0] and o[8] == [[0, 2, 8]] and len(o[9]) == OFF["end"]
+    assert o[9][OFF["mask"]] == 0b11
+    assert decode(pack(o)) == quantize(sample_message())
+    for k in range(4):  # rewriting a column as it is changes nothing
+        assert decode(pack(_column(k, list(o[9][2 * k : 2 * k + 2]), 0)(wire_obj()))) == decode(pack(o))
 
 
 @pytest.mark.parametrize(
@@ -470,7 +531,7 @@ def test_oversize_limits() -> None:
     data = encode(m)
     for limits in (Limits(max_bytes=len(data) - 1), Limits(max_trackers=4), Limits(max_merges=1)):
         with pytest.raises(ProtocolError) as e:
-            decode(data if limits.max_merges > 1 else pack(_append((6,), [9, 9, 8, 8])(wire_obj(m))),
+            decode(data if limits.max_merges > 1 else pack(_append((7,), [9, 9, 8, 8])(wire_obj(m))),
                    limits=limits)
         assert e.value.reason == "oversize"
     assert decode(data, limits=Limits(max_bytes=len(data), max_trackers=5)) == quantize(m)
@@ -546,7 +607,8 @@ ENCODE_CASES: dict[str, tuple[Any, str]] = {
     "self merge": (_msg(merges=(Merge((0, 1), (0, 1)),)), "malformed"),
     "bad network": (_msg(network="a/b"), "malformed"),
     "network too long": (_msg(network="a" * 65), "oversize"),
-    "version": (_msg(version=2), "version"),
+    "version": (_msg(version=SCHEMA_VERSION + 1), "version"),
+    "old version 1": (_msg(version=1), "version"),
 }
 
 
