@@ -199,27 +199,30 @@ class TrackerBlock:
 
 def _fast_columns(infos: Sequence[Any]) -> tuple[np.ndarray, ...] | None:
     """Columns of well-formed ``TrackerInfo``s (plain int ids, real arrays of the right
-    shapes) in a few array calls; ``None`` when anything is unusual (the checked path decides)."""
+    shapes) in a few array calls; ``None`` when anything is unusual (the checked path decides).
+    Negative ints pass here: the codec's whole-block check refuses them."""
     n = len(infos)
     try:
-        if not all(type(t) is TrackerInfo for t in infos):
+        if set(map(type, infos)) != {TrackerInfo}:
             return None
         ids = [t.id for t in infos]
-        if not all(type(i) is tuple and len(i) == 2 for i in ids):
+        if set(map(type, ids)) != {tuple} or set(map(len, ids)) != {2}:
             return None
         flat = [c for c, _ in ids] + [k for _, k in ids] + [t.born for t in infos] + [t.ell for t in infos]
-        if not all(type(v) is int and 0 <= v <= MAX_WIRE_INT for v in flat):
+        if set(map(type, flat)) != {int}:  # not bool, not numpy ints: the checked path
             return None
-        ints = np.array(flat, dtype=np.int64).reshape(4, n)
-        arrays = []
-        for name, shape in (("x_bar", (n, _N)), ("u", (n, _N)), ("U", (n, _N, _N))):
-            a = np.array([getattr(t, name) for t in infos])
-            if a.shape != shape or a.dtype.kind not in "fiu":
-                return None
-            arrays.append(a.astype(np.float64, copy=a.dtype != np.float64))
+        ints = np.array(flat, dtype=np.int64).reshape(4, n)  # OverflowError beyond int64
+        x_bar = np.array([t.x_bar for t in infos])
+        u = np.array([t.u for t in infos])
+        U = np.array([t.U for t in infos])
     except Exception:  # noqa: BLE001 - ragged arrays, odd objects: the checked path says what
         return None
-    return (ints, *arrays)
+    out: list[np.ndarray] = [ints]
+    for a, shape in ((x_bar, (n, _N)), (u, (n, _N)), (U, (n, _N, _N))):
+        if a.shape != shape or a.dtype.kind not in "fiu":
+            return None
+        out.append(a if a.dtype == np.float64 else a.astype(np.float64))
+    return tuple(out)
 
 
 def _checked_columns(infos: Sequence[Any]) -> tuple[np.ndarray, ...]:

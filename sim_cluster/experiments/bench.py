@@ -6,6 +6,12 @@ timed separately) and reports medians, plus the encoded bytes per tracker per fr
 tracker's appearance. With ``--cameras`` it is the scale sweep instead
 (:mod:`~sim_cluster.experiments.bench_scale`). Times are CPU time of this process (``time.process_time``), not wall
 time, so other work on a shared machine inflates them far less; still quote medians and ratios.
+
+The codec line times every message of the measured frames on its own (``CODEC_REPEATS`` calls
+each, the mean per call; then the median over messages): ``encode`` of the message as the core
+builds it today (``TrackerInfo`` objects, turned into a block first), ``encode`` of the same
+message built from its ``TrackerBlock`` (``FrameMessage.from_block``, what the core will build),
+and ``decode``; per node-frame is one encode and one decode per neighbour.
 """
 from __future__ import annotations
 
@@ -19,11 +25,12 @@ from edge_node.core.config import TrackerConfig
 from edge_node.core.node import CameraNode
 from edge_node.core.types import Detection
 from edge_node.geometry import Camera
-from protocol import codec
+from protocol import FrameMessage, codec
 from sim_cluster.experiments import bench_scale
 from sim_cluster.experiments.run import tracker_config
 
 AREA = 20.0
+CODEC_REPEATS = 20
 
 
 def _camera(cid: int, n: int) -> Camera:
@@ -61,6 +68,35 @@ def _detections(cam: Camera, xy: np.ndarray, app: np.ndarray, rng) -> list[Detec
     return dets
 
 
+def _cpu_us(fn, arg, repeats: int = CODEC_REPEATS) -> float:
+    """Mean CPU microseconds of ``fn(arg)`` over ``repeats`` calls."""
+    t0 = time.process_time()
+    for _ in range(repeats):
+        fn(arg)
+    return 1e6 * (time.process_time() - t0) / repeats
+
+
+def codec_costs(msgs: list[FrameMessage], neighbours: int) -> dict:
+    """Median CPU time per message of encode (from objects, from a block) and decode, the
+    node-frame total (one encode, ``neighbours`` decodes) and the median bytes per message."""
+    enc, enc_block, dec, size = [], [], [], []
+    for m in msgs:
+        payload = codec.encode(m)
+        by_block = FrameMessage.from_block(m.network, m.sender, m.frame, m.block, m.merges, m.sent_at)
+        fresh = [type(m)(m.network, m.sender, m.frame, m.trackers, m.merges, m.sent_at)
+                 for _ in range(CODEC_REPEATS)]  # no cached block: the conversion is timed
+        it = iter(fresh)
+        enc.append(_cpu_us(lambda _: codec.encode(next(it)), None))
+        enc_block.append(_cpu_us(codec.encode, by_block))
+        dec.append(_cpu_us(codec.decode, payload))
+        size.append(len(payload))
+    med = {k: statistics.median(v) for k, v in
+           (("encode_us", enc), ("encode_block_us", enc_block), ("decode_us", dec), ("bytes", size))}
+    med["node_frame_us"] = med["encode_us"] + neighbours * med["decode_us"]
+    med["node_frame_block_us"] = med["encode_block_us"] + neighbours * med["decode_us"]
+    return med
+
+
 def bench_targets(targets: int, neighbours: int = 4, frames: int = 60, seed: int = 0) -> dict:
     n = neighbours + 1
     cams = [_camera(i, n) for i in range(n)]
@@ -70,6 +106,8 @@ def bench_targets(targets: int, neighbours: int = 4, frames: int = 60, seed: int
     rng = np.random.default_rng(seed + 1)
     core_ms, codec_ms, per_tracker, trackers_seen = [], [], [], []
     app_bytes = []
+    warm = frames // 3  # skip start-up (births, merges)
+    measured: list[FrameMessage] = []
     for k in range(frames):
         dets = [_detections(c, world[k], app, rng) for c in cams]
         t_core = 0.0
@@ -87,6 +125,8 @@ def bench_targets(targets: int, neighbours: int = 4, frames: int = 60, seed: int
             t0 = time.process_time()
             node.update(box)
             t_core += time.process_time() - t0
+        if k >= warm:
+            measured += msgs
         core_ms.append(1000 * t_core / n)
         codec_ms.append(1000 * t_codec / n)
         for m, p in zip(msgs, payloads):
@@ -98,7 +138,7 @@ def bench_targets(targets: int, neighbours: int = 4, frames: int = 60, seed: int
                 bare = replace(m, trackers=tuple(replace(t, appearance=None) for t in m.trackers))
                 app_bytes.append((len(p) - len(codec.encode(bare))) / len(with_app))
         trackers_seen.append(statistics.mean(len(nd.trackers) for nd in nodes))
-    warm = frames // 3  # skip start-up (births, merges)
+    codec_cost = codec_costs(measured, neighbours)
     return {
         "targets": targets,
         "neighbours": neighbours,
@@ -108,6 +148,7 @@ def bench_targets(targets: int, neighbours: int = 4, frames: int = 60, seed: int
         "trackers_per_node": statistics.median(trackers_seen[warm:]),
         "bytes_per_tracker": statistics.median(per_tracker) if per_tracker else float("nan"),
         "appearance_bytes_per_new_tracker": statistics.median(app_bytes) if app_bytes else float("nan"),
+        **{f"codec_{k}": v for k, v in codec_cost.items()},
     }
 
 
@@ -129,4 +170,9 @@ def main(args) -> int:
         print(f"{t:>7} {med['trackers_per_node']:>8.0f} {med['core_ms_median']:>8.2f} "
               f"{med['core_ms_p90']:>7.2f} {med['codec_ms_median']:>8.3f} "
               f"{med['bytes_per_tracker']:>9.1f} {med['appearance_bytes_per_new_tracker']:>12.0f}")
+        print(f"{'':>7} codec per message (CPU us, median): encode {med['codec_encode_us']:.1f} "
+              f"(from a block {med['codec_encode_block_us']:.1f}), decode {med['codec_decode_us']:.1f}; "
+              f"per node-frame (1 encode + {args.neighbours} decodes) {med['codec_node_frame_us']:.1f} "
+              f"(from a block {med['codec_node_frame_block_us']:.1f}); "
+              f"{med['codec_bytes']:.0f} bytes per message")
     return 0
