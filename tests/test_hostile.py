@@ -41,7 +41,7 @@ from edge_node.runtime.loop import FrameLoop
 from edge_node.runtime.preflight import tracker_config_for
 from edge_node.runtime.output import StatusWriter, status_path
 from edge_node.runtime.sources import open_source
-from protocol import codec
+from protocol import SCHEMA_VERSION, codec
 from protocol.errors import ProtocolError
 from protocol.keys import parse_link_key
 
@@ -204,19 +204,21 @@ def fuzz_batch(rng: np.random.Generator, genuine: list[bytes], k: int, n: int):
         elif kind == "random":
             payload = rng.bytes(int(rng.integers(0, 300)))
         elif kind == "bomb":  # tiny on the wire, huge counts
-            payload = msgpack.packb([1, NET, 1, k, 0.0, [[]] * 5000, []])
+            payload = msgpack.packb([SCHEMA_VERSION, NET, 1, k, 0.0, 0, 0, [[]] * 5000, [], b""])
         elif kind == "version":
             obj = msgpack.unpackb(base, raw=False)
-            obj[0] = int(rng.choice([0, 2, 99]))
+            obj[0] = int(rng.choice([0, 1, 3, 99]))  # 1: the per-tracker layout before schema 2
             payload = msgpack.packb(obj, use_bin_type=True)
         else:  # NaN in a tracker's numbers
-            obj = msgpack.unpackb(base, raw=False)
-            if not obj[5]:
+            obj = msgpack.unpackb(base, raw=False)  # schema 2: [.., n, widths, .., .., block]
+            rows, widths = obj[5], obj[6]
+            if not rows:
                 continue
-            t = obj[5][int(rng.integers(len(obj[5])))]
-            nums = bytearray(t[4])
-            nums[0:4] = np.float32(np.nan).tobytes()
-            t[4] = bytes(nums)
+            ints = rows * sum(1 << ((widths >> 2 * c) & 3) for c in range(4))
+            at = ints + (rows + 7) // 8 + 24 * int(rng.integers(rows))  # a random row's x_bar
+            block = bytearray(obj[9])
+            block[at : at + 4] = np.float32(np.nan).tobytes()
+            obj[9] = bytes(block)
             payload = msgpack.packb(obj, use_bin_type=True)
         expected = expected_outcome(key, payload, k)
         if expected is None:  # a valid current/future message from neighbour 1: not garbage
