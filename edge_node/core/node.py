@@ -44,7 +44,7 @@ from edge_node.core.screen import Screen
 from edge_node.core.tracker import LocalInfo, Tracker
 from edge_node.core.types import Detection, Track
 from edge_node.geometry import Camera
-from protocol.messages import MAX_DESCRIPTORS, FrameMessage, TrackerId, TrackerInfo
+from protocol.messages import MAX_DESCRIPTORS, FrameMessage, TrackerBlock, TrackerId, TrackerInfo
 
 Manager = DistributedTrackerManager | IndependentTrackers
 
@@ -297,18 +297,25 @@ class CameraNode:
         self.trackers[tid] = tr
 
     def _message(self, k: int) -> FrameMessage:
-        infos = []
-        for tid in sorted(self.trackers):
-            tr = self.trackers[tid]
-            if not self._sends(tr):
-                continue
-            app = None
+        """This frame's message ``(ID, x_bar, u, U, ell)`` per tracker it sends (paper III-D),
+        the appearance of the trackers new to this sender, and the merge announcements; built
+        as one ``TrackerBlock`` (no per-tracker objects)."""
+        trs = [tr for _, tr in sorted(self.trackers.items()) if self._sends(tr)]
+        apps = []
+        for row, tr in enumerate(trs):
             if not tr.announced and len(tr.gallery):
-                app = tr.gallery.newest(MAX_DESCRIPTORS)
+                apps.append((row, tr.gallery.newest(MAX_DESCRIPTORS)))
                 tr.announced = True
-            infos.append(TrackerInfo(tid, tr.local.x_bar_sent, tr.local.u.copy(),
-                                     tr.local.U.copy(), tr.local.ell_sent, app, tr.born))
-        return FrameMessage(self.network, self.id, k, tuple(infos), self.book.announcements())
+        if trs:
+            block = TrackerBlock(np.array([tr.id[0] for tr in trs]), np.array([tr.id[1] for tr in trs]),
+                                 np.array([tr.born for tr in trs]),
+                                 np.array([tr.local.ell_sent for tr in trs]),
+                                 np.stack([tr.local.x_bar_sent for tr in trs]),
+                                 np.stack([tr.local.u for tr in trs]),
+                                 np.stack([tr.local.U for tr in trs]), tuple(apps))
+        else:
+            block = TrackerBlock.empty()
+        return FrameMessage.from_block(self.network, self.id, k, block, self.book.announcements())
 
     def resync_message(self, msg: FrameMessage) -> FrameMessage:
         """``msg`` with every tracker's appearance attached: what this node sends a neighbour that

@@ -108,10 +108,12 @@ class Screen:
     def messages(self, msgs: list[FrameMessage], book: IdentityBook) -> list[FrameMessage]:
         """:meth:`message` of a frame's messages in order, the numbers of all their entries
         checked in one batch."""
-        ts = [t for m in msgs for t in m.trackers]
-        infos = self.informations(np.array([t.u for t in ts], float).reshape(-1, 6),
-                                  np.array([t.U for t in ts], float).reshape(-1, 6, 6))
-        bad = self.states(np.array([t.x_bar for t in ts], float).reshape(-1, 6)).tolist()
+        blocks = [m.block for m in msgs]  # the messages' numbers as arrays (the codec's form)
+        infos = self.informations(np.concatenate([b.u for b in blocks]).reshape(-1, 6),
+                                  np.concatenate([b.U for b in blocks]).reshape(-1, 6, 6)) \
+            if blocks else []
+        bad = self.states(np.concatenate([b.x_bar for b in blocks]).reshape(-1, 6)).tolist() \
+            if blocks else []
         out, i = [], 0
         for m in msgs:
             n = len(m.trackers)

@@ -9,9 +9,9 @@ time, so other work on a shared machine inflates them far less; still quote medi
 
 The codec line times every message of the measured frames on its own (``CODEC_REPEATS`` calls
 each, the mean per call; then the median over messages): ``encode`` of the message as the core
-builds it today (``TrackerInfo`` objects, turned into a block first), ``encode`` of the same
-message built from its ``TrackerBlock`` (``FrameMessage.from_block``, what the core will build),
-and ``decode``; per node-frame is one encode and one decode per neighbour.
+builds it (one ``TrackerBlock``), ``decode``, and per node-frame one encode and one decode per
+neighbour; beside them ``encode`` of the same message given as ``TrackerInfo`` objects (what
+code that builds messages one tracker at a time pays: the block is made first).
 """
 from __future__ import annotations
 
@@ -170,9 +170,9 @@ def main(args) -> int:
         print(f"{t:>7} {med['trackers_per_node']:>8.0f} {med['core_ms_median']:>8.2f} "
               f"{med['core_ms_p90']:>7.2f} {med['codec_ms_median']:>8.3f} "
               f"{med['bytes_per_tracker']:>9.1f} {med['appearance_bytes_per_new_tracker']:>12.0f}")
-        print(f"{'':>7} codec per message (CPU us, median): encode {med['codec_encode_us']:.1f} "
-              f"(from a block {med['codec_encode_block_us']:.1f}), decode {med['codec_decode_us']:.1f}; "
-              f"per node-frame (1 encode + {args.neighbours} decodes) {med['codec_node_frame_us']:.1f} "
-              f"(from a block {med['codec_node_frame_block_us']:.1f}); "
-              f"{med['codec_bytes']:.0f} bytes per message")
+        print(f"{'':>7} codec per message (CPU us, median): encode {med['codec_encode_block_us']:.1f}, "
+              f"decode {med['codec_decode_us']:.1f}; per node-frame (1 encode + "
+              f"{args.neighbours} decodes) {med['codec_node_frame_block_us']:.1f}; "
+              f"{med['codec_bytes']:.0f} bytes per message (encode from TrackerInfo objects "
+              f"{med['codec_encode_us']:.1f})")
     return 0
