@@ -135,7 +135,8 @@ def _run(args) -> int:
                       **({"recording_id": args.recording_id} if args.recording_id else {}))
         cfg = replace(cfg, viz=viz)
     try:
-        report = loop.run_node(cfg, frames=args.frames, mode=args.mode, join=args.join)
+        report = loop.run_node(cfg, frames=args.frames, mode=args.mode, join=args.join,
+                               freeze_gc=True)
     except (NodeConfigError, SourceError) as e:
         return _fail(str(e), loop.EXIT_USAGE)
     except DuplicateNodeError as e:

@@ -61,7 +61,7 @@ from edge_node.formats.tracks import TrackWriter
 from edge_node.outbox import Delivery, Outbox, OutboxCounters
 from edge_node.runtime import transport as tr
 from edge_node.runtime.config import NodeConfig, NodeConfigError
-from edge_node.runtime.memory import release_freed_memory
+from edge_node.runtime.memory import freeze_startup, release_freed_memory
 from edge_node.runtime.output import (StatusWriter, counters_path, latency_summary, state_path,
                                       status_path, tracks_path, write_json_atomic)
 from edge_node.runtime.preflight import preflight
@@ -440,7 +440,8 @@ class RunReport:
 
 def run_node(cfg: NodeConfig, *, frames: int | None = None, mode: str | None = None,
              transport_factory: Callable[..., Any] | None = None,
-             install_signals: bool = True, join: bool = False) -> RunReport:
+             install_signals: bool = True, join: bool = False,
+             freeze_gc: bool = False) -> RunReport:
     """Run one camera process to completion. Raises ``NodeConfigError`` / ``SourceError`` for
     bad inputs, ``TransportError`` when Zenoh cannot start and ``DuplicateNodeError`` when its
     id is already alive (the CLI maps them to exit codes); returns a report otherwise. The
@@ -539,6 +540,8 @@ def run_node(cfg: NodeConfig, *, frames: int | None = None, mode: str | None = N
                 if k0:
                     loop.stats.first_frame = min(k0, total)
                     log.info("node %d: joining the network at frame %d", cfg.node, k0)
+            if freeze_gc:  # a camera process: its start-up objects out of the collector's way
+                freeze_startup()
             try:
                 stats = loop.run()
             except Exception as e:
