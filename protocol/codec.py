@@ -432,7 +432,8 @@ def _decode_block(blob: Any, n: int, widths: Any, apps: list[tuple[int, int, int
     maxes = ints.max(axis=1).tolist()
     if sum(_width_code(v) << (2 * k) for k, v in enumerate(maxes)) != widths:
         raise err("malformed", f"widths {widths:#04x} are not the narrowest for {maxes}")
-    floats = np.frombuffer(blob, _F32, n_floats, at).astype(np.float64)
+    with np.errstate(invalid="ignore"):  # a signalling NaN warns when cast; it is caught below
+        floats = np.frombuffer(blob, _F32, n_floats, at).astype(np.float64)
     if not math.isfinite(floats.sum()):  # float32 values: the float64 sum cannot overflow
         bad = ~np.isfinite(floats)
         i = int(np.flatnonzero(bad)[0])
