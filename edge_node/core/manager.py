@@ -109,7 +109,7 @@ def find_merges(views: Sequence[MergeView], streaks: dict[tuple[TrackerId, Track
     alive: set[tuple[TrackerId, TrackerId]] = set()
     ordered = sorted(views, key=lambda v: v.id)
     if len(ordered) > 1:
-        xy = np.stack([v.xy for v in ordered])
+        xy = np.array([v.xy for v in ordered])
         near = np.linalg.norm(xy[:, None] - xy[None], axis=2) < cfg.m(cfg.tau_gda)
         rows, cols = np.nonzero(np.triu(near, 1))  # only nearby pairs are scored in full
         for i, j in zip(rows.tolist(), cols.tolist()):

@@ -70,8 +70,8 @@ class Entries:
         flat = [t for g in got for t in g]
         if not flat:
             return cls(ids, got, rows, np.zeros((0, 6)), np.zeros((0, 6, 6)), np.zeros((0, 6)))
-        return cls(ids, got, rows, np.stack([t.u for t in flat]), np.stack([t.U for t in flat]),
-                   np.stack([t.x_bar for t in flat]))
+        return cls(ids, got, rows, np.array([t.u for t in flat]), np.array([t.U for t in flat]),
+                   np.array([t.x_bar for t in flat]))
 
 
 class NodeStateError(RuntimeError):
@@ -183,7 +183,7 @@ class CameraNode:
         steps = 0 if self._frame is None else k - self._frame
         trs = list(self.trackers.values())
         if steps and trs:
-            x_bar, P = dkf.predict(np.stack([t.x_hat for t in trs]), np.stack([t.M for t in trs]),
+            x_bar, P = dkf.predict(np.array([t.x_hat for t in trs]), np.array([t.M for t in trs]),
                                    self.A, self.Q)
             for _ in range(steps - 1):
                 x_bar, P = dkf.predict(x_bar, P, self.A, self.Q)
@@ -210,7 +210,7 @@ class CameraNode:
         if not dets:
             return [], np.zeros((0, 4))
         boxes = [np.asarray(d.box, float) for d in dets]
-        B = np.stack([b if b.shape == (4,) else np.full(4, np.nan) for b in boxes])
+        B = np.array([b if b.shape == (4,) else np.full(4, np.nan) for b in boxes])
         with np.errstate(invalid="ignore"):
             good = np.all(np.isfinite(B), axis=1) & (B[:, 2] > 0) & (B[:, 3] > 0)
         self.stats.bad_detections += int(len(B) - good.sum())
@@ -243,8 +243,8 @@ class CameraNode:
         assigned = set()
         pairs = self.associate(cands, obs)
         if pairs:
-            u, U = dkf.informations(np.stack([obs[j].z for _, j in pairs]),
-                                    np.stack([obs[j].R for _, j in pairs]))
+            u, U = dkf.informations(np.array([obs[j].z for _, j in pairs]),
+                                    np.array([obs[j].R for _, j in pairs]))
         for n, (i, j) in enumerate(pairs):
             tr = self.trackers[ids[i]]
             tr.local.add(cam_id, u[n], U[n], obs[j].raw)
@@ -310,9 +310,9 @@ class CameraNode:
             block = TrackerBlock(np.array([tr.id[0] for tr in trs]), np.array([tr.id[1] for tr in trs]),
                                  np.array([tr.born for tr in trs]),
                                  np.array([tr.local.ell_sent for tr in trs]),
-                                 np.stack([tr.local.x_bar_sent for tr in trs]),
-                                 np.stack([tr.local.u for tr in trs]),
-                                 np.stack([tr.local.U for tr in trs]), tuple(apps))
+                                 np.array([tr.local.x_bar_sent for tr in trs]),
+                                 np.array([tr.local.u for tr in trs]),
+                                 np.array([tr.local.U for tr in trs]), tuple(apps))
         else:
             block = TrackerBlock.empty()
         return FrameMessage.from_block(self.network, self.id, k, block, self.book.announcements())
@@ -432,11 +432,11 @@ class CameraNode:
         if not ids:
             return
         trs = [self.trackers[t] for t in ids]
-        x_bar = np.stack([tr.x_bar for tr in trs])
-        P = np.stack([tr.P for tr in trs])
-        y = np.stack([tr.local.u for tr in trs])
-        S = np.stack([tr.local.U for tr in trs])
-        ref = np.stack([tr.x_bar if tr.local.x_bar_sent is None else tr.local.x_bar_sent
+        x_bar = np.array([tr.x_bar for tr in trs])
+        P = np.array([tr.P for tr in trs])
+        y = np.array([tr.local.u for tr in trs])
+        S = np.array([tr.local.U for tr in trs])
+        ref = np.array([tr.x_bar if tr.local.x_bar_sent is None else tr.local.x_bar_sent
                         for tr in trs])
         diff = np.zeros_like(x_bar)
         if len(rows):
@@ -492,8 +492,8 @@ class CameraNode:
         for cam_id in sorted(self.registrations):
             raws, us, Us = rows[cam_id]
             if raws:
-                V_o = np.linalg.inv(np.stack(Us))
-                z_o = (V_o @ np.stack(us)[..., None])[..., 0]
+                V_o = np.linalg.inv(np.array(Us))
+                z_o = (V_o @ np.array(us)[..., None])[..., 0]
                 self.registrations[cam_id].observe_many(raws, z_o, V_o)
             self.registrations[cam_id].end_frame()
 
@@ -621,12 +621,12 @@ class CameraNode:
                 sizes.append(seen[1])
             if not rows:
                 continue
-            xy = np.stack([trackers[i].x_hat[:2] for i in rows])
+            xy = np.array([trackers[i].x_hat[:2] for i in rows])
             reg = self.registrations.get(cam.id)
             g = xy if reg is None else reg.to_camera_many(xy)
             with np.errstate(invalid="ignore", divide="ignore", over="ignore"):
                 foot = cam.to_image(g)
-                wh = np.stack(sizes) * pixels_per_unit(cam.ground_jacobians(foot))[:, None]
+                wh = np.array(sizes) * pixels_per_unit(cam.ground_jacobians(foot))[:, None]
             box = np.concatenate([foot[:, :1] - wh[:, :1] / 2.0, foot[:, 1:] - wh[:, 1:], wh], axis=1)
             for i, b, ok in zip(rows, box, np.all(np.isfinite(foot), axis=1)):
                 if ok:

@@ -142,9 +142,9 @@ class Registration:
 
     def corrects(self, ms: list[BoxMeasurement]) -> tuple[np.ndarray, np.ndarray]:
         """R5 for many box measurements at once: ``z`` ``(n, 4)`` and ``R`` ``(n, 4, 4)``."""
-        z = np.stack([m.z for m in ms])
-        R = np.stack([m.R for m in ms])
-        A = self.bases(z[:, :2], np.stack([m.away for m in ms]))
+        z = np.array([m.z for m in ms])
+        R = np.array([m.R for m in ms])
+        A = self.bases(z[:, :2], np.array([m.away for m in ms]))
         z[:, :2] += A @ self.theta
         C = A @ self.Sigma @ A.transpose(0, 2, 1)
         top = np.linalg.eigvalsh(C)[:, -1]
@@ -187,9 +187,9 @@ class Registration:
         if not used.any():
             return used
         idx = np.flatnonzero(used)
-        z = np.stack([ms[i].z[:2] for i in idx])
-        A = self.bases(z, np.stack([ms[i].away for i in idx]))
-        V = np.stack([ms[i].R[:2, :2] for i in idx]) + np.eye(2) * self.noise_var + V_other[idx]
+        z = np.array([ms[i].z[:2] for i in idx])
+        A = self.bases(z, np.array([ms[i].away for i in idx]))
+        V = np.array([ms[i].R[:2, :2] for i in idx]) + np.eye(2) * self.noise_var + V_other[idx]
         r = z_other[idx] - (z + A @ self.theta)
         S = V + A @ self.Sigma @ A.transpose(0, 2, 1)
         nis = np.einsum("ni,ni->n", r, np.linalg.solve(S, r[..., None])[..., 0])
