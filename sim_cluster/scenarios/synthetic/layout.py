@@ -45,13 +45,13 @@ from edge_node.geometry import Camera
 from sim_cluster.network.topology import Adjacency, lattice
 from sim_cluster.scenarios.data import CHUNK_FRAMES, Frame, ScenarioStream
 from sim_cluster.scenarios.synthetic.appearance import AppearanceModel
-from sim_cluster.scenarios.synthetic.detector_model import detect_frames, in_image_fraction
+from sim_cluster.scenarios.synthetic.detector_model import in_image_fraction
 from sim_cluster.scenarios.synthetic.pose import camera_from_pose, look_at_angles
 from sim_cluster.scenarios.synthetic.world import (_SIDESTEPS, _TAG_DETECT, _TAG_PEOPLE,
                                                    PeopleParams,
                                                    PeopleWalk, Trajectories, WorldConfig,
                                                    WorldError, WorldStream, _Person,
-                                                   project_people, visible_fractions_batch)
+                                                   blank_frames, camera_frames, project_people)
 
 KINDS = ("corridor", "grid")
 _VIEW_MARGIN_M = 1.5  # beyond a view's ground bounds: half a person's width and their lean
@@ -331,7 +331,7 @@ def regional_chunk(config: WorldConfig, bounds: list[tuple[float, float, float, 
     cams = config.cameras
     C = len(cams)
     thr = max(config.min_visible, 1e-12)
-    kk, ii = np.nonzero(traj.present)  # row-major: frame, then person (world._pack's order)
+    kk, ii = np.nonzero(traj.present)  # row-major: frame, then person (world.camera_frames' order)
     xy = traj.xy[kk, ii]
     truth_mask = np.zeros((F, N), bool)
     seen = []  # per camera: (frame, person, box, in-image fraction, depth) of its candidates
@@ -347,34 +347,11 @@ def regional_chunk(config: WorldConfig, bounds: list[tuple[float, float, float, 
         truth_mask[fk[fr >= thr], fi[fr >= thr]] = True
         keep = fr > 0
         seen.append((fk[keep], fi[keep], b[keep], fr[keep], depth[keep]))
-    frames = []
-    for k in range(F):
-        sel = np.flatnonzero(truth_mask[k])
-        frames.append(Frame(detections=[[] for _ in range(C)],
-                            detection_truth=[np.zeros(0, np.int64)] * C,
-                            ids=traj.ids[sel], xy=traj.xy[k, sel], wh=traj.wh[sel],
-                            boxes=[(np.zeros(0, np.int64), np.zeros((0, 4)))] * C))
+    frames = blank_frames(traj, truth_mask, C)
     for c, cam in enumerate(cams):
         if only is not None and c not in only:
             continue
         ck, ci, cb, fr, depth = seen[c]
-        counts = np.bincount(ck, minlength=F)
-        starts = np.concatenate([[0], np.cumsum(counts)[:-1]])
-        slot = np.arange(len(ck)) - starts[ck]
-        width = int(counts.max()) if len(counts) else 0
-        packed_b = np.full((F, width, 4), np.nan)
-        packed_d = np.full((F, width), np.inf)
-        packed_b[ck, slot] = cb
-        packed_d[ck, slot] = depth
-        vis = visible_fractions_batch(packed_b, packed_d, cam.image_size)[ck, slot]
-        gt = fr * vis >= thr
-        gk, gids, gboxes = ck[gt], traj.ids[ci[gt]], cb[gt]
-        edges = np.searchsorted(gk, np.arange(F + 1))
-        per_frame = detect_frames(cam, ck, traj.ids[ci], cb, vis, F, config.detector, appearance,
-                                  np.random.default_rng([seed, _TAG_DETECT, c, j]))
-        for k, (dets, ids) in enumerate(per_frame):
-            f = frames[k]
-            f.boxes[c] = (gids[edges[k]:edges[k + 1]], gboxes[edges[k]:edges[k + 1]])
-            f.detections[c] = dets
-            f.detection_truth[c] = ids
+        camera_frames(frames, c, cam, ck, ci, cb, depth, fr, traj, config, appearance,
+                      np.random.default_rng([seed, _TAG_DETECT, c, j]))
     return frames

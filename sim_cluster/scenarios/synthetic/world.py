@@ -457,15 +457,6 @@ def visible_fractions(boxes: np.ndarray, depth: np.ndarray, image_size: tuple[in
     return visible_fractions_batch(b, np.asarray(depth, float).reshape(1, -1), image_size)[0]
 
 
-def _pack(mask: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, int]:
-    """Frames and people of a ``(F, N)`` mask in row order, with each entry's slot in its frame."""
-    kk, ii = np.nonzero(mask)
-    counts = mask.sum(axis=1)
-    starts = np.concatenate([[0], np.cumsum(counts)[:-1]])
-    slot = np.arange(len(kk)) - starts[kk]
-    return kk, ii, slot, int(counts.max()) if len(counts) else 0
-
-
 # -- the whole scenario -------------------------------------------------------------------------
 # A world is made a chunk of CHUNK_FRAMES at a time (data.py): one vectorised projection,
 # occlusion and detector pass per camera, and the unit of the detector's random streams.
@@ -562,32 +553,55 @@ def _chunk(config: WorldConfig, appearance: AppearanceModel, k0: int, j: int,
                 depth[c, fk, fi] = -(b[:, 1] + b[:, 3])  # lower foot row = nearer
 
     truth_mask = np.any(inimg >= thr, axis=0)  # (F, N)
-    frames = []
-    for k in range(F):
-        sel = np.flatnonzero(truth_mask[k])
-        frames.append(Frame(detections=[[] for _ in range(C)],
-                            detection_truth=[np.zeros(0, np.int64)] * C,
-                            ids=traj.ids[sel], xy=traj.xy[k, sel], wh=traj.wh[sel],
-                            boxes=[(np.zeros(0, np.int64), np.zeros((0, 4)))] * C))
+    frames = blank_frames(traj, truth_mask, C)
     for c, cam in enumerate(cams):
         if only is not None and c not in only:
             continue
-        # Candidates: in front and at least partly in the image, packed per frame for occlusion.
-        ck, ci, slot, width = _pack(inimg[c] > 0)
-        packed_b = np.full((F, width, 4), np.nan)
-        packed_d = np.full((F, width), np.inf)
-        packed_b[ck, slot] = boxes[c, ck, ci]
-        packed_d[ck, slot] = depth[c, ck, ci]
-        vis = visible_fractions_batch(packed_b, packed_d, cam.image_size)[ck, slot]
-        cb = boxes[c, ck, ci]
-        gt = inimg[c, ck, ci] * vis >= thr
-        gk, gids, gboxes = ck[gt], traj.ids[ci[gt]], cb[gt]
-        bounds = np.searchsorted(gk, np.arange(F + 1))
-        per_frame = detect_frames(cam, ck, traj.ids[ci], cb, vis, F, config.detector, appearance,
-                                  np.random.default_rng([seed, _TAG_DETECT, c, j]))
-        for k, (dets, ids) in enumerate(per_frame):
-            f = frames[k]
-            f.boxes[c] = (gids[bounds[k]:bounds[k + 1]], gboxes[bounds[k]:bounds[k + 1]])
-            f.detections[c] = dets
-            f.detection_truth[c] = ids
+        # Candidates: in front and at least partly in the image, in frame order.
+        ck, ci = np.nonzero(inimg[c] > 0)
+        camera_frames(frames, c, cam, ck, ci, boxes[c, ck, ci], depth[c, ck, ci],
+                      inimg[c, ck, ci], traj, config, appearance,
+                      np.random.default_rng([seed, _TAG_DETECT, c, j]))
     return frames
+
+
+def blank_frames(traj: Trajectories, truth_mask: np.ndarray, cameras: int) -> list[Frame]:
+    """A chunk's frames with the world's ground truth (the people ``truth_mask (F, N)`` says
+    some camera sees) and no camera's detections yet."""
+    frames = []
+    for k in range(len(truth_mask)):
+        sel = np.flatnonzero(truth_mask[k])
+        frames.append(Frame(detections=[[] for _ in range(cameras)],
+                            detection_truth=[np.zeros(0, np.int64)] * cameras,
+                            ids=traj.ids[sel], xy=traj.xy[k, sel], wh=traj.wh[sel],
+                            boxes=[(np.zeros(0, np.int64), np.zeros((0, 4)))] * cameras))
+    return frames
+
+
+def camera_frames(frames: list[Frame], c: int, cam: Camera, ck: np.ndarray, ci: np.ndarray,
+                  cb: np.ndarray, depth: np.ndarray, inimg: np.ndarray, traj: Trajectories,
+                  config: WorldConfig, appearance: AppearanceModel,
+                  rng: np.random.Generator) -> None:
+    """Camera ``c``'s image ground truth and detections over a chunk, written into ``frames``:
+    from its candidates (frame ``ck``, person ``ci``, in frame order; box ``cb``, depth, the
+    fraction of the box in the image), occlusion among them per frame, then the detector."""
+    F = len(frames)
+    thr = max(config.min_visible, 1e-12)
+    counts = np.bincount(ck, minlength=F)
+    starts = np.concatenate([[0], np.cumsum(counts)[:-1]])
+    slot = np.arange(len(ck)) - starts[ck]
+    width = int(counts.max()) if len(counts) else 0
+    packed_b = np.full((F, width, 4), np.nan)
+    packed_d = np.full((F, width), np.inf)
+    packed_b[ck, slot] = cb
+    packed_d[ck, slot] = depth
+    vis = visible_fractions_batch(packed_b, packed_d, cam.image_size)[ck, slot]
+    gt = inimg * vis >= thr
+    gk, gids, gboxes = ck[gt], traj.ids[ci[gt]], cb[gt]
+    edges = np.searchsorted(gk, np.arange(F + 1))
+    per_frame = detect_frames(cam, ck, traj.ids[ci], cb, vis, F, config.detector, appearance, rng)
+    for k, (dets, ids) in enumerate(per_frame):
+        f = frames[k]
+        f.boxes[c] = (gids[edges[k]:edges[k + 1]], gboxes[edges[k]:edges[k + 1]])
+        f.detections[c] = dets
+        f.detection_truth[c] = ids
