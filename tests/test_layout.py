@@ -129,3 +129,20 @@ def test_bad_layouts_are_named_errors():
         open_scenario("corridor-0")
     with pytest.raises(LayoutError):
         LayoutParams(kind="ring")
+
+
+def test_a_fault_plan_is_checked_against_the_layout_network(tmp_path):
+    """``--topology layout --faults``: the plan's nodes and links are the layout's lattice (a
+    grid has no named topology), so a link of the lattice is accepted and a non-link refused."""
+    from edge_node.faults import FaultPlanError
+    from sim_cluster.experiments.run import load_faults
+
+    data = open_scenario("grid-4", seed=0, frames=50).materialise()
+    assert data.neighbours == lattice(2, 2)
+    ok = tmp_path / "ok.toml"
+    ok.write_text('[[link]]\nsrc = 0\ndst = 1\nloss = 0.5\n')
+    assert not load_faults(ok, data, "layout").empty
+    bad = tmp_path / "bad.toml"
+    bad.write_text('[[link]]\nsrc = 0\ndst = 3\nloss = 0.5\n')  # diagonal: not a lattice link
+    with pytest.raises(FaultPlanError):
+        load_faults(bad, data, "layout")

@@ -55,8 +55,18 @@ def load_faults(path: str | Path | None, data: ScenarioData, topology: str,
             raise FaultPlanError(str(path), None, "the centralized topology has no links or "
                                  "camera nodes to fault: pick another topology or drop --faults")
         return plan
-    adj = topo.build(topology, data.num_cameras, order)
-    return FaultPlan.load(path, Network(adj, data.frames))
+    return FaultPlan.load(path, Network(adjacency(data, topology, order), data.frames))
+
+
+def adjacency(data: ScenarioData, topology: str, order=None):
+    """The network ``topology`` names on ``data``'s cameras: a name (``topology.NAMES``),
+    ``centralized``, ``layout`` (the scenario's own neighbour graph) or an edge-list file."""
+    if topology == LAYOUT:  # the scenario's own neighbour graph (a generated layout's lattice)
+        if data.neighbours is None:
+            raise topo.TopologyError(f"scenario {data.name} has no layout: topology 'layout' is "
+                                     "for corridor-<N> / grid-<N>")
+        return data.neighbours
+    return CENTRALIZED if topology == CENTRALIZED else topo.build(topology, data.num_cameras, order)
 
 
 def run_once(data: ScenarioData, topology: str, cfg: TrackerConfig, *, order=None,
@@ -68,14 +78,7 @@ def run_once(data: ScenarioData, topology: str, cfg: TrackerConfig, *, order=Non
     ``topology`` is a name (``topology.NAMES``), ``centralized``, ``layout`` (the scenario's
     own neighbour graph) or an edge-list file; ``order``
     the camera ordering of a ring or chain."""
-    if topology == LAYOUT:  # the scenario's own neighbour graph (a generated layout's lattice)
-        if data.neighbours is None:
-            raise topo.TopologyError(f"scenario {data.name} has no layout: topology 'layout' is "
-                                     "for corridor-<N> / grid-<N>")
-        adj = data.neighbours
-    else:
-        adj = CENTRALIZED if topology == CENTRALIZED else topo.build(topology, data.num_cameras,
-                                                                     order)
+    adj = adjacency(data, topology, order)
     update, close = progress_bar(f"{data.name} {topology}", data.frames, show_progress)
     try:
         result = run_network(data, adj, cfg, topology_name=Path(topology).stem
