@@ -5,14 +5,14 @@ from __future__ import annotations
 from pathlib import Path
 
 from sim_cluster.scenarios.detfiles import export_detections
-from sim_cluster.scenarios.files import list_presets
+from sim_cluster.scenarios.files import LAYOUT_PRESETS, list_presets
 from sim_cluster.scenarios.loader import scenario_from_args
 from sim_cluster.scenarios.synthetic.render import render_scenario
 
 
 def scenarios(args) -> int:
     for name in list_presets():
-        print(name)
+        print(f"{name}  (also {name}-<N>: N cameras)" if name in LAYOUT_PRESETS else name)
     return 0
 
 

@@ -52,7 +52,8 @@ def resolve_scenario_path(name_or_path: str | Path) -> Path:
 
 
 #: ``corridor-64``, ``grid-256``: a layout preset with its number of cameras
-_PARAMETRIC = re.compile(r"(corridor|grid)-(\d+)")
+LAYOUT_PRESETS = ("corridor", "grid")  # presets that take a camera count: corridor-<N>, grid-<N>
+_PARAMETRIC = re.compile(rf"({'|'.join(LAYOUT_PRESETS)})-(\d+)")
 
 
 def parametric_layout(name: str | Path) -> tuple[str, int] | None:
