@@ -258,6 +258,10 @@ def build_parser() -> argparse.ArgumentParser:
     b.add_argument("--cameras", type=integers(1), default=None,
                    help="scale sweep: comma-separated camera counts, e.g. 4,16,64 (scenarios "
                         "<layout>-<N>, 6.25 people per camera, the layout's neighbour graph)")
+    b.add_argument("--scope", type=integers(0), default=None,
+                   help="--cameras: regional scope hop limits to sweep, e.g. 0,1,2 (one row per "
+                        "cameras x scope; 0 = every node holds every tracker; default: the "
+                        "tracker config's scope_hops)")
     b.add_argument("--layout", default="corridor", choices=("corridor", "grid"),
                    help="--cameras: cameras in a line or on a square lattice (N a square)")
     b.add_argument("--seed", type=integer(0), default=0, help="--cameras: the scenario seed")
