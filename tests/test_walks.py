@@ -66,4 +66,4 @@ def test_scale_sweep_writes_its_table(tmp_path, capsys):
     assert row["cameras"] == 4 and row["frames"] == 20 and row["trackers_max"] >= 1
     assert row["bytes_per_node_frame"] > 0 and 0 < row["cpu_ms_median"]
     assert set(row["per_node"]["ground"]) == {"0", "1", "2", "3"}
-    assert (tmp_path / "scale.csv").read_text().startswith("cameras,frames,")
+    assert (tmp_path / "scale.csv").read_text().startswith("cameras,scope,frames,")
