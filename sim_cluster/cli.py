@@ -2,7 +2,7 @@
 and as real processes on loopback.
 
     sim_cluster run --scenario terrace-sim --topology ring --config dkf+lda+dtm --seed 0 --out DIR
-    sim_cluster bench [--cameras 4,16,64 --layout corridor]
+    sim_cluster bench [--cameras 4,16,64 --scope 0,1,2 --layout corridor]
     sim_cluster scenarios
     sim_cluster export-detections --scenario terrace-sim --out DIR
     sim_cluster up --topology chain [--detach]; status | kill N | restart N | down
