@@ -88,3 +88,27 @@ def test_without_scope_every_node_holds_every_tracker():
 
 def test_scope_zero_is_the_default():
     assert TrackerConfig().scope_hops == 0
+
+
+def test_a_tracker_sent_again_carries_its_appearance():
+    """Under scope a node's message stops carrying a tracker when the target moves away and
+    carries it again when it comes back; receivers that first hear of it then must get its
+    appearance. corridor-4, scope 2: every tracker any node holds, in every frame, has a gallery
+    (as without scope), and no node starts more trackers than without scope (before the fix:
+    11 adoptions without appearance, whose co-motion merges joined different people, and
+    42-48 births on the middle nodes against 6-7)."""
+    from sim_cluster.network.inprocess import run_network
+    from sim_cluster.scenarios.loader import load_scenario
+
+    data = load_scenario("corridor-4", seed=0, frames=200)
+    empty = []
+
+    def probe(k, i, cpu, node):
+        empty.extend((k, i, t) for t, tr in node.trackers.items() if not len(tr.gallery))
+
+    births = {}
+    for scope in (0, 2):
+        r = run_network(data, data.neighbours, TrackerConfig(scope_hops=scope), probe=probe)
+        births[scope] = {i: s.births for i, s in r.stats.items()}
+    assert empty == []
+    assert all(births[2][i] <= births[0][i] + 2 for i in births[0]), births

@@ -299,8 +299,16 @@ class CameraNode:
     def _message(self, k: int) -> FrameMessage:
         """This frame's message ``(ID, x_bar, u, U, ell)`` per tracker it sends (paper III-D),
         the appearance of the trackers new to this sender, and the merge announcements; built
-        as one ``TrackerBlock`` (no per-tracker objects)."""
-        trs = [tr for _, tr in sorted(self.trackers.items()) if self._sends(tr)]
+        as one ``TrackerBlock`` (no per-tracker objects). Under regional scope a tracker this
+        frame does not carry is announced again when a later one does: the nodes that receive
+        it then may never have heard of it (without this, scope 2 on corridor-4 adopted 11
+        trackers without appearance, and their co-motion merges joined different people)."""
+        trs = []
+        for _, tr in sorted(self.trackers.items()):
+            if self._sends(tr):
+                trs.append(tr)
+            else:
+                tr.announced = False
         apps = []
         for row, tr in enumerate(trs):
             if not tr.announced and len(tr.gallery):
