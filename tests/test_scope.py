@@ -90,13 +90,13 @@ def test_scope_zero_is_the_default():
     assert TrackerConfig().scope_hops == 0
 
 
-def test_a_tracker_sent_again_carries_its_appearance():
-    """Under scope a node's message stops carrying a tracker when the target moves away and
-    carries it again when it comes back; receivers that first hear of it then must get its
-    appearance. corridor-4, scope 2: every tracker any node holds, in every frame, has a gallery
-    (as without scope), and no node starts more trackers than without scope (before the fix:
-    11 adoptions without appearance, whose co-motion merges joined different people, and
-    42-48 births on the middle nodes against 6-7)."""
+def test_a_tracker_adopted_late_has_its_appearance():
+    """A sender attaches a tracker's appearance to its first entry only; under scope a receiver
+    may refuse that entry (beyond its scope) and adopt the tracker later, when the target came
+    closer. corridor-4, scope 2: every tracker any node holds, in every frame, has a gallery (as
+    without scope), and no node starts more trackers than without scope (before the fix: 11
+    adoptions without appearance, whose co-motion merges joined different people, and 42-48
+    births on the middle nodes against 6-7)."""
     from sim_cluster.network.inprocess import run_network
     from sim_cluster.scenarios.loader import load_scenario
 

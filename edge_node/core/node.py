@@ -299,16 +299,8 @@ class CameraNode:
     def _message(self, k: int) -> FrameMessage:
         """This frame's message ``(ID, x_bar, u, U, ell)`` per tracker it sends (paper III-D),
         the appearance of the trackers new to this sender, and the merge announcements; built
-        as one ``TrackerBlock`` (no per-tracker objects). Under regional scope a tracker this
-        frame does not carry is announced again when a later one does: the nodes that receive
-        it then may never have heard of it (without this, scope 2 on corridor-4 adopted 11
-        trackers without appearance, and their co-motion merges joined different people)."""
-        trs = []
-        for _, tr in sorted(self.trackers.items()):
-            if self._sends(tr):
-                trs.append(tr)
-            else:
-                tr.announced = False
+        as one ``TrackerBlock`` (no per-tracker objects)."""
+        trs = [tr for _, tr in sorted(self.trackers.items()) if self._sends(tr)]
         apps = []
         for row, tr in enumerate(trs):
             if not tr.announced and len(tr.gallery):
@@ -511,7 +503,16 @@ class CameraNode:
         if ell > self.cfg.kappa or not self.manager.may_adopt(tid, self.book.dropped):
             return
         if self.cfg.scope_hops and ell >= self.cfg.scope_hops:
-            return  # beyond this node's scope (a neighbour's memory of an entry it stopped sending)
+            # Beyond this node's scope: not held. Its appearance, sent once with the first entry
+            # of a sender, is kept with the dropped trackers' galleries, so that a later
+            # adoption (the target came closer) has it. (Without this, scope 2 on corridor-4
+            # adopted 11 trackers without appearance, whose co-motion merges joined different
+            # people, and the middle nodes started 42-48 trackers instead of 6-7.)
+            if self.manager.keeps_galleries and tid not in self.book.old:
+                heard = self._gallery(infos, Gallery(self.cfg.gallery_size, self.cfg.gallery_every))
+                if len(heard):
+                    self.book.retire(tid, heard, True)
+            return
         src = infos[0]  # messages are sorted by sender: deterministic choice
         gallery = Gallery(self.cfg.gallery_size, self.cfg.gallery_every)
         if tid in self.book.old:
@@ -519,17 +520,22 @@ class CameraNode:
             self.stats.reactivated += 1
         else:
             self.stats.adopted += 1
-        for t in infos:
-            for d in (t.appearance if t.appearance is not None else ()):
-                d = self.associate.descriptor(d)
-                if d is not None:
-                    gallery.add(d)
+        gallery = self._gallery(infos, gallery)
         born = self.book.note_born(tid, src.born)
         tr = Tracker(tid, np.array(src.x_bar, float), self.P_birth.copy(), gallery, born=born,
                      since=k)
         tr.local.ell_sent = ell
         tr.local.x_bar_sent = tr.x_bar
         self.trackers[tid] = tr
+
+    def _gallery(self, infos: list[TrackerInfo], gallery: Gallery) -> Gallery:
+        """``gallery`` with the descriptors the neighbours' entries carry."""
+        for t in infos:
+            for d in (t.appearance if t.appearance is not None else ()):
+                d = self.associate.descriptor(d)
+                if d is not None:
+                    gallery.add(d)
+        return gallery
 
     def _merge(self, loser: TrackerId, winner: TrackerId, winner_born: int | None = None) -> None:
         """Apply ``loser -> winner`` here and announce it (so it propagates hop by hop)."""

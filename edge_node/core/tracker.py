@@ -56,7 +56,7 @@ class Tracker:
     coast: int = 0  # consecutive frames ell grew: nobody in the network saw the target
     born: int = 0  # frame its originating camera created it (same on every node)
     since: int = 0  # frame it appeared on this node
-    announced: bool = False  # appearance sent by this node, in every message since
+    announced: bool = False  # appearance already sent by this node
     x_hat: np.ndarray | None = None  # estimate of the last update (eq. 4)
     M: np.ndarray | None = None  # its covariance
     local: LocalInfo = field(default_factory=LocalInfo)
