@@ -288,6 +288,9 @@ def build_parser() -> argparse.ArgumentParser:
     bc.add_argument("--startup-timeout", type=number(0, above=True), default=60.0)
     bc.add_argument("--fps", default="0", help="comma-separated pacings, frames/s per node; "
                     "0 = unpaced (default 0; e.g. 0,25)")
+    bc.add_argument("--scope", type=integer(0), default=0,
+                    help="the nodes' scope_hops (regional scope; default 0: every node holds "
+                         "every tracker)")
     bc.add_argument("--out", default="runs/bench-cluster")
     bc.set_defaults(func=bench_cluster.main)
 

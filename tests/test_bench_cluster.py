@@ -110,3 +110,20 @@ def test_ring8_preset_loads():
     assert max(people) == 12 and sum(people) / len(people) > 10
     for c in range(8):  # every camera sees most of the plaza's people
         assert sum(len(s.truth.boxes[c][k][0]) for k in range(s.frames)) / s.frames > 7
+
+
+def test_scope_reaches_every_node_config(tmp_path):
+    """``bench-cluster --scope 1``: each node's config sets ``scope_hops`` beside the ablation,
+    and the node reads it back (the configs are written, then loaded as a node loads them)."""
+    from edge_node.runtime.config import load_node_config
+    from sim_cluster.cluster.launcher import Cluster
+
+    c = Cluster.create(tmp_path, network="scope", scenario="lab-sim", seed=0, frames=10,
+                       mode="sync", topology="chain", nodes=3)
+    c.write_configs(config="dkf+lda+dtm", sync_timeout_s=1.0, startup_timeout_s=5.0,
+                    tracker={"scope_hops": 1})
+    cfgs = [load_node_config(c.state.nodes[str(i)].config) for i in range(3)]
+    assert [n.tracker.scope_hops for n in cfgs] == [1, 1, 1]
+    assert all(n.ablation == "dkf+lda+dtm" for n in cfgs)
+    c.write_configs(config="dkf+lda+dtm", sync_timeout_s=1.0, startup_timeout_s=5.0)
+    assert load_node_config(c.state.nodes["0"].config).tracker.scope_hops == 0

@@ -22,10 +22,11 @@ def _toml_str(v: str) -> str:
 def node_config(i: int, state: ClusterState, ports: dict[int, int], *, config: str,
                 sync_timeout_s: float, startup_timeout_s: float, fps: float = 0.0,
                 faults: Path | None = None, source_toml: str | None = None,
-                connect_first: Sequence[str] = ()) -> str:
+                connect_first: Sequence[str] = (), tracker: dict | None = None) -> str:
     """The TOML of node ``i`` (schema: ``edge_node/runtime/config.py``). ``source_toml``: its
     ``[source]`` body and further tables (frames rendered for its camera), instead of the
-    scenario; ``connect_first``: endpoints connected before the neighbours' (a monitor)."""
+    scenario; ``connect_first``: endpoints connected before the neighbours' (a monitor);
+    ``tracker``: ``TrackerConfig`` fields set beside the ablation (e.g. ``scope_hops``)."""
     neighbours = state.adjacency[str(i)]
     listen = [f"tcp/127.0.0.1:{ports[i]}"]
     connect = [*connect_first, *(f"tcp/127.0.0.1:{ports[j]}" for j in neighbours)]
@@ -66,7 +67,8 @@ def node_config(i: int, state: ClusterState, ports: dict[int, int], *, config: s
             lines.append(f"data_root = {_toml_str(state.data_root)}")
     if faults is not None:
         lines += ["", "[faults]", f"file = {_toml_str(str(faults))}"]
-    lines += ["", "[tracker]", f"ablation = {_toml_str(config)}", "", "[output]",
+    lines += ["", "[tracker]", f"ablation = {_toml_str(config)}",
+              *(f"{k} = {json.dumps(v)}" for k, v in sorted((tracker or {}).items())), "", "[output]",
               f"dir = {_toml_str(str(Path(state.out) / 'nodes'))}", "status_interval_s = 0.5", ""]
     return "\n".join(lines)
 

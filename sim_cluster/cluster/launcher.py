@@ -105,10 +105,12 @@ class Cluster:
                      sources: dict[int, str] | None = None,
                      extra: Callable[[int], str] | None = None,
                      connect_first: Sequence[str] = (),
-                     ports: Sequence[int] | None = None) -> dict[int, str]:
+                     ports: Sequence[int] | None = None,
+                     tracker: dict | None = None) -> dict[int, str]:
         """Every node's config (``configs.node_config``) on free ports (or ``ports``): the
         tracker ``config``, timeouts, pacing, a fault plan, per-node ``sources`` (rendered
-        video), ``extra`` tables per node (Rerun) and endpoints ``connect_first``. Each is
+        video), ``extra`` tables per node (Rerun), endpoints ``connect_first`` and ``tracker``
+        fields beside the ablation (``scope_hops``). Each is
         checked as its node will check it (``NodeConfigError``); nothing is written
         (:meth:`write_configs`). Returns the TOML texts by node."""
         ports_of = dict(enumerate(ports if ports is not None else free_ports(self.size)))
@@ -119,7 +121,8 @@ class Cluster:
             texts[i] = (node_config(i, self.state, ports_of, config=config,
                                     sync_timeout_s=sync_timeout_s,
                                     startup_timeout_s=startup_timeout_s, fps=fps, faults=faults,
-                                    source_toml=sources.get(i), connect_first=connect_first)
+                                    source_toml=sources.get(i), connect_first=connect_first,
+                                    tracker=tracker)
                         + (extra(i) if extra is not None else ""))
             parse_node_config(tomllib.loads(texts[i]), cfg)
             self.state.nodes[str(i)] = NodeProc(i, str(cfg), str(self.out / "logs" / f"node{i}.log"),
