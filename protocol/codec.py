@@ -19,7 +19,9 @@ Layout, schema version 2: a msgpack header with every tracker's numbers in one b
 ``n`` is the number of trackers and ``m`` the number of set bits. ``widths`` holds each integer
 column's byte width as a 2-bit code (``2**code`` bytes), camera in bits 0-1, counter 2-3, born
 4-5, ell 6-7; the encoder picks the narrowest width that holds the column's largest value, and
-the decoder accepts only that, so each message has exactly one encoding. ``version``,
+the decoder accepts only that, so the tracker block has exactly one encoding (the msgpack
+header is not checked for its canonical form: a peer may pack a small int wider or
+``sent_at`` as float32, and ``encode(decode(b))`` is then shorter than ``b``). ``version``,
 ``sender``, ``frame``, ``n``, the ids, ``born``, ``ell``, ``m`` and ``D`` are non-negative
 integers (at most ``2**63 - 1``); ``sent_at`` is a float64; ``network`` a UTF-8 string that is
 a valid key chunk (see ``protocol.keys``). A tracker whose ``u`` and ``U`` are all zero (no local

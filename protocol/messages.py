@@ -295,7 +295,8 @@ class FrameMessage:
         if trackers is not None and block is not None:
             raise TypeError("give trackers or block, not both")
         if trackers is not None or block is not None:  # (replace() passes _block/_infos too)
-            _block, _infos = block, trackers
+            # a tuple: a caller's list appended to later would leave a cached block stale
+            _block, _infos = block, (tuple(trackers) if isinstance(trackers, list) else trackers)
         elif _block is None and _infos is None:
             _block = _EMPTY
         d = self.__dict__

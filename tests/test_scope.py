@@ -112,3 +112,10 @@ def test_a_tracker_adopted_late_has_its_appearance():
         births[scope] = {i: s.births for i, s in r.stats.items()}
     assert empty == []
     assert all(births[2][i] <= births[0][i] + 2 for i in births[0]), births
+
+
+def test_scope_without_the_manager_is_a_named_error():
+    """Without the DTM's ell consensus each camera counts on its own: ell is no distance."""
+    from edge_node.core.config import ConfigError
+    with pytest.raises(ConfigError, match="scope_hops"):
+        TrackerConfig(scope_hops=1, use_manager=False)

@@ -277,3 +277,18 @@ def test_duplicated_messages_count_once_in_process_as_over_zenoh(mode):
         assert runs[0].stats[i].duplicate_messages == 0
     sent = runs[1].wire.messages  # (message, link) pairs, each delivered twice
     assert sum(s.duplicate_messages for s in runs[1].stats.values()) == sent
+
+
+def test_information_on_one_ground_direction_only_does_not_stop_registration():
+    """A neighbour's ``U`` may be positive semi-definite with a singular ground block (it
+    measured ``x`` only): the screen takes it, and online registration, which needs the others'
+    position in both directions (``U_o^-1``), skips that residual instead of failing the frame
+    (before: ``LinAlgError`` out of ``update``)."""
+    def hostile(m):
+        return replace(m, trackers=tuple(
+            replace(t, U=np.diag([1.0, 0, 0, 0, 0, 0]), u=np.array([t.x_bar[0], 0, 0, 0, 0, 0]))
+            if t.id == (0, 0) else t for t in m.trackers))
+    (_, clean), (attacked, got) = compare(hostile)
+    assert attacked.stats.rejected == {}  # meaningful information: the screen keeps it
+    assert attacked.registrations  # registration is on
+    assert [[t.id for t in f] for f in got] == [[t.id for t in f] for f in clean]

@@ -119,6 +119,9 @@ class TrackerConfig:
 
     def __post_init__(self) -> None:
         check(self, "tracker")
+        if self.scope_hops and not self.use_manager:
+            raise ConfigError("tracker.scope_hops", "regional scope needs the DTM (use_manager): "
+                              "without the ell consensus, ell does not measure hops")
         if self.init_observations > self.gallery_size:
             raise ConfigError("tracker.init_observations", "must not exceed tracker.gallery_size")
 

@@ -492,9 +492,17 @@ class CameraNode:
         for cam_id in sorted(self.registrations):
             raws, us, Us = rows[cam_id]
             if raws:
-                V_o = np.linalg.inv(np.array(Us))
-                z_o = (V_o @ np.array(us)[..., None])[..., 0]
-                self.registrations[cam_id].observe_many(raws, z_o, V_o)
+                U_o = np.array(Us)
+                # only where the others measured the ground position in both directions: a
+                # neighbour's U may honestly be PSD with a singular position block (one
+                # direction only), and z_o needs U_o^-1 (a wire-valid entry like that crashed
+                # update before)
+                det = U_o[:, 0, 0] * U_o[:, 1, 1] - U_o[:, 0, 1] * U_o[:, 1, 0]
+                ok = np.flatnonzero(det > 1e-9 * (U_o[:, 0, 0] + U_o[:, 1, 1]) ** 2)
+                if len(ok):
+                    V_o = np.linalg.inv(U_o[ok])
+                    z_o = (V_o @ np.array(us)[ok][..., None])[..., 0]
+                    self.registrations[cam_id].observe_many([raws[i] for i in ok], z_o, V_o)
             self.registrations[cam_id].end_frame()
 
     def _adopt(self, k: int, tid: TrackerId, infos: list[TrackerInfo]) -> None:
@@ -511,6 +519,7 @@ class CameraNode:
             if self.manager.keeps_galleries and tid not in self.book.old:
                 heard = self._gallery(infos, Gallery(self.cfg.gallery_size, self.cfg.gallery_every))
                 if len(heard):
+                    self.book.note_born(tid, infos[0].born)  # its rank, should it be re-found here
                     self.book.retire(tid, heard, True)
             return
         src = infos[0]  # messages are sorted by sender: deterministic choice

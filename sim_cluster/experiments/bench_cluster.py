@@ -52,6 +52,7 @@ Figures vary with the machine and its load; quote medians over repeats.
 from __future__ import annotations
 
 import json
+import math
 import os
 import statistics
 import time
@@ -293,7 +294,7 @@ def bench(node_counts: list[int], frames: int, repeats: int, topology: str, out:
             for r in range(repeats):
                 t0 = time.time()
                 fig = run_cluster(scenario, n, frames, out / f"n{key}" / f"r{r}", topology=topology,
-                                  seed=seed, config=config, network=f"bench{n}p{int(fps)}r{r}",
+                                  seed=seed, config=config, network=f"bench{n}p{fps:g}r{r}".replace(".", "_"),
                                   sync_timeout_s=sync_timeout_s,
                                   startup_timeout_s=startup_timeout_s, data_root=data_root, fps=fps,
                                   scope=scope)
@@ -379,8 +380,10 @@ def main(args) -> int:
         pacing = tuple(float(x) for x in str(args.fps).split(",") if x.strip())
     except ValueError:
         raise ClusterError(f"--fps {args.fps!r}: give frame rates like 0,25 (0: unpaced)") from None
-    if not pacing or any(f < 0 for f in pacing):
-        raise ClusterError(f"--fps {args.fps!r}: give frame rates >= 0 like 0,25 (0: unpaced)")
+    if not pacing or any(not (math.isfinite(f) and f >= 0) for f in pacing) \
+            or len(set(pacing)) != len(pacing):
+        raise ClusterError(f"--fps {args.fps!r}: give distinct frame rates >= 0 like 0,25 (0: "
+                           "unpaced)")
     result = bench(counts, args.frames, args.repeats, args.topology, out, scenario=args.scenario,
                    seed=args.seed, sync_timeout_s=args.sync_timeout,
                    startup_timeout_s=args.startup_timeout, pacing=pacing,
