@@ -30,11 +30,6 @@ def apply_homography(Hm: np.ndarray, pts: np.ndarray) -> np.ndarray:
     return q[:, :2] / q[:, 2:3]
 
 
-def homography_jacobian(Hm: np.ndarray, p: np.ndarray) -> np.ndarray:
-    """``d(H p)/dp`` at the image point ``p`` (2x2), for propagating pixel noise to the ground."""
-    return homography_jacobians(Hm, np.asarray(p, float)[None])[0]
-
-
 def homography_jacobians(Hm: np.ndarray, pts: np.ndarray) -> np.ndarray:
     """``d(H p)/dp`` at each of ``(n, 2)`` image points: ``(n, 2, 2)``, all in one pass.
 

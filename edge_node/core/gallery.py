@@ -105,8 +105,8 @@ class Gallery:
         queries = np.atleast_2d(queries)
         if not self._n or queries.size == 0:
             return np.full(len(queries), np.nan)
-        Q = queries / np.maximum(np.linalg.norm(queries, axis=1, keepdims=True), 1e-12)
-        return 1.0 - (Q @ self.matrix().T).max(axis=1)
+        return self.unit_distances(
+            queries / np.maximum(np.linalg.norm(queries, axis=1, keepdims=True), 1e-12))
 
     def unit_distances(self, units: np.ndarray) -> np.ndarray:
         """:meth:`distances` of queries already scaled to unit length ``(n, D)``."""

@@ -622,10 +622,6 @@ class CameraNode:
         if obs.raw is not None:
             tr.saw(cam_id, k, obs.raw.size, self.cfg.view_rate)
 
-    def view(self, tr: Tracker) -> dict[int, np.ndarray]:
-        """The tracker in this node's own image(s) (see :meth:`views`)."""
-        return self.views([tr])[0]
-
     def views(self, trackers: Sequence[Tracker]) -> list[dict[int, np.ndarray]]:
         """Each tracker in this node's own image(s): for every camera that measured it within
         ``view_frames``, the estimate's ground point mapped back through the camera's own

@@ -135,13 +135,8 @@ class Registration:
         A[:, :, 4] = away
         return A
 
-    def correct(self, m: BoxMeasurement) -> tuple[np.ndarray, np.ndarray]:
-        """R5: the corrected ``(z, R)`` of a box measurement."""
-        z, R = self.corrects([m])
-        return z[0], R[0]
-
     def corrects(self, ms: list[BoxMeasurement]) -> tuple[np.ndarray, np.ndarray]:
-        """R5 for many box measurements at once: ``z`` ``(n, 4)`` and ``R`` ``(n, 4, 4)``."""
+        """R5: the corrected ``z`` ``(n, 4)`` and ``R`` ``(n, 4, 4)`` of box measurements."""
         z = np.array([m.z for m in ms])
         R = np.array([m.R for m in ms])
         A = self.bases(z[:, :2], np.array([m.away for m in ms]))
@@ -154,14 +149,10 @@ class Registration:
         R[:, :2, :2] += np.eye(2) * self.noise_var + C
         return z, R
 
-    def to_camera(self, xy: np.ndarray) -> np.ndarray:
-        """The foot point this camera would measure for a target at corrected ground point
-        ``xy`` (R1 inverted by fixed-point iteration): where its own box's bottom edge lies."""
-        return self.to_camera_many(np.asarray(xy, float)[None])[0]
-
     def to_camera_many(self, xy: np.ndarray) -> np.ndarray:
-        """:meth:`to_camera` of ``(n, 2)`` ground points at once; a point whose iterate leaves
-        the image's half-plane keeps that iterate."""
+        """The foot points this camera would measure for targets at corrected ground points
+        ``xy (n, 2)`` (R1 inverted by fixed-point iteration): where its own boxes' bottom edges
+        lie. A point whose iterate leaves the image's half-plane keeps that iterate."""
         g = np.array(xy, float)
         live = np.ones(len(g), bool)
         with np.errstate(invalid="ignore", divide="ignore", over="ignore"):
