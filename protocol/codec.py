@@ -4,7 +4,7 @@ What goes on the wire is the paper's per-frame message (Casao et al., ICRA 2021,
 for every active tracker ``(ID_i, x_bar_i, u_i, U_i, ell_i)``, plus the appearance model (the
 gallery descriptors) only for a tracker that is new to the sender, plus merge announcements.
 
-Layout, schema version 2: a msgpack header with every tracker's numbers in one binary block::
+Layout, schema version 3: a msgpack header with every tracker's numbers in one binary block::
 
     message    = [version, network, sender, frame, sent_at, n, widths, merges, appearances, block]
     merge      = [loser_camera, loser_counter, winner_camera, winner_counter, winner_born]
@@ -13,35 +13,58 @@ Layout, schema version 2: a msgpack header with every tracker's numbers in one b
         camera  (n)  counter (n)  born (n)  ell (n)      unsigned ints of 1, 2, 4 or 8 bytes
         measured     ceil(n / 8) bytes, bit i (LSB first) set when row i carries u, U
         x_bar        (n, 6) float32
-        u, triu(U)   (m, 6 + 21) float32, the measured rows in row order (row-major upper triangle)
-        descriptors  (m_j, D_j) float16 per appearance entry, in order, row-major
+        scale        (m,) float32                        s, per measured row
+        measurement  (m, 10 + 4) float16                 tril(L / s) row-major, then w
+        per appearance entry: (m_j,) float32 scales, then (m_j, D_j) int8 descriptors
 
 ``n`` is the number of trackers and ``m`` the number of set bits. ``widths`` holds each integer
 column's byte width as a 2-bit code (``2**code`` bytes), camera in bits 0-1, counter 2-3, born
 4-5, ell 6-7; the encoder picks the narrowest width that holds the column's largest value, and
-the decoder accepts only that, so the tracker block has exactly one encoding (the msgpack
-header is not checked for its canonical form: a peer may pack a small int wider or
-``sent_at`` as float32, and ``encode(decode(b))`` is then shorter than ``b``). ``version``,
-``sender``, ``frame``, ``n``, the ids, ``born``, ``ell``, ``m`` and ``D`` are non-negative
-integers (at most ``2**63 - 1``); ``sent_at`` is a float64; ``network`` a UTF-8 string that is
-a valid key chunk (see ``protocol.keys``). A tracker whose ``u`` and ``U`` are all zero (no local
-measurement this frame) sends ``x_bar`` alone: 24 instead of 132 bytes of numbers.
+the decoder accepts only that. ``version``, ``sender``, ``frame``, ``n``, the ids, ``born``,
+``ell``, ``m`` and ``D`` are non-negative integers (at most ``2**63 - 1``); ``sent_at`` is a
+float64; ``network`` a UTF-8 string that is a valid key chunk (see ``protocol.keys``).
+
+What a measurement carries (eq. 2): ``H`` picks ``(x, y, w, h)``, so ``u = H^T R^-1 z`` and
+``U = H^T R^-1 H`` are zero outside their first 4 rows and columns (13 of the 27 numbers of
+``u, triu(U)`` always zero). The wire sends the 14 that are not, in a form that is exact in
+structure and whose float16 rounding is bounded in units of the measurement's own noise:
+
+* ``R^-1 = U_zz = L L^T`` (Cholesky): ``s`` = the largest diagonal element of ``L`` (float32)
+  and the 10 numbers of ``tril(L / s)`` (float16, each within a relative 2**-11, or 2**-25
+  absolute below float16's normal range). The receiver's ``U~ = L~ L~^T``, ``L~ = s tril~``,
+  is positive definite by construction; its standard deviations are those sent to about 0.05 %.
+* ``w = L~^T (z - H x_bar)``, ``z = U_zz^-1 u_z``: the innovation against the sent ``x_bar``,
+  whitened by the factor the receiver rebuilds (float16). The receiver's
+  ``z~ = H x_bar + L~^-T w~`` then misses ``z`` by ``e`` with ``e^T U~ e = |w~ - w|^2 <=
+  2**-22 |w|^2``: **the error, in standard deviations of the measurement noise, is at most
+  2**-11 (0.05 %) of the innovation's own length in those units** (an innovation of 10 sigma
+  arrives within 0.005 sigma). ``u~ = U~ z~ = U~ H x_bar + L~ w~``.
+
+A tracker whose ``u`` and ``U`` are all zero (no local measurement this frame) sends ``x_bar``
+alone. A ``u, U`` outside that form (information on velocity, ``U_zz`` not positive definite)
+is not a camera measurement and is refused (``"malformed"``); an innovation beyond float16's
+range (65504 standard deviations) is ``"non_finite"``.
+
+Descriptors travel as int8 with a float32 scale each (``a ~ q * s``, ``s = max |a| / 127``):
+a cosine distance moves by 2e-4 (median) to 1.6e-3 (largest seen) against float64, and re-id
+rank-1 on the synthetic appearance model is unchanged (tests/test_protocol.py measures both).
 
 The decoder reads each section with one ``numpy.frombuffer`` and validates every rule over the
-whole block at once (finite numbers, widths, unique ids), so its cost hardly grows per tracker.
-Version 1 (one msgpack array per tracker) is refused with reason ``"version"``.
+whole block at once (finite numbers, positive factors, widths, unique ids), so its cost hardly
+grows per tracker. Versions 1 and 2 are refused with reason ``"version"``.
 
 Measured sizes (tests/test_protocol.py): per tracker 4-6 bytes of ids, birth frame and ``ell``
-(1 byte each below 256, 2 below 65536), 1 bit of the measured mask, 24 bytes of ``x_bar``
-and 108 of ``u, U`` when measured: 136-138 bytes with a measurement, 28-30 without (version 1:
-139-143 and 31-35); 2054 bytes per new tracker's 2 x 512 appearance; about 31 bytes of message
-header. The paper reports 0.78 kB per tracker and 16.38 kB per appearance.
+(1 byte each below 256, 2 below 65536), 1 bit of the measured mask, 24 bytes of ``x_bar``,
+and 32 bytes with a measurement: 60-62 bytes with a measurement, 28-30 without (version 2:
+136-138 and 28-30); 1039 bytes per new tracker's 2 x 512 appearance (version 2: 2054); about
+31 bytes of message header. The paper reports 0.78 kB per tracker and 16.38 kB per appearance.
 
-Quantisation: ``encode`` rounds ``x_bar``, ``u`` and ``U`` to float32 and descriptors to float16;
-only the upper triangle of ``U`` is sent (``U`` is assumed symmetric) and ``decode`` rebuilds it
-symmetric. ``decode`` returns read-only float64 arrays holding exactly the quantised values, so
-``decode(encode(m)) == quantize(m)`` and ``encode(decode(encode(m))) == encode(m)`` byte for byte;
-on an already quantised message the round trip is the identity.
+Quantisation: ``encode`` rounds ``x_bar`` to float32 and the rest as above. ``decode`` returns
+read-only float64 arrays holding exactly what the wire values give, and keeps those wire
+values with the block, so ``decode(encode(m)) == quantize(m)`` and ``encode(decode(b)) == b``
+byte for byte for the tracker block (the msgpack header is not checked for its canonical
+form: a peer may pack a small int wider or ``sent_at`` as float32, and ``encode(decode(b))`` is
+then shorter than ``b``).
 
 ``decode`` is the trust boundary: whatever bytes it is given, it either returns a valid
 ``FrameMessage`` or raises ``ProtocolError`` (never any other exception), with the reason tag
@@ -73,19 +96,21 @@ from protocol.messages import (
 __all__ = ["DEFAULT_LIMITS", "MAX_WIRE_INT", "Limits", "appearance_bytes", "decode", "encode", "quantize"]
 
 _N = STATE_DIM
-_TRIU = np.triu_indices(_N)
-_TRIU_FLAT = _TRIU[0] * _N + _TRIU[1]  # the upper triangle's places in a row-major (6, 6)
-_N_TRIU = len(_TRIU_FLAT)  # 21
-_N_INFO = _N + _N_TRIU  # u, triu(U): 27 numbers of a measured row
-# a row's (u, triu U) -> U flattened, symmetric: U[i, j] = triu[min(i, j), max(i, j)]
-_tri_pos = {(int(i), int(j)): k for k, (i, j) in enumerate(zip(*_TRIU))}
-_SYM = np.array([_N + _tri_pos[min(i, j), max(i, j)] for i in range(_N) for j in range(_N)])
+_Z = 4  # the measured part of the state, (x, y, w, h): rows and columns of U that can be non-zero
+_TRIL = np.tril_indices(_Z)  # a Cholesky factor's lower triangle, row-major: 10 numbers
+_N_TRIL = len(_TRIL[0])
+_DIAG = np.array([i * (i + 1) // 2 + i for i in range(_Z)])  # the diagonal's places in it
+_N_INFO = _N_TRIL + _Z  # float16 numbers of a measured row: tril(L / s), then w
 _F32 = np.dtype("<f4")
 _F16 = np.dtype("<f2")
+_I8 = np.dtype("i1")
 _INT_DTYPES = (np.dtype("<u1"), np.dtype("<u2"), np.dtype("<u4"), np.dtype("<i8"))
 _INT_LIMITS = (0xFF, 0xFFFF, 0xFFFF_FFFF)  # largest value of width codes 0, 1, 2
 _COLUMNS = ("camera", "counter", "born", "ell")
 _MESSAGE_LEN = 10
+_F32_MAX = float(np.finfo(np.float32).max)
+_F16_LIMIT = 65520.0  # the smallest magnitude float16 rounds to inf
+_Q8 = 127  # descriptors travel as int8 in [-127, 127] times a per-descriptor scale
 
 
 @dataclass(frozen=True)
@@ -152,25 +177,55 @@ def _network_ok(network: Any) -> bool:
     return True
 
 
-def _assemble(ints: np.ndarray, floats: np.ndarray, measured: np.ndarray | None, m: int,
-              appearance: tuple[tuple[int, np.ndarray], ...]) -> TrackerBlock:
-    """The block of validated wire values: ``ints`` (4, n) int64, ``floats`` float64 holding
-    ``x_bar`` (n, 6) then the measured rows' ``u, triu(U)`` (m, 27), ``measured`` the rows
-    (``None`` when ``m`` is 0 or ``n``)."""
-    n = ints.shape[1]
-    ints.setflags(write=False)
-    floats.setflags(write=False)
-    x_bar = floats[: _N * n].reshape(n, _N)
-    if m == n:
-        info = floats[_N * n :].reshape(n, _N_INFO)
-    else:
-        info = np.zeros((n, _N_INFO))
-        if m:
-            info[measured] = floats[_N * n :].reshape(m, _N_INFO)
-        info.setflags(write=False)
-    U = info.take(_SYM, axis=1).reshape(n, _N, _N)
-    U.setflags(write=False)
-    return TrackerBlock._trusted(ints[0], ints[1], ints[2], ints[3], x_bar, info[:, :_N], U, appearance)
+@dataclass(frozen=True)
+class _Wire:
+    """A block's values exactly as they travel (validated). Decoded blocks keep theirs, so a
+    relayed or re-encoded message gives the same bytes without recomputing the factors."""
+
+    widths: int
+    ints: np.ndarray  # (4, n) int64: camera, counter, born, ell
+    x_bar: np.ndarray  # (n, 6) float32
+    measured: np.ndarray  # (n,) bool
+    scale: np.ndarray  # (m,) float32: s, the largest diagonal element of L
+    info: np.ndarray  # (m, 14) float16: tril(L / s) row-major, then w = (s L~)^T (z - H x_bar)
+    appearance: tuple[tuple[int, np.ndarray, np.ndarray], ...]  # (row, (m_j,) float32, (m_j, D) int8)
+
+
+def _factor(scale: np.ndarray, tril: np.ndarray) -> np.ndarray:
+    """``L = s * tril`` as (m, 4, 4) float64 lower-triangular matrices (products exact)."""
+    L = np.zeros((len(scale), _Z, _Z))
+    L[:, _TRIL[0], _TRIL[1]] = tril * scale.astype(np.float64)[:, None]
+    return L
+
+
+def _information(w: _Wire) -> tuple[np.ndarray, np.ndarray]:
+    """Eq. 2's ``u, U`` (n, 6) and (n, 6, 6) from the wire: ``U = L L^T`` and
+    ``u = U z = L (L^T H x_bar + w)`` (from ``z = H x_bar + L^-T w``); zero for unmeasured rows.
+    ``einsum`` sums in a fixed order (``U`` exactly symmetric; the same bytes give the same
+    numbers)."""
+    n, m = len(w.measured), len(w.scale)
+    u, U = np.zeros((n, _N)), np.zeros((n, _N, _N))
+    if m:
+        L = _factor(w.scale, w.info[:, :_N_TRIL])
+        U4 = np.einsum("nik,njk->nij", L, L)
+        rows = slice(None) if m == n else np.flatnonzero(w.measured)
+        x = w.x_bar[rows, :_Z].astype(np.float64)
+        U[rows, :_Z, :_Z] = U4
+        u[rows, :_Z] = np.einsum("nij,nj->ni", L, np.einsum("nji,nj->ni", L, x) + w.info[:, _N_TRIL:])
+    return u, U
+
+
+def _assemble(w: _Wire) -> TrackerBlock:
+    """The block a peer reads from wire values ``w`` (read-only float64), keeping ``w``."""
+    u, U = _information(w)
+    x_bar = w.x_bar.astype(np.float64)
+    for a in (w.ints, x_bar, u, U):
+        a.setflags(write=False)
+    apps = tuple((row, _readonly(q.astype(np.float64) * s.astype(np.float64)[:, None]))
+                 for row, s, q in w.appearance)
+    block = TrackerBlock._trusted(w.ints[0], w.ints[1], w.ints[2], w.ints[3], x_bar, u, U, apps)
+    block.__dict__["_wire"] = w
+    return block
 
 
 def _first(bad: np.ndarray) -> int:
@@ -233,18 +288,6 @@ def _as_id(tid: Any, what: str) -> tuple[int, int]:
     return (as_int(tid[0], f"{what} camera"), as_int(tid[1], f"{what} counter"))
 
 
-@dataclass(frozen=True)
-class _Wire:
-    """A block's validated wire values."""
-
-    widths: int
-    ints: np.ndarray  # (4, n) int64
-    nums: np.ndarray  # (n, 33) float32: x_bar, u, triu(U)
-    measured: np.ndarray  # (n,) bool
-    m: int
-    appearance: tuple[tuple[int, np.ndarray], ...]  # (row, float16 (m, D))
-
-
 def _checked_block(msg: FrameMessage, limits: Limits) -> _Wire:
     """Validate the message's trackers over the whole block at once; quantise them."""
     if msg._infos is not None and not isinstance(msg._infos, (tuple, list)):
@@ -253,42 +296,105 @@ def _checked_block(msg: FrameMessage, limits: Limits) -> _Wire:
     if n > limits.max_trackers:
         raise err("oversize", f"{n} trackers > {limits.max_trackers}")
     b = msg.block
+    cached = b.__dict__.get("_wire")
+    if cached is not None:  # decoded (or quantised) here: its wire values are known and valid
+        for row, _, q in cached.appearance:
+            if q.shape[0] > limits.max_descriptors or q.shape[1] > limits.max_descriptor_dim:
+                raise err("oversize", f"appearance of {_row_id(cached.ints, row)} has shape {q.shape}")
+        return cached
     ints = np.empty((4, n), np.int64)
     for k, name in enumerate(_COLUMNS):
         ints[k] = getattr(b, name)
-    nums = np.empty((n, _N + _N_INFO), _F32)
     with np.errstate(over="ignore", invalid="ignore"):
-        nums[:, :_N] = b.x_bar
-        nums[:, _N : 2 * _N] = b.u
-        nums[:, 2 * _N :] = b.U.reshape(n, _N * _N)[:, _TRIU_FLAT]
-        # float32 values cannot overflow a float64 sum; U's is finite unless an entry is NaN or
-        # inf (or beyond float32's range, which its upper triangle would overflow to anyway)
-        finite = math.isfinite(nums.sum(dtype=np.float64)) and math.isfinite(b.U.sum())
+        x_bar = b.x_bar.astype(_F32)
+        finite = math.isfinite(x_bar.sum(dtype=np.float64)) and math.isfinite(b.u.sum()) \
+            and math.isfinite(b.U.sum())
     if not n:
-        return _Wire(0, ints, nums, np.zeros(0, bool), 0, ())
+        return _Wire(0, ints, x_bar, np.zeros(0, bool), np.zeros(0, _F32), np.zeros((0, _N_INFO), _F16), ())
     if ints.min() < 0:
         i = _first((ints < 0).T)
         raise err("malformed", f"id, born or ell of row {i} is negative: {ints[:, i].tolist()}")
     if not finite:
-        bad = ~np.isfinite(nums).all(axis=1) | ~np.isfinite(b.U).reshape(n, -1).all(axis=1)
-        where = f"row {_row_id(ints, _first(bad))}" if bad.any() else "the block (U sums beyond float64)"
+        bad = ~np.isfinite(x_bar).all(axis=1) | ~np.isfinite(b.u).all(axis=1) \
+            | ~np.isfinite(b.U).reshape(n, -1).all(axis=1)
+        where = f"row {_row_id(ints, _first(bad))}" if bad.any() else "the block (sums beyond float64)"
         raise err("non_finite", f"x_bar, u or U of {where} has NaN or inf (or overflows float32)")
     maxes = ints.max(axis=1).tolist()
     widths = sum(_width_code(v) << (2 * k) for k, v in enumerate(maxes))
     if len(set(zip(ints[0].tolist(), ints[1].tolist()))) != n:
         raise err("malformed", "duplicate tracker ids")
-    measured = nums[:, _N:].any(axis=1)
+    measured = b.U.reshape(n, -1).any(axis=1) | b.u.any(axis=1)
+    rows = np.flatnonzero(measured)
+    scale, info = _measurement_wire(b.u[rows], b.U[rows], x_bar[rows], ints[:2, rows])
     apps = []
     for row, a in b.appearance:
         if a.shape[0] > limits.max_descriptors or a.shape[1] > limits.max_descriptor_dim:
             raise err("oversize", f"appearance of {_row_id(ints, row)} has shape {a.shape}")
-        with np.errstate(over="ignore", invalid="ignore"):
-            a16 = a.astype(_F16)
-        if not np.isfinite(a16).all():
-            raise err("non_finite", f"appearance of {_row_id(ints, row)} has NaN or inf "
-                                    "(or overflows float16)")
-        apps.append((row, a16))
-    return _Wire(widths, ints, nums, measured, int(np.count_nonzero(measured)), tuple(apps))
+        apps.append((row, *_descriptor_wire(a, _row_id(ints, row))))
+    return _Wire(widths, ints, x_bar, measured, scale, info, tuple(apps))
+
+
+def _measurement_wire(u: np.ndarray, U: np.ndarray, x_bar: np.ndarray, ids: np.ndarray
+                      ) -> tuple[np.ndarray, np.ndarray]:
+    """The measured rows' information on the wire: ``s`` (float32) and ``tril(L / s), w``
+    (float16), where ``U_zz = L L^T`` (Cholesky, ``U_zz`` the (x, y, w, h) block) and ``w`` is
+    the innovation ``z - H x_bar`` whitened by the quantised factor, ``z = U_zz^-1 u_z``.
+    ``ids`` (2, m) names the rows in errors."""
+    m = len(u)
+    if not m:
+        return np.zeros(0, _F32), np.zeros((0, _N_INFO), _F16)
+    if U[:, _Z:].any() or U[:, :_Z, _Z:].any() or u[:, _Z:].any():
+        beyond = U[:, _Z:].reshape(m, -1).any(axis=1) | U[:, :_Z, _Z:].reshape(m, -1).any(axis=1) \
+            | u[:, _Z:].any(axis=1)
+        raise err("malformed", f"u, U of {_row_id(ids, _first(beyond))} carry velocity information: a "
+                               "measurement informs (x, y, w, h) only")
+    U4 = U[:, :_Z, :_Z]
+    try:
+        L = np.linalg.cholesky(U4)
+    except np.linalg.LinAlgError:
+        bad = next(i for i in range(m) if not _positive_definite(U4[i]))
+        raise err("malformed", f"U of {_row_id(ids, bad)} is not positive definite on (x, y, w, h)") from None
+    peak = np.diagonal(L, axis1=1, axis2=2).max(axis=1)
+    if not peak.max() <= _F32_MAX:
+        raise err("non_finite", f"U of {_row_id(ids, _first(~(peak <= _F32_MAX)))} overflows float32")
+    scale = peak.astype(_F32)
+    if not scale.min() > 0:
+        raise err("malformed", f"U of {_row_id(ids, _first(~(scale > 0)))} is below float32's range")
+    tril = (L / scale.astype(np.float64)[:, None, None])[:, _TRIL[0], _TRIL[1]].astype(_F16)  # <= 1
+    if not tril[:, _DIAG].min() > 0:
+        bad = _first(~(tril[:, _DIAG] > 0))
+        raise err("malformed", f"U of {_row_id(ids, bad)} is too ill-conditioned for float16 factors")
+    z = np.linalg.solve(U4, u[:, :_Z, None])[..., 0]
+    w = np.einsum("nji,nj->ni", _factor(scale, tril), z - x_bar[:, :_Z])
+    if not np.abs(w).max() < _F16_LIMIT:  # beyond it float16 rounds to inf (NaN fails too)
+        raise err("non_finite", f"the innovation of {_row_id(ids, _first(~(np.abs(w) < _F16_LIMIT)))} is "
+                                "beyond float16 (65504 standard deviations)")
+    return scale, np.concatenate((tril, w.astype(_F16)), axis=1)
+
+
+def _positive_definite(M: np.ndarray) -> bool:
+    try:
+        np.linalg.cholesky(M)
+    except np.linalg.LinAlgError:
+        return False
+    return True
+
+
+def _descriptor_wire(a: np.ndarray, tid: tuple[int, int]) -> tuple[np.ndarray, np.ndarray]:
+    """Descriptors ``a`` (m, D) as int8 ``q`` in [-127, 127] and a float32 scale per descriptor
+    (``a ~ q * s``, ``s = max |a| / 127``)."""
+    peak = np.abs(a).max(axis=1) / _Q8
+    if not peak.max() <= _F32_MAX:  # NaN fails too
+        raise err("non_finite", f"appearance of {tid} has NaN or inf (or overflows float32)")
+    scale = peak.astype(_F32)
+    s = scale.astype(np.float64)[:, None]
+    if s.min() > 0:
+        q = np.rint(a / s).clip(-_Q8, _Q8).astype(_I8)
+    else:  # a descriptor of zeros (or below float32's range) travels as zeros
+        q = np.zeros(a.shape, _I8)
+        nz = scale > 0
+        q[nz] = np.rint(a[nz] / s[nz]).clip(-_Q8, _Q8)
+    return scale, q
 
 
 def _row_id(ints: np.ndarray, i: int) -> tuple[int, int]:
@@ -302,24 +408,24 @@ def _row_id(ints: np.ndarray, i: int) -> tuple[int, int]:
 def encode(msg: FrameMessage, *, limits: Limits = DEFAULT_LIMITS) -> bytes:
     """Validate ``msg`` and pack it compactly (see the module docstring for the layout).
 
-    Rounds ``x_bar``, ``u``, ``U`` to float32 and descriptors to float16; sends only the upper
-    triangle of ``U``. Raises ``ProtocolError``: ``"non_finite"`` for NaN/inf (also after the
-    float32/float16 rounding), ``"oversize"`` beyond ``limits``, ``"version"`` for a version other
+    Rounds ``x_bar`` to float32, sends the measurement as a float16 factor and whitened
+    innovation and descriptors as int8 (module docstring). Raises ``ProtocolError``:
+    ``"non_finite"`` for NaN/inf (also after the rounding), ``"oversize"`` beyond ``limits``, ``"version"`` for a version other
     than ``SCHEMA_VERSION``, ``"malformed"`` for anything else a peer would reject.
     """
     network, sender, frame, sent_at, merges = _checked_header(msg, limits)
     w = _checked_block(msg, limits)
-    n = w.ints.shape[1]
     dts, _ = _widths(w.widths)
     parts = [w.ints[k].astype(dts[k]).tobytes() for k in range(4)]
     parts.append(np.packbits(w.measured, bitorder="little").tobytes())
-    parts.append(w.nums[:, :_N].tobytes())
-    parts.append((w.nums[:, _N:] if w.m == n else w.nums[w.measured, _N:]).tobytes())
-    parts.extend(a.tobytes() for _, a in w.appearance)
+    parts += [w.x_bar.tobytes(), w.scale.tobytes(), w.info.tobytes()]
+    for _, scale, q in w.appearance:
+        parts += [scale.tobytes(), q.tobytes()]
+    n = w.ints.shape[1]
     data = msgpack.packb(
         [SCHEMA_VERSION, network, sender, frame, sent_at, n, w.widths,
          [[mg.loser[0], mg.loser[1], mg.winner[0], mg.winner[1], mg.winner_born] for mg in merges],
-         [[row, a.shape[0], a.shape[1]] for row, a in w.appearance], b"".join(parts)],
+         [[row, q.shape[0], q.shape[1]] for row, _, q in w.appearance], b"".join(parts)],
         use_bin_type=True,
     )
     if len(data) > limits.max_bytes:
@@ -341,15 +447,10 @@ def quantize(msg: FrameMessage, *, limits: Limits = DEFAULT_LIMITS) -> FrameMess
     """``msg`` exactly as a peer will see it after ``decode(encode(msg))``, without packing bytes.
 
     Validates like ``encode`` (same ``ProtocolError``s) except the ``max_bytes`` bound, which
-    needs the actual encoding. Useful in simulation to model the wire's float32/float16 rounding.
+    needs the actual encoding. Useful in simulation to model the wire's rounding.
     """
     network, sender, frame, sent_at, merges = _checked_header(msg, limits)
-    w = _checked_block(msg, limits)
-    n = w.ints.shape[1]
-    info = w.nums[:, _N:] if w.m == n else w.nums[w.measured, _N:]
-    floats = np.concatenate((w.nums[:, :_N].ravel(), info.ravel())).astype(np.float64)
-    apps = tuple((row, _readonly(a.astype(np.float64))) for row, a in w.appearance)
-    block = _assemble(w.ints, floats, w.measured if 0 < w.m < n else None, w.m, apps)
+    block = _assemble(_checked_block(msg, limits))
     return FrameMessage(network, sender, frame, merges=merges, sent_at=sent_at, block=block)
 
 
@@ -415,8 +516,7 @@ def _decode_block(blob: Any, n: int, widths: Any, apps: list[tuple[int, int, int
         raise err("malformed", "measured mask has bits beyond the last row")
     m = mask.bit_count()
     at += nb
-    n_floats = _N * n + _N_INFO * m
-    expected = at + 4 * n_floats + 2 * sum(c * d for _, c, d in apps)
+    expected = at + 4 * _N * n + (4 + 2 * _N_INFO) * m + sum(c * (4 + d) for _, c, d in apps)
     if len(blob) != expected:
         raise err("malformed", f"tracker block of {len(blob)} bytes, expected {expected}")
     if n == 0:
@@ -434,30 +534,40 @@ def _decode_block(blob: Any, n: int, widths: Any, apps: list[tuple[int, int, int
     maxes = ints.max(axis=1).tolist()
     if sum(_width_code(v) << (2 * k) for k, v in enumerate(maxes)) != widths:
         raise err("malformed", f"widths {widths:#04x} are not the narrowest for {maxes}")
-    with np.errstate(invalid="ignore"):  # a signalling NaN warns when cast; it is caught below
-        floats = np.frombuffer(blob, _F32, n_floats, at).astype(np.float64)
-    if not math.isfinite(floats.sum()):  # float32 values: the float64 sum cannot overflow
-        bad = ~np.isfinite(floats)
-        i = int(np.flatnonzero(bad)[0])
-        row = i // _N if i < _N * n else int(np.flatnonzero(_bits(mask, n))[(i - _N * n) // _N_INFO])
-        raise err("non_finite", f"x_bar, u or U of {_row_id(ints, row)} has NaN or inf")
+    x_bar = np.frombuffer(blob, _F32, _N * n, at).reshape(n, _N)
+    at += 4 * _N * n
+    scale = np.frombuffer(blob, _F32, m, at)
+    at += 4 * m
+    info = np.frombuffer(blob, _F16, _N_INFO * m, at).reshape(m, _N_INFO)
+    at += 2 * _N_INFO * m
+    measured = np.ones(n, bool) if m == n else _bits(mask, n)
+    with np.errstate(invalid="ignore"):  # a signalling NaN warns when cast; it is caught here
+        # float64 sums of float32 and float16 values cannot overflow: NaN or inf make them so
+        finite = math.isfinite(x_bar.sum(dtype=np.float64)) and math.isfinite(
+            scale.sum(dtype=np.float64) + info.sum(dtype=np.float64))
+        if not finite:
+            bad_x = ~np.isfinite(x_bar).all(axis=1)
+            bad_info = ~(np.isfinite(info).all(axis=1) & np.isfinite(scale))
+            row = _first(bad_x) if bad_x.any() else int(np.flatnonzero(measured)[_first(bad_info)])
+            raise err("non_finite", f"x_bar or measurement of {_row_id(ints, row)} has NaN or inf")
     if len(set(zip(ints[0].tolist(), ints[1].tolist()))) != n:
         raise err("malformed", "duplicate tracker ids")
-    measured = None
-    if m:
-        if np.count_nonzero(floats[_N * n :].reshape(m, _N_INFO).any(axis=1)) != m:
-            raise err("malformed", "a row marked measured has u = 0 and U = 0")
-        if m < n:
-            measured = _bits(mask, n)
-    at += 4 * n_floats
+    if m and not (scale.min() > 0 and info[:, _DIAG].min() > 0):
+        row = int(np.flatnonzero(measured)[_first(~((scale > 0) & (info[:, _DIAG] > 0).all(axis=1)))])
+        raise err("malformed", f"measurement of {_row_id(ints, row)} has a factor that is not positive")
     appearance = []
     for row, c, d in apps:
-        a = np.frombuffer(blob, _F16, c * d, at).reshape(c, d)
-        if not np.isfinite(a).all():
-            raise err("non_finite", f"appearance of {_row_id(ints, row)} has NaN or inf")
-        appearance.append((row, _readonly(a.astype(np.float64))))
-        at += 2 * c * d
-    return _assemble(ints, floats, measured, m, tuple(appearance))
+        s = np.frombuffer(blob, _F32, c, at)
+        q = np.frombuffer(blob, _I8, c * d, at + 4 * c).reshape(c, d)
+        scales = s.tolist()
+        if not all(0.0 <= v <= _F32_MAX for v in scales):  # NaN fails both comparisons
+            raise err("non_finite" if not all(math.isfinite(v) for v in scales) else "malformed",
+                      f"appearance of {_row_id(ints, row)} has a scale that is NaN, inf or negative")
+        if q.min() == -_Q8 - 1:
+            raise err("malformed", f"appearance of {_row_id(ints, row)} has -128 (int8 range is +-127)")
+        appearance.append((row, s, q))
+        at += c * (4 + d)
+    return _assemble(_Wire(widths, ints, x_bar, measured, scale, info, tuple(appearance)))
 
 
 def _bits(mask: int, n: int) -> np.ndarray:

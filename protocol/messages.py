@@ -20,7 +20,7 @@ import numpy as np
 
 from protocol.checks import MAX_WIRE_INT, TrackerId, as_appearance, as_float_array, as_id, as_int, err
 
-SCHEMA_VERSION = 2
+SCHEMA_VERSION = 3
 STATE_DIM = 6  # x = (x, y, w, h, vx, vy)
 MAX_DESCRIPTORS = 2
 

@@ -1,7 +1,9 @@
-"""The batched core computes the tracks the per-tracker core computed (issue 15).
+"""The core computes the tracks it computed when they were recorded (issue 15, re-recorded for
+wire schema 3 in issue 16).
 
-``tests/data/core_reference.npz`` holds the tracks of ``core_reference.RUNS`` as the per-tracker
-core of commit 5f1f58d reported them (see ``tests/core_reference.py`` for how it was recorded).
+``tests/data/core_reference.npz`` holds the tracks of ``core_reference.RUNS`` as recorded (see
+``tests/core_reference.py`` for how and from which core: first the per-tracker core, which the
+batched core matched to 1e-9; then, once the wire's rounding changed, the batched core).
 The same runs through the current core must report the same ids in every frame, and the same
 ``x`` and ``P`` to 1e-9 (relative, or absolute below 1): batched numpy (stacked solves and
 products) may round differently from one call per tracker, but no more than that.
@@ -30,7 +32,7 @@ def _rel(a: np.ndarray, b: np.ndarray) -> float:
 
 
 @pytest.mark.parametrize("name", list(RUNS))
-def test_same_tracks_as_the_per_tracker_core(name, reference):
+def test_same_tracks_as_recorded(name, reference):
     got = flatten(run(name))
     rows = reference[f"{name}/rows"]
     assert len(rows) > 500  # a run with tracks in it

@@ -74,6 +74,41 @@ def test_complete_graph_equals_centralized_kalman_filter(setup):
     assert np.median(err) < 0.5 * np.sqrt(0.05)
 
 
+def test_complete_graph_through_the_wire_stays_within_the_codec_bound(setup):
+    """The same filter when each neighbour's ``x_bar, u, U`` reach a node as the wire delivers
+    them (``codec.quantize``: float32 ``x_bar``; schema 3's float16 factor and innovation). The
+    tolerance is derived from the codec's stated bound, not fitted: a received measurement
+    misses the sent one by at most ``2**-11`` of its innovation in standard deviations, so by at
+    most ``b = 2**-11 * max innovation (sigma) * max sigma`` metres; a fused position and size
+    are weighted means of measurements and prediction, so they may move by ``b``; a velocity
+    is a difference of positions one frame apart, so by ``b / dt``."""
+    from protocol import codec
+    from protocol.messages import FrameMessage, TrackerInfo
+
+    frames, n, truth, zs, Rs, x0, P0, central = setup
+    adj = build("complete", n)
+    x_bar, P = [x0.copy() for _ in range(n)], [P0.copy() for _ in range(n)]
+    est, innovation = np.zeros((frames, n, 6)), 0.0
+    for k in range(frames):
+        info = [dkf.information(zs[k][i], Rs[i]) for i in range(n)]
+        wire = [codec.quantize(FrameMessage("n", i, k, (TrackerInfo((0, 0), x_bar[i], *info[i], 0),)))
+                .trackers[0] for i in range(n)]
+        new = []
+        for i in range(n):
+            d = zs[k][i] - x_bar[i][:4]
+            innovation = max(innovation, float(np.sqrt(d @ np.linalg.solve(Rs[i], d))))
+            y, S = dkf.fuse([info[i]] + [(wire[j].u, wire[j].U) for j in adj[i]])
+            est[k, i], M = dkf.correct(x_bar[i], P[i], y, S, [wire[j].x_bar for j in adj[i]],
+                                       wire[i].x_bar)
+            new.append(dkf.predict(est[k, i], M, A, Q))
+        x_bar, P = [a for a, _ in new], [b for _, b in new]
+    b = 2**-11 * innovation * max(np.sqrt(np.diag(R)).max() for R in Rs)
+    err = np.abs(est - central[:, None])
+    assert err[..., :4].max() <= b, (err[..., :4].max(), b)
+    assert err[..., 4:].max() <= b / CFG.dt, (err[..., 4:].max(), b / CFG.dt)
+    assert err.max() > 1e-9  # the wire does round: the test would see a coarser one
+
+
 @pytest.mark.parametrize("topology", ["ring", "chain"])
 def test_partial_graphs_stay_close_to_centralized(setup, topology):
     """With partial neighbourhoods each node fuses fewer measurements, so its estimate differs

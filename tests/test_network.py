@@ -47,7 +47,7 @@ def test_summary_contract_and_bandwidth(sync_ring):
     # measured, not assumed: the per-link bytes add up to the network total
     assert abs(sum(bw["per_link"].values()) - bw["bytes_per_frame"]) < 1e-6
     assert 30 < bw["bytes_per_tracker_frame"] <= 200  # the paper's analytic figure is 780
-    assert 2 * 512 * 2 <= bw["appearance_bytes_per_new_tracker"] < 2 * 512 * 2 + 64
+    assert 2 * (512 + 4) <= bw["appearance_bytes_per_new_tracker"] < 2 * (512 + 4) + 64  # int8
     json.dumps(s)  # JSON-able
 
 

@@ -9,7 +9,8 @@ from protocol.messages import FrameMessage, TrackerInfo
 
 
 def msg(k, n_trackers=2, appearance=False, ell=0, u=1.0):
-    infos = tuple(TrackerInfo((0, c), np.full(6, float(c)), np.full(6, u), np.eye(6) * u, ell,
+    infos = tuple(TrackerInfo((0, c), np.full(6, float(c)), np.r_[np.full(4, u), 0, 0],
+                              np.diag([u] * 4 + [0, 0]), ell,
                               np.ones((2, 8)) if appearance else None, 0)
                   for c in range(n_trackers))
     return FrameMessage("net", 0, k, infos)

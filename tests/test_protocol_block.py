@@ -1,4 +1,4 @@
-"""Schema 2: the tracker block, its two forms in a message, and whole-block validation."""
+"""Schema 3: the tracker block, its two forms in a message, and whole-block validation."""
 from __future__ import annotations
 
 import dataclasses
@@ -26,12 +26,16 @@ def infos(n: int, seed: int = 0, measured_every: int = 3) -> tuple[TrackerInfo, 
     rng = np.random.default_rng(seed)
     out = []
     for i in range(n):
-        a = rng.normal(size=(6, 6))
         measured = i % measured_every != 1
         app = rng.normal(size=(2, 16)) if i in (0, 7) else None
-        out.append(TrackerInfo((i % 5, 300 + 7 * i), rng.normal(size=6) * 20,
-                               rng.normal(size=6) * measured, a @ a.T * measured, i % 4, app,
-                               1000 + i))
+        x_bar = rng.normal(size=6) * 20
+        a = rng.normal(size=(4, 4)) * 0.3
+        R = a @ a.T + 0.01 * np.eye(4)  # a camera's measurement noise (eq. 2: H picks x, y, w, h)
+        u, U = np.zeros(6), np.zeros((6, 6))
+        if measured:
+            U[:4, :4] = np.linalg.inv(R)
+            u[:4] = U[:4, :4] @ (x_bar[:4] + rng.normal(size=4) * 0.3)
+        out.append(TrackerInfo((i % 5, 300 + 7 * i), x_bar, u, U, i % 4, app, 1000 + i))
     return tuple(out)
 
 
@@ -153,7 +157,7 @@ def test_version_1_bytes_are_refused_with_the_reason() -> None:
         decode(v1_bytes())
     assert e.value.reason == "version"
     assert "schema version 1" in str(e.value) and f"we speak {SCHEMA_VERSION}" in str(e.value)
-    assert SCHEMA_VERSION == 2
+    assert SCHEMA_VERSION == 3
 
 
 def test_version_1_messages_are_not_encoded() -> None:
@@ -178,11 +182,13 @@ ONE_BAD_ROW = {
     "inf in one U's lower triangle": (lambda ts: _set(ts, 12, U=_with(ts[12].U, (5, 0), np.inf)),
                                       "non_finite"),
     "NaN in one x_bar": (lambda ts: _set(ts, 49, x_bar=_with(ts[49].x_bar, (3,), np.nan)), "non_finite"),
-    "one u beyond float32": (lambda ts: _set(ts, 20, u=_with(ts[20].u, (0,), 1e39)), "non_finite"),
+    "one innovation beyond float16": (lambda ts: _set(ts, 20, u=_with(ts[20].u, (0,), 1e39)), "non_finite"),
+    "one U with velocity information": (lambda ts: _set(ts, 21, U=_with(ts[21].U, (4, 4), 1.0)), "malformed"),
+    "one U not positive definite": (lambda ts: _set(ts, 23, U=_with(ts[23].U, (0, 0), -1.0)), "malformed"),
     "negative ell in one row": (lambda ts: _set(ts, 33, ell=-1), "malformed"),
     "negative counter in one row": (lambda ts: _set(ts, 2, id=(0, -4)), "malformed"),
     "duplicate id in two rows": (lambda ts: _set(ts, 41, id=ts[9].id), "malformed"),
-    "one appearance beyond float16": (lambda ts: _set(ts, 7, appearance=np.full((2, 16), 1e6)), "non_finite"),
+    "one appearance beyond float32": (lambda ts: _set(ts, 7, appearance=np.full((2, 16), 1e300)), "non_finite"),
     "one appearance too wide": (lambda ts: _set(ts, 44, appearance=np.ones((1, 5000))), "oversize"),
 }
 
@@ -217,33 +223,35 @@ def _decoded_block_edit(n: int, fn) -> bytes:
     return msgpack.packb(obj, use_bin_type=True)
 
 
-def _info_offset(obj, row: int) -> int:
-    """Byte offset of ``row``'s (u, triu U) in a decoded message's block (``row`` measured)."""
+def _info_offsets(obj, row: int) -> tuple[int, int]:
+    """Byte offsets of ``row``'s scale and of its float16 factor and innovation in a decoded
+    message's block (``row`` measured)."""
     n, widths = obj[5], obj[6]
     ints = n * sum(1 << ((widths >> 2 * k) & 3) for k in range(4))
     mask = int.from_bytes(obj[9][ints : ints + (n + 7) // 8], "little")
-    rank = bin(mask & ((1 << row) - 1)).count("1")
-    return ints + (n + 7) // 8 + 24 * n + 108 * rank
+    rank, m = bin(mask & ((1 << row) - 1)).count("1"), bin(mask).count("1")
+    scales = ints + (n + 7) // 8 + 24 * n
+    return scales + 4 * rank, scales + 4 * m + 28 * rank
 
 
 def test_decode_finds_one_bad_row_among_fifty() -> None:
-    def nan_in_U_of_row_38(b: bytearray, obj) -> bytes:
-        at = _info_offset(obj, 38) + 4 * (6 + 20)  # the last of its 21 U values
-        b[at : at + 4] = struct.pack("<f", float("nan"))
+    def nan_in_the_factor_of_row_38(b: bytearray, obj) -> bytes:
+        at = _info_offsets(obj, 38)[1] + 2 * 9  # the last of its 10 factor values
+        b[at : at + 2] = np.array([np.nan], "<f2").tobytes()
         return bytes(b)
 
     with pytest.raises(ProtocolError) as e:
-        decode(_decoded_block_edit(50, nan_in_U_of_row_38))
+        decode(_decoded_block_edit(50, nan_in_the_factor_of_row_38))
     assert e.value.reason == "non_finite" and str(infos(50)[38].id) in e.value.detail
 
-    def zero_u_U_of_row_44(b: bytearray, obj) -> bytes:
-        at = _info_offset(obj, 44)
-        b[at : at + 108] = bytes(108)
+    def zero_scale_of_row_44(b: bytearray, obj) -> bytes:
+        at = _info_offsets(obj, 44)[0]
+        b[at : at + 4] = bytes(4)
         return bytes(b)
 
     with pytest.raises(ProtocolError) as e:
-        decode(_decoded_block_edit(50, zero_u_U_of_row_44))
-    assert e.value.reason == "malformed"
+        decode(_decoded_block_edit(50, zero_scale_of_row_44))
+    assert e.value.reason == "malformed" and str(infos(50)[44].id) in e.value.detail
 
     def counter_of_row_45_as_row_3(b: bytearray, obj) -> bytes:  # counters are u2 here: 300 + 7 i
         at = 50  # after the camera column
