@@ -82,7 +82,8 @@ def test_aggregates_match_csv(runs):
     cells = summary["cells"]["terrace-sim"]
     md = (runs[1] / "results.md").read_text()
     for col in ("ground_mota", "ground_idf1", "image_mota", "image_idf1", "bytes_per_frame",
-                "ground_fp"):
+                "ground_fp", "ground_track_ids", "ground_ids_per_person", "ground_mt",
+                "ground_fragmentations"):
         for (topo, cfg), seeds in _per_seed(rows, col).items():
             mean, std = _mean_std(list(seeds.values()))
             cell = cells[topo][cfg][col]
@@ -91,6 +92,26 @@ def test_aggregates_match_csv(runs):
             assert cell["std"] == pytest.approx(std, rel=1e-9, abs=1e-12)
             if col in ("ground_mota", "ground_idf1", "image_mota", "image_idf1"):
                 assert f"{mean:.3f} ± {std:.3f}" in md
+
+
+@pytest.mark.integration
+def test_identity_counts_in_csv_table_and_printout(runs):
+    """Every run has its people, track ids, ids per person and MT/PT/ML (of one run's nodes:
+    MT + PT + ML is the number of people); results.md and the printed table show the means."""
+    rows = _rows(runs[1])
+    for r in rows:
+        people = float(r["ground_people"])
+        assert people > 0 and float(r["ground_track_ids"]) >= 1
+        assert float(r["ground_ids_per_person"]) >= 1.0
+        assert float(r["ground_mt"]) + float(r["ground_pt"]) + float(r["ground_ml"]) \
+            == pytest.approx(people, abs=1.0)  # medians over nodes of each: within one
+    md = (runs[1] / "results.md").read_text()
+    assert "**Identity (ground)**" in md and "ids/person" in md
+    summary = json.loads((runs[1] / "summary.json").read_text())
+    text = ablation.identity_text({"cells": summary["cells"]}, summary["meta"])
+    tracks = summary["cells"]["terrace-sim"]["ring"]["dkf+lda+dtm"]["ground_track_ids"]["mean"]
+    line = next(t for t in text.splitlines() if " ring " in t and " dkf+lda+dtm " in t)
+    assert f"{tracks:.1f}" in line.split()
 
 
 @pytest.mark.integration

@@ -225,3 +225,60 @@ def test_latency_line_names_nodes_without_samples():
     assert latency_line(summary([], [])) == "one-hop latency: - (no samples: nodes 0, 1)"
     assert latency_line({"processes": {"0": {"latency": None}}}) == \
         "one-hop latency: - (no samples: node 0)"
+
+
+# --- identity counts -------------------------------------------------------------------------------
+def test_identity_counts_by_hand():
+    """Three people over 10 frames, one node, counted by hand (standard MOT definitions):
+
+    A (frames 0-9): t1 at 0-3, missed at 4-5, t2 at 6-9: tracked 8/10 = 0.8 -> mostly tracked;
+      one fragmentation (4); ids {t1, t2}.
+    B (frames 0-9): t3 at 2-3 and 7: tracked 3/10 -> partially tracked; one fragmentation (4; the
+      miss at 8 is after its last tracked frame, not an interruption); ids {t3}.
+    C (frames 5-9): never tracked -> mostly lost.
+    t9: a false positive far from everyone at frames 0-1.
+    Track ids reported: t1, t2, t3, t9 = 4; ids per person matched: (2 + 1) / 2 = 1.5.
+    """
+    from types import SimpleNamespace
+
+    P, Q, R = 1, 2, 3
+    where = {P: np.array([0.0, 0.0]), Q: np.array([10.0, 0.0]), R: np.array([20.0, 0.0])}
+    ids = [np.array([P, Q] + ([R] if k >= 5 else [])) for k in range(10)]
+    truth = SimpleNamespace(ids=ids, xy=[np.stack([where[i] for i in f]) for f in ids],
+                            wh=[np.full((len(f), 2), 1.0) for f in ids], boxes=[])
+    scen = SimpleNamespace(truth=truth, units_per_metre=1.0, num_cameras=1, frames=10)
+
+    def at(p):
+        return np.array([*(where[p] + [0.1, 0.0]), 0.5, 1.7, 0.0, 0.0])
+
+    owner = {"t1": (P, range(0, 4)), "t2": (P, range(6, 10)), "t3": (Q, (2, 3, 7))}
+    frames = [[(t, at(p)) for t, (p, ks) in owner.items() if k in ks] for k in range(10)]
+    for k in (0, 1):
+        frames[k].append(("t9", np.array([50.0, 50.0, 0.5, 1.7, 0.0, 0.0])))
+    g = evaluate_ground({0: frames}, scen, frames=10)["per_node"]["0"]
+    assert g["num_unique_objects"] == 3
+    assert (g["mostly_tracked"], g["partially_tracked"], g["mostly_lost"]) == (1, 1, 1)
+    assert g["num_fragmentations"] == 2
+    assert g["num_track_ids"] == 4
+    assert g["ids_per_person"] == pytest.approx(1.5)
+    assert g["num_switches"] == 1  # A: t1 -> t2
+
+
+def test_fragmentations_agree_with_motmetrics():
+    """``fragmentations`` is motmetrics' ``num_fragmentations`` without its per-person loop."""
+    import motmetrics as mm
+    from motmetrics.metrics import events_to_df_map, num_fragmentations
+
+    from sim_cluster.evaluation.metrics import fragmentations
+
+    rng = np.random.default_rng(1)
+    for _ in range(20):
+        people, hyps = int(rng.integers(1, 10)), int(rng.integers(0, 10))
+        acc = mm.MOTAccumulator(auto_id=False)
+        for k in range(int(rng.integers(1, 50))):
+            o = [i for i in range(people) if rng.random() < 0.7]
+            h = list(range(int(rng.integers(0, hyps + 1))))
+            d = np.where(rng.random((len(o), len(h))) < 0.5, rng.random((len(o), len(h))), np.nan)
+            acc.update(o, h, d, frameid=k)
+        df = events_to_df_map(acc.mot_events)
+        assert fragmentations(acc) == num_fragmentations(df, df.noraw.OId.value_counts())

@@ -15,6 +15,8 @@ scenario itself (cached per worker process) and returns its summary without trac
 ordered by the plan, never by completion, so the outputs do not depend on ``--jobs``. A scenario
 whose data is missing (``epfl.DataNotFoundError``) is skipped with one line saying why.
 
+It prints, per scenario, topology and configuration, ground MOTA / IDF1 and the identity counts
+(people, track ids, ids per person, fragmentations, mostly tracked / partially / mostly lost).
 Outputs in ``--out``: ``results.csv`` (one row per run), ``results.md`` (tables), ``ablation.png``
 (Fig. 3-style bars), ``summary.json`` (the aggregated numbers) and ``runs.jsonl`` (every run's
 summary: per-node metrics, manager counters, per-link bytes).
@@ -63,8 +65,14 @@ IMAGE_COLS = (("image_mota", "mota"), ("image_motp", "motp"), ("image_idf1", "id
               ("image_num_switches", "num_switches"), ("image_fp", "num_false_positives"),
               ("image_fn", "num_misses"))
 BANDWIDTH_COLS = ("bytes_per_frame", "bytes_per_tracker_frame", "appearance_bytes_per_new_tracker")
+# identity counts on the ground (evaluation.metrics.IDENTITY_METRICS), after the older columns
+IDENTITY_COLS = (("ground_people", "num_unique_objects"), ("ground_track_ids", "num_track_ids"),
+                 ("ground_ids_per_person", "ids_per_person"),
+                 ("ground_fragmentations", "num_fragmentations"), ("ground_mt", "mostly_tracked"),
+                 ("ground_pt", "partially_tracked"), ("ground_ml", "mostly_lost"))
 KEY_COLS = ("scenario", "seed", "config", "topology", "ordering", "order", "frames", "nodes")
-METRIC_COLS = tuple(c for c, _ in GROUND_COLS) + tuple(c for c, _ in IMAGE_COLS) + BANDWIDTH_COLS
+METRIC_COLS = (tuple(c for c, _ in GROUND_COLS) + tuple(c for c, _ in IMAGE_COLS) + BANDWIDTH_COLS
+               + tuple(c for c, _ in IDENTITY_COLS))
 CSV_COLS = KEY_COLS + METRIC_COLS
 
 # The paper's analytic bandwidth (Sec. III-D and IV, Table II; Terrace, 4 cameras).
@@ -297,6 +305,8 @@ def row_of(result: dict) -> dict:
         row[col] = med["image"].get(m)
     for col in BANDWIDTH_COLS:
         row[col] = s["bandwidth"][col]
+    for col, m in IDENTITY_COLS:
+        row[col] = med["ground"].get(m)
     # RunResult.bandwidth() gives 0 where a ratio has no denominator (no tracker entry sent, as
     # disconnected or centralized; no appearance sent): undefined, not zero bytes
     for col in ("bytes_per_tracker_frame", "appearance_bytes_per_new_tracker"):
@@ -398,6 +408,48 @@ def _md_table(header: Sequence[str], rows: Sequence[Sequence[str]]) -> list[str]
     return out
 
 
+def _mean(cell: Mapping | None, fmt: str = "{:.1f}") -> str:
+    """A cell's mean alone (``–`` when undefined, or absent in a summary from before the
+    column)."""
+    if not cell or cell.get("mean") is None:
+        return "–"
+    return fmt.format(cell["mean"])
+
+
+#: The identity table: (column, header, format of the mean over seeds)
+IDENTITY_TABLE = (("ground_mota", "gMOTA", "{:.3f}"), ("ground_idf1", "gIDF1", "{:.3f}"),
+                  ("ground_people", "people", "{:.1f}"), ("ground_track_ids", "track ids", "{:.1f}"),
+                  ("ground_ids_per_person", "ids/person", "{:.2f}"),
+                  ("ground_fragmentations", "FM", "{:.1f}"), ("ground_mt", "MT", "{:.1f}"),
+                  ("ground_pt", "PT", "{:.1f}"), ("ground_ml", "ML", "{:.1f}"))
+IDENTITY_NOTE = ("Identity on the ground, mean over seeds of the median over nodes: people in the "
+                 "area, track ids a node reported, track ids matched per person (1.00: one id "
+                 "each), FM fragmentations (a person's tracking interrupted), MT / PT / ML people "
+                 "tracked in >= 80 %, 20-80 %, < 20 % of their frames.")
+
+
+def identity_rows(agg: Mapping, meta: Mapping) -> list[list[str]]:
+    """``[scenario, topology, config, *IDENTITY_TABLE means]`` for every cell, in the order of
+    the other tables (``--topologies``, ``--configs``)."""
+    rows = []
+    for sc, cells in agg["cells"].items():
+        for t in _order_in(cells, meta["topologies"]):
+            for c in _order_in(cells[t], meta["configs"]):
+                rows.append([sc, t, c] + [_mean(cells[t][c].get(col), fmt)
+                                          for col, _, fmt in IDENTITY_TABLE])
+    return rows
+
+
+def identity_text(agg: Mapping, meta: Mapping) -> str:
+    """The identity table as plain text (what ``sim_cluster ablation`` prints)."""
+    header = ["scenario", "topology", "config"] + [h for _, h, _ in IDENTITY_TABLE]
+    rows = [header] + identity_rows(agg, meta)
+    width = [max(len(r[i]) for r in rows) for i in range(len(header))]
+    lines = ["  ".join(v.ljust(w) if i < 3 else v.rjust(w) for i, (v, w) in enumerate(zip(r, width)))
+             for r in rows]
+    return "\n".join(lines + [IDENTITY_NOTE])
+
+
 def markdown(agg: Mapping, meta: Mapping) -> str:
     """``results.md``: per scenario, metric tables (rows topology, columns config), the ratio to
     centralized and the bandwidth beside the paper's analytic figures."""
@@ -449,6 +501,13 @@ def markdown(agg: Mapping, meta: Mapping) -> str:
                                [[label(t)] + [_pm(cells[t].get(c, {}).get(col)) for c in cfgs]
                                 for t in topos])
             lines.append("")
+        lines.append("**Identity (ground)**")
+        lines.append("")
+        lines += _md_table(["topology", "config"] + [h for _, h, _ in IDENTITY_TABLE[2:]],
+                           [[label(t), c] + [_mean(cells[t][c].get(col), fmt)
+                                             for col, _, fmt in IDENTITY_TABLE[2:]]
+                            for t in topos for c in cfgs if c in cells[t]])
+        lines.append("")
         ratios = agg.get("ratios", {}).get(sc)
         if ratios:
             lines.append(f"**Distributed / centralized ({FULL}, ground)**")
@@ -481,6 +540,8 @@ def markdown(agg: Mapping, meta: Mapping) -> str:
         lines += _md_table(["", "kB per frame (whole network)", "kB per tracker per frame",
                             "kB per new tracker's appearance"], rows)
         lines.append("")
+    lines.append(IDENTITY_NOTE)
+    lines.append("")
     lines.append("Paper figures (Sec. III-D, IV): 51 numbers per tracker per frame, 0.78 kB; two "
                  "512-element descriptors per new tracker, 16.38 kB, sent once; centralized "
                  "streaming of 4 RGB 360x288 images, 1215 kB per frame (1,244,160 B: the paper's "
@@ -650,6 +711,8 @@ def main(args) -> int:
     out = Path(args.out)
     paths = write_outputs(out, rows, agg, meta, results=ok)
     wall = time.monotonic() - t0
+    if rows:
+        print(identity_text(agg, meta))
     print(f"ablation: {len(rows)}/{len(tasks)} runs in {_hms(wall)}; wrote "
           + ", ".join(str(p) for p in paths))
     if failed:
