@@ -5,6 +5,7 @@ and as real processes on loopback.
     sim_cluster bench [--cameras 4,16,64 --scope 0,1,2 --layout corridor]
     sim_cluster scenarios
     sim_cluster export-detections --scenario terrace-sim --out DIR
+    sim_cluster import-detections DIR --homographies H.json --out DIR2
     sim_cluster up --topology chain [--detach]; status | kill N | restart N | down
     sim_cluster ablation --scenarios terrace-sim,lab-sim --seeds 0-4 --out DIR
 """
@@ -16,6 +17,7 @@ import sys
 
 from edge_node.core.config import ABLATIONS, CONFIG_NAMES, ConfigError
 from edge_node.formats.detfile import DetFilesError
+from edge_node.formats.layouts import LAYOUTS
 from edge_node.geometry import GeometryError
 from edge_node.runtime.sources import SourceError
 from edge_node.settings import SettingsError
@@ -100,6 +102,52 @@ def network_name(text: str) -> str:
     return text
 
 
+def image_size(text: str) -> tuple[int, int]:
+    """An argparse type: ``WxH`` in pixels, e.g. ``1920x1080``."""
+    parts = text.lower().split("x")
+    try:
+        w, h = (int(p) for p in parts)
+    except ValueError:
+        w = h = 0
+    if len(parts) != 2 or w < 1 or h < 1:
+        raise argparse.ArgumentTypeError(f"must be WIDTHxHEIGHT in pixels like 1920x1080, got "
+                                         f"{text!r}")
+    return w, h
+
+
+SCENARIO_FORMS = f"""\
+--scenario accepts:
+  a preset name               terrace-sim, lab-sim, ... (sim_cluster scenarios)
+  corridor-<N>, grid-<N>      a generated layout with N cameras
+  FILE.toml                   a scenario file ([source] kind synthetic, epfl-gt or det-files)
+  DIR or DIR/calibration.json a det-files folder (export-detections or import-detections
+                              writes one)
+  DIR                         another tool's detection files, below
+
+{LAYOUTS}
+
+Without descriptors the run says so in one line and tracks by geometry only (configuration
+dkf+lda+dtm becomes dkf+dtm, dkf+lda becomes dkf): duplicates merged by co-motion,
+re-identification by place."""
+
+
+def _import_args(sp) -> None:
+    """The options of a folder of another tool's detection files (``SCENARIO_FORMS``)."""
+    g = sp.add_argument_group("another tool's detection files (a folder without calibration.json)")
+    g.add_argument("--homographies", default=None, metavar="FILE",
+                   help="image-to-ground homographies, .json / .npy / .npz (default: "
+                        "DIR/homographies.*)")
+    g.add_argument("--ground-truth", default=None, metavar="FILE",
+                   help="ground truth frame,id,X,Y (or frame,id,X,Y,w,h) in ground units "
+                        "(default: DIR/gt_ground.csv, else from the cameras' gt boxes)")
+    g.add_argument("--units-per-metre", type=number(0, above=True), default=None,
+                   help="ground units per metre (default: the homographies JSON's, else 1)")
+    g.add_argument("--fps", dest="fps_override", type=number(0, above=True), default=None,
+                   help="frame rate (default: seqinfo.ini, the JSON's, else 25)")
+    g.add_argument("--image-size", type=image_size, default=None, metavar="WxH",
+                   help="image size of every camera (default: seqinfo.ini or the JSON's)")
+
+
 def _rerun_arg(sp) -> None:
     sp.add_argument("--rerun", nargs="+", default=None, metavar="MODE",
                     help="Rerun view: off (default) | spawn | connect [ADDR] | save FILE.rrd | "
@@ -128,16 +176,19 @@ def build_parser() -> argparse.ArgumentParser:
 
     def scenario_args(sp, frames_help="frames to run (default: the scenario's)"):
         sp.add_argument("--scenario", default="terrace-sim",
-                        help="preset name (sim_cluster scenarios), path to a scenario TOML, or a "
-                             "det-file folder with calibration.json (export-detections writes "
-                             "one; without descriptors .npy the run tracks by geometry only)")
+                        help="preset name (sim_cluster scenarios), corridor-<N> / grid-<N>, a "
+                             "scenario TOML, a det-files folder with calibration.json, or a "
+                             "folder of another tool's MOTChallenge det files (sim_cluster run "
+                             "--help lists every form)")
         sp.add_argument("--seed", type=integer(0), default=0)
         sp.add_argument("--frames", type=integer(1), default=None, help=frames_help)
         sp.add_argument("--data-root", default=None,
                         help="folder holding epfl_pom/ (default: $DMTT_DATA or ../shared/data)")
 
-    r = sub.add_parser("run", help="run a network in one process and evaluate it")
+    r = sub.add_parser("run", help="run a network in one process and evaluate it",
+                       epilog=SCENARIO_FORMS, formatter_class=argparse.RawDescriptionHelpFormatter)
     scenario_args(r)
+    _import_args(r)
     r.add_argument("--topology", default="ring",
                    help="complete | ring | chain | disconnected | star | centralized | layout (a "
                         "corridor-<N> / grid-<N> scenario's lattice) | edge-list file")
@@ -235,6 +286,18 @@ def build_parser() -> argparse.ArgumentParser:
     e.add_argument("--no-descriptors", action="store_true",
                    help="no appearance: the detections of a detector without re-id")
     e.set_defaults(func=scenarios.export)
+
+    im = sub.add_parser("import-detections",
+                        help="read another tool's detection files (MOTChallenge det.txt per "
+                             "camera, homographies, ground truth) and write a det-files folder",
+                        epilog=SCENARIO_FORMS,
+                        formatter_class=argparse.RawDescriptionHelpFormatter)
+    im.add_argument("source", help="the folder of detection files (layouts below)")
+    im.add_argument("--out", required=True, help="det-files folder to write")
+    im.add_argument("--frames", type=integer(1), default=None,
+                    help="frames to import (default: up to the last frame in the files)")
+    _import_args(im)
+    im.set_defaults(func=scenarios.import_detections)
 
     rd = sub.add_parser("render", help="render each camera's frames of a synthetic scenario "
                         "(MJPG .avi or PNG folders, plus the empty background)")

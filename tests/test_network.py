@@ -206,7 +206,8 @@ def test_restarted_node_is_resynced_with_the_networks_ids(terrace):
 
 def test_a_det_file_folder_without_descriptors_runs_by_geometry(tmp_path):
     """A detector without re-id: ``export-detections --no-descriptors`` writes no ``.npy``;
-    ``run`` on that folder says it tracks by geometry only, and gives what the manager without
+    ``run`` on that folder says in one line that it tracks by geometry only, runs ``dkf+dtm``
+    in place of the default ``dkf+lda+dtm`` (the summary says so), and gives what the manager without
     appearance (``dkf+dtm``) gives on the same detections in process. Without co-motion merging
     every camera would keep its own tracker of each person: the network keeps about one id per
     person instead."""
@@ -219,8 +220,10 @@ def test_a_det_file_folder_without_descriptors_runs_by_geometry(tmp_path):
                           "complete", "--quiet", "--out", str(tmp_path / "b")],
                          capture_output=True, text=True)
     assert out.returncode == 0, out.stderr
-    assert "no appearance descriptors" in out.stdout and "geometry only" in out.stdout
+    said = [t for t in out.stdout.splitlines() if "no appearance descriptors" in t]
+    assert len(said) == 1 and "geometry only, dkf+lda+dtm -> dkf+dtm" in said[0]
     summary = json.loads((tmp_path / "b" / "summary.json").read_text())
+    assert summary["config"] == "dkf+dtm"  # what ran, not what was asked for
     data = load_scenario("lab-sim", frames=150).without_descriptors()
     ref = run_network(data, build("complete", 4), TrackerConfig.for_ablation("dkf+dtm"))
     assert summary["tracks"]["ids_per_node"] == ref.summary()["tracks"]["ids_per_node"]

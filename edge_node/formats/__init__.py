@@ -9,4 +9,7 @@ file one of them writes is read by the other with the same code:
                  and each camera's files; reading and writing
 ``tracks``       a node's track file ``tracks_node<id>.csv``: reading and writing
 ``homographies`` EPFL's ``homographies.json``: the cameras of a sequence
+``layouts``      other tools' folders of detection files (MOTChallenge ``det.txt`` per camera,
+                 flat or in sequence folders; homographies as JSON / NumPy; ground truth as
+                 ground points or derived from the cameras' boxes), read as a calibration
 """

@@ -393,8 +393,9 @@ def summarize(acc: mm.MOTAccumulator, view: str) -> dict[str, int | float | None
     raw["ids_per_person"] = _ids_per_person(acc)
     d = _matched_d(acc)
     out = {n: _jsonable(n, raw[n]) for n in COMMON_METRICS}
-    if out["num_objects"] == 0:  # ratios over no objects are undefined (motmetrics gives nan/inf)
-        for n in ("mota", "idr"):
+    if out["num_objects"] == 0:  # ratios over no objects are undefined (motmetrics gives nan/inf;
+        # IDF1 is 0 there when the node reported tracks: no ground truth is not a score of 0)
+        for n in ("mota", "idr", "idf1", "ids_per_person"):
             out[n] = None
     if view == "image":
         out["motp"] = float(np.mean(1.0 - d)) if len(d) else None

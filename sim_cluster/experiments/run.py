@@ -42,6 +42,20 @@ def tracker_config(ablation: str, file: str | Path | None = None) -> TrackerConf
     return t.built(lambda: TrackerConfig.from_dict({**base.to_dict(), **t.data}))
 
 
+def geometry_only(data: ScenarioData, cfg: TrackerConfig) -> tuple[TrackerConfig, str | None]:
+    """Without a descriptor in any detection, ``cfg`` without appearance (``dkf+lda+dtm`` ->
+    ``dkf+dtm``, ``dkf+lda`` -> ``dkf``: the summary names what ran) and the one line that says
+    so; else ``cfg`` and None."""
+    if data.has_descriptors():
+        return cfg, None
+    line = (f"{data.name}: no appearance descriptors in the detections: tracking by geometry "
+            "only (duplicates merged by co-motion, re-identification by place)")
+    if not cfg.use_appearance:
+        return cfg, line
+    new = cfg.with_(use_appearance=False)
+    return new, line.replace("geometry only", f"geometry only, {cfg.ablation} -> {new.ablation}")
+
+
 def load_faults(path: str | Path | None, data: ScenarioData, topology: str,
                 order=None) -> FaultPlan | None:
     """The fault plan file ``path`` (None: no plan) checked against the network ``topology``
@@ -101,9 +115,11 @@ def main(args) -> int:
     data = scenario_from_args(args)
     cfg = tracker_config(args.config, getattr(args, "tracker_config", None))
     faults = load_faults(args.faults, data, args.topology)
-    if not data.has_descriptors():
-        print(f"{data.name}: no appearance descriptors in the detections: tracking by geometry "
-              "only (duplicates merged by co-motion, re-identification by place)")
+    for note in data.notes:
+        print(note)
+    cfg, note = geometry_only(data, cfg)
+    if note:
+        print(note)
     result, summary = run_once(data, args.topology, cfg, show_progress=not args.quiet,
                                ground_threshold_m=args.ground_threshold, mode=args.mode,
                                faults=faults)

@@ -1,12 +1,14 @@
 """The scenario commands: ``sim_cluster scenarios`` (list the presets), ``export-detections``
-(a scenario as a det-files folder) and ``render`` (a synthetic scenario's camera videos)."""
+(a scenario as a det-files folder), ``import-detections`` (another tool's detection files as a
+det-files folder) and ``render`` (a synthetic scenario's camera videos)."""
 from __future__ import annotations
 
 from pathlib import Path
 
+from edge_node.formats.detfile import DetFilesError
 from sim_cluster.scenarios.detfiles import export_detections
 from sim_cluster.scenarios.files import LAYOUT_PRESETS, list_presets
-from sim_cluster.scenarios.loader import scenario_from_args
+from sim_cluster.scenarios.loader import import_options, load_scenario, scenario_from_args
 from sim_cluster.scenarios.synthetic.render import render_scenario
 
 
@@ -22,6 +24,23 @@ def export(args) -> int:
         data = data.without_descriptors()
     path = export_detections(data, Path(args.out),
                              descriptor_dtype="float32" if args.float32 else "float16")
+    print(f"wrote {data.num_cameras} cameras x {data.frames} frames to {args.out} "
+          f"(replay: sim_cluster run --scenario {path})")
+    return 0
+
+
+def import_detections(args) -> int:
+    """``sim_cluster import-detections SOURCE --out DIR``: the folder's notes, then the det-files
+    folder (calibration.json, every camera's det.txt / .npy / gt.txt, gt_ground.csv) that
+    ``run``, ``up`` and camera processes read."""
+    src = Path(args.source)
+    if not src.is_dir():
+        raise DetFilesError(f"{src}: not a folder (import-detections reads a folder of detection "
+                            "files; sim_cluster run --help lists the layouts)")
+    data = load_scenario(src, frames=args.frames, options=import_options(args))
+    for note in data.notes:
+        print(note)
+    path = export_detections(data, Path(args.out), descriptor_dtype="float32")
     print(f"wrote {data.num_cameras} cameras x {data.frames} frames to {args.out} "
           f"(replay: sim_cluster run --scenario {path})")
     return 0

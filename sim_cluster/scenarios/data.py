@@ -61,6 +61,8 @@ class ScenarioData:
     #: the cameras' neighbour graph when the scenario has one (a generated layout's lattice;
     #: topology ``layout``), else None
     neighbours: dict[int, tuple[int, ...]] | None = None
+    #: one-line notes of the loader on what it found or assumed (another tool's layout)
+    notes: tuple[str, ...] = ()
 
     @property
     def num_cameras(self) -> int:
@@ -131,6 +133,8 @@ class ScenarioStream:
     seed: int = 0
     #: the cameras' neighbour graph when the scenario has one (ScenarioData.neighbours)
     neighbours: dict[int, tuple[int, ...]] | None = None
+    #: one-line notes of the loader on what it found or assumed (another tool's layout)
+    notes: tuple[str, ...] = ()
     #: optional: ``focus(cameras)`` -> a chunk maker that makes the detections and image ground
     #: truth of these cameras only (the others' are empty), the same as ``chunk``'s
     focus: Callable[[list[int]], ChunkMaker] | None = field(default=None, repr=False)
@@ -190,7 +194,8 @@ class ScenarioStream:
         return ScenarioData(name=self.name, cameras=list(self.cameras), frames=self.frames,
                             fps=self.fps, units_per_metre=self.units_per_metre,
                             detections=detections, truth=truth, detection_truth=det_truth,
-                            area=self.area, seed=self.seed, neighbours=self.neighbours)
+                            area=self.area, seed=self.seed, neighbours=self.neighbours,
+                            notes=self.notes)
 
     @classmethod
     def of(cls, data: "ScenarioData", chunk_frames: int = CHUNK_FRAMES) -> "ScenarioStream":
@@ -201,4 +206,4 @@ class ScenarioStream:
 
         return cls(name=data.name, cameras=list(data.cameras), frames=data.frames, fps=data.fps,
                    units_per_metre=data.units_per_metre, chunk=chunk, chunk_frames=chunk_frames,
-                   area=data.area, seed=data.seed, neighbours=data.neighbours)
+                   area=data.area, seed=data.seed, neighbours=data.neighbours, notes=data.notes)

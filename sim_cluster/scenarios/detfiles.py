@@ -22,11 +22,12 @@ from typing import Any
 
 import numpy as np
 
-from edge_node.formats.calibration import (GT_GROUND, camera_entry, read_calibration,
-                                           write_calibration)
+from edge_node.formats.calibration import (GT_GROUND, calibration_path, camera_entry,
+                                           read_calibration, write_calibration)
 from edge_node.formats.detfile import (DetFile, DetFilesError, GroundFile, GtFile, open_det,
                                        open_gt, open_gt_ground, write_det, write_gt,
                                        write_gt_ground)
+from edge_node.formats.layouts import ImportOptions, read_layout
 from sim_cluster.scenarios.data import CHUNK_FRAMES, Frame, ScenarioData, ScenarioStream
 from sim_cluster.scenarios.files import ScenarioError, scenario_table
 
@@ -67,20 +68,39 @@ class DetFilesChunks:
 
 
 def open_det_files(directory: str | os.PathLike[str], frames: int | None = None,
-                   name: str | None = None, seed: int | None = None) -> ScenarioStream:
+                   name: str | None = None, seed: int | None = None,
+                   options: ImportOptions | None = None) -> ScenarioStream:
     """A det-files directory (or its ``calibration.json``) as a ``ScenarioStream``: every file
     is opened and validated here, frames are built a chunk at a time when asked.
+
+    A folder without ``calibration.json`` is read as another tool's layout
+    (:func:`edge_node.formats.layouts.read_layout`, with the command line's ``options``); its
+    notes (what was found, what was assumed) are the stream's ``notes``. ``options`` for a folder
+    with ``calibration.json`` are an error: the file declares what they would.
 
     ``seed`` (for the tracker's own randomness) defaults to the one recorded by the export.
     ``area`` defaults to the extent of the ground truth's positions over the run's frames.
     """
-    cal = read_calibration(directory)
-    frames = cal.frame_count() if frames is None else int(frames)
+    given = options.given if options is not None else []
+    if calibration_path(directory).is_file():
+        if given:
+            raise DetFilesError(f"{calibration_path(directory)} declares the cameras, units and "
+                                f"files: {', '.join(given)} apply to a folder without it "
+                                "(another tool's layout)")
+        cal = read_calibration(directory)
+        notes: tuple[str, ...] = ()
+        ground = None
+        frames = cal.frame_count() if frames is None else int(frames)
+        if frames > 0 and cal.gt_ground.is_file():
+            ground = open_gt_ground(cal.gt_ground, frames)
+    else:
+        imported = read_layout(directory, options, frames)
+        cal, ground, notes = imported.calibration, imported.ground, imported.notes
+        frames = cal.frame_count() if frames is None else int(frames)
     if frames <= 0:
         raise DetFilesError(f"{cal.path}: no frames (frames={frames})")
     dets = [open_det(f.det, frames, f.descriptors, f.descriptors_required) for f in cal.files]
     gts = [open_gt(f.gt, frames) if f.gt.is_file() else None for f in cal.files]
-    ground = open_gt_ground(cal.gt_ground, frames) if cal.gt_ground.is_file() else None
     area = cal.area
     if area is None:
         allxy = ground.positions() if ground is not None else np.zeros((0, 2))
@@ -92,13 +112,15 @@ def open_det_files(directory: str | os.PathLike[str], frames: int | None = None,
         name=name or str(cal.name if cal.name is not None else cal.path.parent.name),
         cameras=cal.cameras, frames=frames, fps=cal.fps, units_per_metre=cal.units_per_metre,
         chunk=chunks, chunk_frames=CHUNK_FRAMES, focus=chunks.only,
-        area=tuple(float(v) for v in area), seed=int((cal.seed or 0) if seed is None else seed))
+        area=tuple(float(v) for v in area), seed=int((cal.seed or 0) if seed is None else seed),
+        notes=notes)
 
 
 def load_det_files(directory: str | os.PathLike[str], frames: int | None = None,
-                   name: str | None = None, seed: int | None = None) -> ScenarioData:
+                   name: str | None = None, seed: int | None = None,
+                   options: ImportOptions | None = None) -> ScenarioData:
     """:func:`open_det_files` with every frame in memory (in-process runs, tests)."""
-    return open_det_files(directory, frames, name, seed).materialise()
+    return open_det_files(directory, frames, name, seed, options).materialise()
 
 
 def scenario_from_table(raw: dict[str, Any], path: Path, seed: int,

@@ -8,7 +8,8 @@ A scenario is a TOML file (:mod:`sim_cluster.scenarios.files`: presets, paths, e
 ``det-files``                your own detections (:mod:`sim_cluster.scenarios.detfiles`)
 
 A folder written by ``sim_cluster export-detections`` (or its ``calibration.json``) is a scenario
-too, and ``corridor-<N>`` / ``grid-<N>`` name the ``corridor`` / ``grid`` layout presets with N
+too, and so is a folder of another tool's MOTChallenge det files
+(:mod:`edge_node.formats.layouts`); and ``corridor-<N>`` / ``grid-<N>`` name the ``corridor`` / ``grid`` layout presets with N
 cameras (:mod:`sim_cluster.scenarios.synthetic.layout`). Same file + same seed gives identical detections. :func:`open_scenario` gives the
 scenario as a :class:`~sim_cluster.scenarios.data.ScenarioStream` (frames on demand: what the
 launcher and camera processes use), :func:`load_scenario` materialised (in-process runs).
@@ -20,6 +21,7 @@ from pathlib import Path
 
 import numpy as np
 
+from edge_node.formats.layouts import ImportOptions
 from sim_cluster.scenarios import detfiles, epfl
 from sim_cluster.scenarios.data import ScenarioData, ScenarioStream
 from sim_cluster.scenarios.detfiles import open_det_files
@@ -40,29 +42,37 @@ SCENARIO_KINDS: dict[str, ScenarioLoader] = {
 
 
 def load_scenario(name_or_path: str | Path, seed: int | None = None,
-                  frames: int | None = None, data_root: str | Path | None = None) -> ScenarioData:
+                  frames: int | None = None, data_root: str | Path | None = None,
+                  options: ImportOptions | None = None) -> ScenarioData:
     """Load a scenario by preset name or file path, every frame in memory (``open_scenario``'s
     arguments)."""
-    return open_scenario(name_or_path, seed, frames, data_root).materialise()
+    return open_scenario(name_or_path, seed, frames, data_root, options).materialise()
 
 
 def open_scenario(name_or_path: str | Path, seed: int | None = None,
-                  frames: int | None = None, data_root: str | Path | None = None
-                  ) -> ScenarioStream:
+                  frames: int | None = None, data_root: str | Path | None = None,
+                  options: ImportOptions | None = None) -> ScenarioStream:
     """Open a scenario by preset name or file path, frames on demand. ``seed`` / ``frames``
     override the file's.
 
     Same file + same seed gives identical detections. A folder written by
-    ``sim_cluster export-detections`` (or its ``calibration.json``) is a scenario too.
+    ``sim_cluster export-detections`` (or its ``calibration.json``) is a scenario too, and so is
+    a folder of another tool's detection files (``edge_node.formats.layouts.LAYOUTS``), read
+    with ``options`` (homographies, ground truth, units, frame rate, image size).
     """
-    made = _open(name_or_path, seed, frames, data_root)
+    made = _open(name_or_path, seed, frames, data_root, options)
     return made if isinstance(made, ScenarioStream) else ScenarioStream.of(made)
 
 
-def _open(name_or_path, seed, frames, data_root) -> ScenarioStream | ScenarioData:
+def _open(name_or_path, seed, frames, data_root, options=None) -> ScenarioStream | ScenarioData:
     candidate = Path(str(name_or_path))
     if candidate.is_dir() or candidate.suffix == ".json":
-        return open_det_files(candidate, frames=frames, seed=seed)
+        return open_det_files(candidate, frames=frames, seed=seed, options=options)
+    if options is not None and options.given:
+        raise ScenarioError(str(name_or_path), None,
+                            f"{', '.join(options.given)} apply to a folder of detection files "
+                            "without calibration.json (another tool's layout), not to a preset "
+                            "or scenario file")
     path = resolve_scenario_path(name_or_path)
     raw = read_scenario_toml(path)
     param = parametric_layout(name_or_path)
@@ -93,6 +103,18 @@ def scenario_from_args(args) -> ScenarioData:
 
 
 def stream_from_args(args) -> ScenarioStream:
-    """:func:`scenario_from_args`, frames on demand."""
+    """:func:`scenario_from_args`, frames on demand (with ``--homographies`` and the other
+    options of another tool's layout where the command has them)."""
     return open_scenario(args.scenario, seed=args.seed, frames=args.frames,
-                         data_root=getattr(args, "data_root", None))
+                         data_root=getattr(args, "data_root", None),
+                         options=import_options(args))
+
+
+def import_options(args) -> ImportOptions:
+    """The options of another tool's layout on a command line (absent ones None)."""
+    hom, gt = getattr(args, "homographies", None), getattr(args, "ground_truth", None)
+    return ImportOptions(homographies=None if hom is None else Path(hom).expanduser(),
+                         ground_truth=None if gt is None else Path(gt).expanduser(),
+                         units_per_metre=getattr(args, "units_per_metre", None),
+                         fps=getattr(args, "fps_override", None),
+                         image_size=getattr(args, "image_size", None))
