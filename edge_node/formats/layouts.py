@@ -112,7 +112,8 @@ def find_cameras(directory: Path, ground_truth: Path | None = None) -> tuple[str
     """The layout (``"folders"`` or ``"flat"``) and every camera's files, camera order."""
     d = Path(directory)
     if not d.is_dir():
-        raise LayoutError(f"{d}: not a folder")
+        raise LayoutError(f"{d}: no such folder (a det-files folder with {CALIBRATION}, or "
+                          "another tool's detection files: sim_cluster run --help)")
     if (d / "det" / "det.txt").is_file():  # one MOTChallenge sequence: one camera
         return "folders", [_folder_cam(d)]
     subs = [s for s in d.iterdir() if s.is_dir() and ((s / "det" / "det.txt").is_file()

@@ -82,6 +82,8 @@ def open_det_files(directory: str | os.PathLike[str], frames: int | None = None,
     ``area`` defaults to the extent of the ground truth's positions over the run's frames.
     """
     given = options.given if options is not None else []
+    if Path(directory).suffix == ".json" and not Path(directory).is_file():
+        raise DetFilesError(f"calibration file not found: {directory}")
     if calibration_path(directory).is_file():
         if given:
             raise DetFilesError(f"{calibration_path(directory)} declares the cameras, units and "
