@@ -6,6 +6,7 @@ and as real processes on loopback.
     sim_cluster scenarios
     sim_cluster export-detections --scenario terrace-sim --out DIR
     sim_cluster import-detections DIR --homographies H.json --out DIR2
+    sim_cluster check-scale --scenario DIR     # units_per_metre against the people in the data
     sim_cluster up --topology chain [--detach]; status | kill N | restart N | down
     sim_cluster ablation --scenarios terrace-sim,lab-sim --seeds 0-4 --out DIR
 """
@@ -28,6 +29,7 @@ from sim_cluster.experiments import ablation, bench, bench_cluster, faultreport,
 from sim_cluster.experiments.ablation import AblationError
 from sim_cluster.network.topology import TopologyError
 from sim_cluster.scenarios import commands as scenarios
+from sim_cluster.scenarios.scale import scale_doc
 from sim_cluster.scenarios.epfl import EpflFormatError
 from sim_cluster.scenarios.synthetic.appearance import AppearanceError
 from sim_cluster.scenarios.synthetic.detector_model import DetectorParamsError
@@ -298,6 +300,15 @@ def build_parser() -> argparse.ArgumentParser:
                     help="frames to import (default: up to the last frame in the files)")
     _import_args(im)
     im.set_defaults(func=scenarios.import_detections)
+
+    cs = sub.add_parser("check-scale",
+                        help="estimate units_per_metre from the people in a scenario (box "
+                             "heights, walking speed) and warn when the declared value "
+                             "disagrees by more than 20%%",
+                        description=scale_doc())
+    scenario_args(cs)
+    _import_args(cs)
+    cs.set_defaults(func=scenarios.check_scale)
 
     rd = sub.add_parser("render", help="render each camera's frames of a synthetic scenario "
                         "(MJPG .avi or PNG folders, plus the empty background)")

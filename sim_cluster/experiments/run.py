@@ -22,6 +22,7 @@ from sim_cluster.network.inprocess import CENTRALIZED, RunResult, run_network
 from sim_cluster.progress import progress_bar
 from sim_cluster.scenarios.data import ScenarioData
 from sim_cluster.scenarios.loader import scenario_from_args
+from sim_cluster.scenarios.scale import scenario_scale
 from sim_cluster.viz import record_run, spec_from_args
 
 
@@ -40,6 +41,13 @@ def tracker_config(ablation: str, file: str | Path | None = None) -> TrackerConf
     raw = read_toml(path, file=str(path), what="tracker config")
     t = Table(raw.get("tracker", raw), str(path), "tracker")
     return t.built(lambda: TrackerConfig.from_dict({**base.to_dict(), **t.data}))
+
+
+def is_det_files(scenario: str) -> bool:
+    """Whether ``--scenario`` names a det-files folder (or its calibration.json) or another
+    tool's files: data whose ``units_per_metre`` a user declared, not a preset."""
+    p = Path(str(scenario))
+    return p.is_dir() or p.suffix == ".json"
 
 
 def geometry_only(data: ScenarioData, cfg: TrackerConfig) -> tuple[TrackerConfig, str | None]:
@@ -117,6 +125,10 @@ def main(args) -> int:
     faults = load_faults(args.faults, data, args.topology)
     for note in data.notes:
         print(note)
+    if is_det_files(args.scenario):  # a scale the user declared (or left at 1): check it
+        warning = scenario_scale(data).warning()
+        if warning:
+            print(f"{data.name}: {warning}")
     cfg, note = geometry_only(data, cfg)
     if note:
         print(note)

@@ -1,6 +1,7 @@
 """The scenario commands: ``sim_cluster scenarios`` (list the presets), ``export-detections``
 (a scenario as a det-files folder), ``import-detections`` (another tool's detection files as a
-det-files folder) and ``render`` (a synthetic scenario's camera videos)."""
+det-files folder), ``check-scale`` (units_per_metre against the people in the data) and
+``render`` (a synthetic scenario's camera videos)."""
 from __future__ import annotations
 
 from pathlib import Path
@@ -9,6 +10,7 @@ from edge_node.formats.detfile import DetFilesError
 from sim_cluster.scenarios.detfiles import export_detections
 from sim_cluster.scenarios.files import LAYOUT_PRESETS, list_presets
 from sim_cluster.scenarios.loader import import_options, load_scenario, scenario_from_args
+from sim_cluster.scenarios.scale import scenario_scale
 from sim_cluster.scenarios.synthetic.render import render_scenario
 
 
@@ -40,9 +42,21 @@ def import_detections(args) -> int:
     data = load_scenario(src, frames=args.frames, options=import_options(args))
     for note in data.notes:
         print(note)
+    warning = scenario_scale(data).warning()
+    if warning:
+        print(f"{data.name}: {warning}")
     path = export_detections(data, Path(args.out), descriptor_dtype="float32")
     print(f"wrote {data.num_cameras} cameras x {data.frames} frames to {args.out} "
           f"(replay: sim_cluster run --scenario {path})")
+    return 0
+
+
+def check_scale(args) -> int:
+    """``sim_cluster check-scale``: the estimate, per camera and from walking speed, and a
+    WARNING line when the declared units_per_metre disagrees by more than 20 %."""
+    data = scenario_from_args(args)
+    for line in scenario_scale(data).lines(data.name):
+        print(line)
     return 0
 
 
