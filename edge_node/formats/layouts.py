@@ -356,7 +356,7 @@ def read_layout(directory: str | os.PathLike[str], options: ImportOptions | None
     """A folder of detection files without ``calibration.json`` (:data:`LAYOUTS`) with the
     command line's ``options``, as a calibration, ground truth and notes."""
     opts = options or ImportOptions()
-    d = Path(directory)
+    d = Path(directory).resolve()
     layout, cams = find_cameras(d, opts.ground_truth)
     names = [c.name for c in cams]
     hpath = opts.homographies
