@@ -245,6 +245,7 @@ def build_parser() -> argparse.ArgumentParser:
     fr = sub.add_parser("fault-report", help="standard faults (kill, restart, loss, delay, "
                         "partition) against the fault-free run")
     scenario_args(fr)
+    _import_args(fr)
     fr.add_argument("--out", default="runs/faults")
     fr.add_argument("--quiet", action="store_true")
     fr.set_defaults(func=faultreport.main)
@@ -287,6 +288,7 @@ def build_parser() -> argparse.ArgumentParser:
     e.add_argument("--float32", action="store_true", help="descriptors as float32 (default float16)")
     e.add_argument("--no-descriptors", action="store_true",
                    help="no appearance: the detections of a detector without re-id")
+    _import_args(e)
     e.set_defaults(func=scenarios.export)
 
     im = sub.add_parser("import-detections",

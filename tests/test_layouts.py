@@ -230,6 +230,12 @@ def test_cli_errors_name_the_layout_file_and_field(tmp_path, capsys):
     e = err("run", "--image-size", "12", "--quiet")
     assert "argument --image-size: must be WIDTHxHEIGHT in pixels" in e
 
+    # camera processes read calibration.json folders: up says how to make one, writes nothing
+    e = err("up", "--scenario", str(d), "--out", str(tmp_path / "up"))
+    assert "the nodes read det-files folders with calibration.json; convert this one first: " \
+           f"sim_cluster import-detections {d} --out DIR" in e
+    assert not (tmp_path / "up").exists()
+
 
 def test_calibration_json_folders_refuse_layout_options(exported, tmp_path, capsys):
     out, _ = exported

@@ -13,6 +13,7 @@ import sys
 from pathlib import Path
 
 from edge_node.faults import FaultPlan, Network
+from edge_node.formats.calibration import CALIBRATION
 from sim_cluster.cluster.configs import video_source_toml
 from sim_cluster.cluster.launcher import Cluster
 from sim_cluster.cluster.state import ClusterError, node_status
@@ -28,6 +29,11 @@ def up(args) -> int:
     Rerun option, node configs) is checked before the first write to ``--out``, so a mistake
     leaves a previous run's files there as they were."""
     spec = spec_from_args(getattr(args, "rerun", None))  # --rerun (sim_cluster/viz.py)
+    folder = Path(str(args.scenario))
+    if folder.is_dir() and not (folder / CALIBRATION).is_file():
+        raise ClusterError(f"{folder}: the nodes read det-files folders with {CALIBRATION}; "
+                           f"convert this one first: sim_cluster import-detections {folder} "
+                           "--out DIR (with --homographies, --image-size ... as run takes them)")
     data = stream_from_args(args)  # frames on demand: nothing is generated up front
     n = data.num_cameras if args.nodes is None else args.nodes
     if not 1 <= n <= data.num_cameras:
