@@ -142,9 +142,11 @@ def _import_args(sp) -> None:
     g.add_argument("--ground-truth", default=None, metavar="FILE",
                    help="ground truth frame,id,X,Y (or frame,id,X,Y,w,h) in ground units "
                         "(default: DIR/gt_ground.csv, else from the cameras' gt boxes)")
-    g.add_argument("--units-per-metre", type=number(0, above=True), default=None,
-                   help="ground units per metre (default: the homographies JSON's, else 1)")
+    g.add_argument("--units-per-metre", type=number(0, above=True), default=None, metavar="U",
+                   help="ground units per metre (default: the homographies JSON's, else 1; "
+                        "sim_cluster check-scale estimates it)")
     g.add_argument("--fps", dest="fps_override", type=number(0, above=True), default=None,
+                   metavar="FPS",
                    help="frame rate (default: seqinfo.ini, the JSON's, else 25)")
     g.add_argument("--image-size", type=image_size, default=None, metavar="WxH",
                    help="image size of every camera (default: seqinfo.ini or the JSON's)")
