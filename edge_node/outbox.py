@@ -20,6 +20,8 @@ from __future__ import annotations
 from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field, replace
 
+import numpy as np
+
 from edge_node.core.trigger import EventTrigger
 from edge_node.faults import NO_FAULTS, FaultPlan
 from protocol import codec
@@ -73,11 +75,14 @@ class Outbox:
 
     def send(self, msg: FrameMessage, *, resync: Iterable[int] = (),
              resync_message: Callable[[FrameMessage], FrameMessage] | None = None,
-             sent_at: float | None = None) -> list[Delivery]:
+             sent_at: float | None = None,
+             covariance: Callable[[], np.ndarray] | None = None) -> list[Delivery]:
         """The deliveries of ``msg`` due now (late ones are kept for ``due``).
 
         ``resync``: neighbours that came back; they get ``resync_message(msg)``.
         ``sent_at``: the wall-clock stamp a real process puts on the message.
+        ``covariance``: the sender's predicted covariances of ``msg``'s rows, asked for only
+        when the event trigger weighs withheld information (``CameraNode.covariances``).
         """
         if not self.neighbours:
             return []
@@ -86,7 +91,7 @@ class Outbox:
         resync = set(resync) & set(self.neighbours) if resync_message is not None else set()
         stayers = len(self.neighbours) - len(resync)  # the neighbours the trigger's cut goes to
         if self.trigger is not None:
-            msg = self.trigger.filter(full)
+            msg = self.trigger.filter(full, covariance)
             if msg is None:
                 self._count_saved(full, 0, stayers)
         if sent_at is not None:

@@ -10,7 +10,9 @@ only, sync and event-triggered, registration, message loss and delay, a kill and
 same ids in every frame. It was re-recorded, with the batched core, when wire schema 3 (issue
 16) changed what neighbours receive: a measurement as a float16 factor and innovation instead
 of float32 ``u, U``. That changed every run's states by at most 1.3e-3 relative (sub-millimetre)
-and no id in any frame. Recorded by::
+and no id in any frame. The event-triggered run was re-recorded again when the trigger began
+holding a silent neighbour's ``ell`` and accumulating withheld information (issue 16). Recorded
+by::
 
     python tests/core_reference.py tests/data/core_reference.npz
 

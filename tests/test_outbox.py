@@ -54,7 +54,7 @@ def test_event_trigger_keeps_silent_and_counts_what_it_saved():
     assert len(ob.send(msg(0))) == 1  # news: sent
     quiet = msg(1, u=0.0)  # nothing measured, no drift, no ell news
     quiet = FrameMessage("net", 0, 1, tuple(
-        TrackerInfo(t.id, t.x_bar, np.zeros(6), np.zeros((6, 6)), 1, None, 0) for t in quiet.trackers))
+        TrackerInfo(t.id, t.x_bar, np.zeros(6), np.zeros((6, 6)), 0, None, 0) for t in quiet.trackers))
     assert ob.send(quiet) == []
     assert ob.counters.frames_skipped == 1
     assert ob.counters.bytes_saved == len(codec.encode(quiet))
@@ -79,7 +79,7 @@ def test_async_resync_sends_the_trackers_the_trigger_withheld():
     ob = Outbox(0, (1, 2), trigger=EventTrigger(TriggerConfig(heartbeat_frames=5), dt=0.04))
     ob.send(msg(0))  # both trackers are news once
     quiet = FrameMessage("net", 0, 1, tuple(
-        TrackerInfo(t.id, t.x_bar, np.zeros(6), np.zeros((6, 6)), 1, None, 0)
+        TrackerInfo(t.id, t.x_bar, np.zeros(6), np.zeros((6, 6)), 0, None, 0)
         for t in msg(1).trackers))
 
     def with_appearance(m):

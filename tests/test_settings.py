@@ -66,7 +66,7 @@ def test_core_parameter_rules_become_the_files_errors():
         t.built(lambda: TrackerConfig.from_dict(t.data))
     t = Table({"tua": 1}, "cam0.toml", "tracker")
     with pytest.raises(SettingsError, match=r"^cam0.toml: tracker: unknown parameter\(s\) tua "
-                                            r"\(known: use_appearance, .*, staleness_frames\)"):
+                                            r"\(known: use_appearance, .*, hold_frames\)"):
         t.built(lambda: TrackerConfig.from_dict(t.data))
     # a table that spells a field its own way: the error uses the table's name for it
     t = Table({"drift_m": 0}, "cam0.toml", "runtime")

@@ -4,9 +4,10 @@ modes"; the paper's asynchronous remark at the end of Sec. III-A, after He et al
 Neighbours send a tracker only when they have something new about it, and messages may come
 late, twice or out of order. The memory keeps each neighbour's newest entry per tracker and,
 every frame ``k``, hands back those entries brought to ``k``: ``x_bar`` predicted forward with
-the constant-velocity model, ``ell`` aged by the frames since (eq. 8), and ``u, U`` only once
-and only within ``staleness_frames`` (older measurement information would pull the estimate to
-where the target was). Entries older than ``kappa`` frames are forgotten: a neighbour that died
+the constant-velocity model, ``ell`` as sent for ``hold_frames`` frames and aged by the frames
+beyond (eq. 8: a neighbour's silence means "no change" until its heartbeat is due; the trigger
+sends when its ``ell`` changes), and ``u, U`` only once and only within ``staleness_frames``
+(older measurement information would pull the estimate to where the target was). Entries older than ``kappa`` frames are forgotten: a neighbour that died
 or dropped the tracker.
 """
 from __future__ import annotations
@@ -55,7 +56,7 @@ class NeighbourMemory:
                     aged.append(t)
                     continue
                 A = transition(age * self.cfg.dt)
-                aged.append(replace(t, x_bar=A @ t.x_bar, ell=t.ell + age,
+                aged.append(replace(t, x_bar=A @ t.x_bar, ell=t.ell + max(0, age - self.cfg.hold_frames),
                                     u=t.u if keep_info else np.zeros(STATE_DIM),
                                     U=t.U if keep_info else np.zeros((STATE_DIM, STATE_DIM))))
             out.append(FrameMessage(self.network, sender, k, tuple(aged)))

@@ -154,6 +154,7 @@ class CameraNode:
         self.stats = NodeStats()
         self._frame: int | None = None
         self._prepared = False
+        self._message_rows: list[Tracker] = []
 
     # ------------------------------------------------------------------------------------
     # prepare: prediction, LDA, local information, local initialisation, the message
@@ -301,6 +302,7 @@ class CameraNode:
         the appearance of the trackers new to this sender, and the merge announcements; built
         as one ``TrackerBlock`` (no per-tracker objects)."""
         trs = [tr for _, tr in sorted(self.trackers.items()) if self._sends(tr)]
+        self._message_rows = trs
         apps = []
         for row, tr in enumerate(trs):
             if not tr.announced and len(tr.gallery):
@@ -316,6 +318,13 @@ class CameraNode:
         else:
             block = TrackerBlock.empty()
         return FrameMessage.from_block(self.network, self.id, k, block, self.book.announcements())
+
+    def covariances(self) -> np.ndarray:
+        """The predicted covariances ``P`` ``(n, 6, 6)`` of the last message's rows, in its
+        order (the event trigger's prior; call between ``prepare`` and ``update``)."""
+        if not self._message_rows:
+            return np.zeros((0, 6, 6))
+        return np.array([tr.P for tr in self._message_rows])
 
     def resync_message(self, msg: FrameMessage) -> FrameMessage:
         """``msg`` with every tracker's appearance attached: what this node sends a neighbour that

@@ -30,6 +30,8 @@ Schema (defaults in brackets)::
     heartbeat_frames = 10           # async: send at least every N frames  [core.trigger's: 10]
     drift_m = 0.1                   # async: send a tracker when it drifted this far (metres)
                                     #        from what the neighbours extrapolate  [core.trigger's]
+    gain_nats = 0.0                 # async: send withheld measurement information once it is
+                                    #        worth this much (KL divergence, nats)  [core.trigger's: 0]
     staleness_frames = 2            # async: use a stale message's u, U only this many frames
                                     #        (sets TrackerConfig.staleness_frames)     [tracker's]
 
@@ -158,6 +160,7 @@ class RuntimeSettings:
     heartbeat_frames: int = _TRIGGER.heartbeat_frames
     drift_m: float = _TRIGGER.drift
     staleness_frames: int | None = None  # None: the tracker config's
+    gain_nats: float = _TRIGGER.gain
 
 
 @dataclass(frozen=True, eq=False)
@@ -357,11 +360,13 @@ def _runtime(t: Table | None) -> RuntimeSettings:
     # the event trigger's own rules (core/trigger.py) check heartbeat_frames and drift_m
     trigger = t.built(lambda: build(TriggerConfig, {
         "heartbeat_frames": t.raw("heartbeat_frames", d.heartbeat_frames),
-        "drift": t.raw("drift_m", d.drift_m)}, t.where), keys={"drift": "drift_m"})
+        "drift": t.raw("drift_m", d.drift_m), "gain": t.raw("gain_nats", d.gain_nats)}, t.where),
+        keys={"drift": "drift_m", "gain": "gain_nats"})
     staleness_frames = t.integer("staleness_frames", None, lo=0)
     t.finish()
     return RuntimeSettings(mode, sync_timeout_s, startup_timeout_s, fps, frames,
-                           trigger.heartbeat_frames, float(trigger.drift), staleness_frames)
+                           trigger.heartbeat_frames, float(trigger.drift), staleness_frames,
+                           gain_nats=float(trigger.gain))
 
 
 def _source(t: Table, base: Path, node: int) -> SourceSettings:

@@ -202,8 +202,10 @@ class FrameLoop:
         trigger = None
         if mode == "async":
             try:
-                trigger = EventTrigger(TriggerConfig(self.rt.heartbeat_frames, self.rt.drift_m),
-                                       node.cfg.dt, node.cfg.units_per_metre, node.cfg.kappa)
+                trigger = EventTrigger(TriggerConfig(self.rt.heartbeat_frames, self.rt.drift_m,
+                                                     self.rt.gain_nats),
+                                       node.cfg.dt, node.cfg.units_per_metre, node.cfg.kappa,
+                                       node.cfg.hold_frames)
             except ConfigError as e:
                 raise NodeConfigError(cfg.name, "runtime.heartbeat_frames", e.message) from None
         self.outbox = Outbox(node.id, transport.neighbours, faults, trigger)
@@ -219,7 +221,8 @@ class FrameLoop:
                      self.node.id, msg.frame, sorted(resync))
         self._publish(self.outbox.send(msg, resync=resync,
                                        resync_message=self.node.resync_message,
-                                       sent_at=time.time()))
+                                       sent_at=time.time(),
+                                       covariance=self.node.covariances))
         self._resync -= resync
         if self.outbox.counters.encode_errors > errors:
             log.error("node %d: cannot encode our message (%s): not sent", self.node.id,

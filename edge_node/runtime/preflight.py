@@ -82,8 +82,9 @@ def preflight(cfg: NodeConfig) -> Preflight:
                                   f"units_per_metre {src.units_per_metre:g})") from None
         if cfg.runtime.mode == "async":
             try:
-                check_heartbeat(TriggerConfig(cfg.runtime.heartbeat_frames, cfg.runtime.drift_m),
-                                ready.tracker.kappa)
+                check_heartbeat(TriggerConfig(cfg.runtime.heartbeat_frames, cfg.runtime.drift_m,
+                                              cfg.runtime.gain_nats),
+                                ready.tracker.kappa, ready.tracker.hold_frames)
             except ConfigError as e:
                 raise NodeConfigError(cfg.name, "runtime.heartbeat_frames", e.message) from None
         ready.first_counter = first_counter(cfg)

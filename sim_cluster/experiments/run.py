@@ -12,6 +12,7 @@ import json
 from pathlib import Path
 
 from edge_node.core.config import TrackerConfig
+from edge_node.core.trigger import TriggerConfig
 from edge_node.faults import NO_FAULTS, FaultPlan, FaultPlanError, Network
 from edge_node.formats.tracks import write_tracks
 from edge_node.settings import Table, read_toml
@@ -94,18 +95,21 @@ def adjacency(data: ScenarioData, topology: str, order=None):
 def run_once(data: ScenarioData, topology: str, cfg: TrackerConfig, *, order=None,
              show_progress: bool = False, evaluate: bool = True,
              ground_threshold_m: float = 1.0, mode: str = "sync",
-             faults: FaultPlan | None = None) -> tuple[RunResult, dict]:
+             faults: FaultPlan | None = None,
+             trigger: TriggerConfig | None = None) -> tuple[RunResult, dict]:
     """One in-process run plus its evaluation; returns ``(RunResult, summary dict)``.
 
     ``topology`` is a name (``topology.NAMES``), ``centralized``, ``layout`` (the scenario's
     own neighbour graph) or an edge-list file; ``order``
-    the camera ordering of a ring or chain."""
+    the camera ordering of a ring or chain; ``trigger`` the event trigger's settings in async
+    mode (its defaults when ``None``)."""
     adj = adjacency(data, topology, order)
     update, close = progress_bar(f"{data.name} {topology}", data.frames, show_progress)
     try:
         result = run_network(data, adj, cfg, topology_name=Path(topology).stem
                              if topology not in topo.NAMES + (CENTRALIZED, LAYOUT) else topology,
-                             progress=update, mode=mode, faults=faults or NO_FAULTS)
+                             progress=update, mode=mode, faults=faults or NO_FAULTS,
+                             trigger=trigger)
     finally:
         close()
     summary = result.summary()

@@ -160,7 +160,7 @@ def run_network(data: ScenarioData, adjacency: Adjacency | str, cfg: TrackerConf
         raise ValueError(f"topology has nodes {sorted(adjacency)}, scenario has cameras 0..{n - 1}")
     trigger = trigger or TriggerConfig()
     if mode == "async":
-        check_heartbeat(trigger, cfg.kappa)
+        check_heartbeat(trigger, cfg.kappa, cfg.hold_frames)
 
     def fresh(i: int, first_counter: int = 0) -> CameraNode:
         return CameraNode(data.cameras[i], adjacency[i], cfg, network, first_counter=first_counter)
@@ -205,7 +205,7 @@ def run_network(data: ScenarioData, adjacency: Adjacency | str, cfg: TrackerConf
             if probe:
                 cpu[i] = time.process_time() - t0
             deliveries += ob.send(msg, resync={j for j in resync[i] if nodes[j] is not None},
-                                  resync_message=node.resync_message)
+                                  resync_message=node.resync_message, covariance=node.covariances)
             resync[i].clear()
             for dst, payload in deliveries:
                 if nodes[dst] is not None:  # a dead process receives nothing
