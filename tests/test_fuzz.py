@@ -15,7 +15,7 @@ def test_ten_thousand_hostile_messages_crash_nothing_and_change_no_honest_track(
     assert rep.semantic_rejections == rep.expected_rejections == rep.used * 6
     # every kind was sent, and every reason the kinds map to was counted
     assert set(rep.kinds) == set(fuzz.ENTRY_KINDS) | set(fuzz.MERGE_KINDS)
-    for reason in ("bad_information", "implausible_information", "implausible_state",
+    for reason in ("implausible_information", "implausible_state",
                    "implausible_ell", "future_birth", "born_moved", "implausible_birth"):
         assert rep.rejected.get(reason, 0) > 0, reason
     # the transport's own refusals: not a neighbour of node 0, replays, copies
