@@ -168,7 +168,7 @@ def test_async_heartbeat_as_long_as_kappa_is_refused_by_check_and_run(tmp_path, 
         "(15)" in check[0], check
     assert run[-1] == check[0]
     p.write_text(p.read_text().replace("heartbeat_frames = 15", "heartbeat_frames = 14"))
-    assert main(["check", "--config", str(p)]) == 2  # receivers hold ell 10 frames (hold_frames)
-    assert "runtime.heartbeat_frames must be at most tracker.hold_frames (10)" in capsys.readouterr().err
+    assert main(["check", "--config", str(p)]) == 2  # receivers hold ell 5 frames (hold_frames)
+    assert "runtime.heartbeat_frames must be at most tracker.hold_frames (5)" in capsys.readouterr().err
     p.write_text(p.read_text().replace("kappa = 15", "kappa = 15\nhold_frames = 14"))
     assert main(["check", "--config", str(p)]) == 0

@@ -116,7 +116,7 @@ class TrackerConfig:
 
     # --- asynchronous operation (event-triggered consensus) ----------------------------------
     staleness_frames: int = integer(2, lo=0, doc="a neighbour's u, U older than this is ignored")
-    hold_frames: int = integer(10, lo=0, doc="a silent neighbour's ell holds this many frames "
+    hold_frames: int = integer(5, lo=0, doc="a silent neighbour's ell holds this many frames "
                                "(its trigger's heartbeat), then ages")
 
     def __post_init__(self) -> None:

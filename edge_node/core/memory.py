@@ -56,8 +56,11 @@ class NeighbourMemory:
                     aged.append(t)
                     continue
                 A = transition(age * self.cfg.dt)
+                u, U = np.zeros(STATE_DIM), np.zeros((STATE_DIM, STATE_DIM))
+                if keep_info:  # a measurement of where the target was, moved to where it is now
+                    U = t.U
+                    u = t.u + U[:, :2] @ (age * self.cfg.dt * np.asarray(t.x_bar)[4:6])
                 aged.append(replace(t, x_bar=A @ t.x_bar, ell=t.ell + max(0, age - self.cfg.hold_frames),
-                                    u=t.u if keep_info else np.zeros(STATE_DIM),
-                                    U=t.U if keep_info else np.zeros((STATE_DIM, STATE_DIM))))
+                                    u=u, U=U))
             out.append(FrameMessage(self.network, sender, k, tuple(aged)))
         return out

@@ -27,7 +27,7 @@ Schema (defaults in brackets)::
     startup_timeout_s = 30.0        # start-up barrier (and the first frame's wait)         [30.0]
     fps = 0.0                       # pacing; 0 = as fast as possible                       [0]
     frames = 100                    # optional limit on the number of frames
-    heartbeat_frames = 10           # async: send at least every N frames  [core.trigger's: 10]
+    heartbeat_frames = 5            # async: send at least every N frames  [core.trigger's: 5]
     drift_m = 0.1                   # async: send a tracker when it drifted this far (metres)
                                     #        from what the neighbours extrapolate  [core.trigger's]
     gain_nats = 0.3                 # async: send withheld measurement information once it is
