@@ -19,15 +19,16 @@ an overload) skips ahead to the network's frame and paces on from there.
 
 ``async`` (event-triggered)
     never waits. Each frame: ``prepare``; the outbox's ``EventTrigger`` keeps the tracker
-    entries the neighbours need (new measurement information, appearance, a tracker whose
-    ``x_bar`` drifted more than ``drift_m`` from what they extrapolate, ``ell`` news, a
-    per-tracker heartbeat) plus merges, or says to stay silent; a message is sent at least every
-    ``heartbeat_frames``. Bytes saved against sending the full message every frame are counted.
+    entries the neighbours need (withheld measurement information worth more than
+    ``gain_nats``, appearance, a tracker whose ``x_bar`` drifted more than ``drift_m`` from what
+    they extrapolate, a changed ``ell``, a per-tracker heartbeat) plus merges, or says to stay
+    silent; a message is sent at least every ``heartbeat_frames``. Bytes saved against sending the full message every frame are counted.
     Then ``node.update(arrived,
     stale_ok=True)`` with every message received since the last frame with frame ``<= k`` (a
     neighbour's later frames wait until we get there). The core remembers each neighbour's newest
     entry per tracker, predicts it forward, uses its ``u, U`` once and only within
-    ``staleness_frames``, ages ``ell``, and ignores duplicates and reordered messages.
+    ``staleness_frames``, holds ``ell`` for ``hold_frames`` and then ages it, and ignores
+    duplicates and reordered messages.
 
 Shutdown: SIGINT / SIGTERM set a flag; the current frame is finished (a sync wait is cut short),
 files are flushed, Zenoh is closed, and the process exits 0.
