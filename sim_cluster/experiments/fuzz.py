@@ -112,7 +112,9 @@ class Hostile:
         z[4:] = 0
         if kind == "huge_information":
             U[:4, :4] = np.eye(4) * 10.0 ** self.rng.uniform(9, 30)
-            u = U @ z
+            # measured exactly at x_bar as the wire carries it (float32): an innovation of even
+            # 1e-6 m would be beyond float16 at these precisions
+            u = U @ z.astype(np.float32).astype(np.float64)
         elif kind == "off_world_measurement":
             # 1e4 standard deviations from the plausible state (schema 3 carries up to 65504):
             # far beyond the screen's gate of 100 off the world
