@@ -244,7 +244,7 @@ def test_tracker_is_unit_invariant():
 
 def test_stale_messages_fused_once_and_aged():
     """Event-triggered input (update(stale_ok=True)): a neighbour's entry is predicted forward
-    (its ell held); its u, U count once (a duplicate or a re-delivery adds nothing); entries older
+    and aged; its u, U count once (a duplicate or a re-delivery adds nothing); entries older
     than kappa are forgotten."""
     from edge_node.core import dkf
     from edge_node.core.model import transition
@@ -270,8 +270,9 @@ def test_stale_messages_fused_once_and_aged():
     expect, _ = dkf.correct(x_bar, P, entry.u, entry.U, [A @ entry.x_bar],
                             own_x_bar_sent=tr.local.x_bar_sent)
     np.testing.assert_allclose(tr.x_hat, expect, atol=1e-9)  # fused once, x_bar predicted
-    # held, not aged: a neighbour's silence means no change for hold_frames frames
-    assert tr.ell == min(tr.local.ell_sent, entry.ell)
+    # aged by one frame: the neighbour's newest message is a frame old (a late link, not a
+    # deliberate silence, which would hold it)
+    assert tr.ell == min(tr.local.ell_sent, entry.ell + 1)
 
     n1.prepare(4, [])
     tr = n1.trackers[(0, 0)]

@@ -203,17 +203,27 @@ def test_withheld_information_adds_up_and_is_sent_once_worth_it():
 
 
 def test_memory_holds_a_silent_neighbours_ell_then_ages_it():
-    """Event-triggered receivers: a neighbour's ``ell`` is held ``hold_frames`` frames (its
-    silence means no change), then grows one per frame; ``x_bar`` is extrapolated."""
+    """Event-triggered receivers: a neighbour that is heard from (its other messages arrive)
+    but says nothing about a tracker means "no change": its ``ell`` is held ``hold_frames``
+    frames, then grows one per frame. A neighbour that is not heard from at all (late or lost
+    messages) gives no such assurance: ``ell`` grows one per frame at once (eq. 8's ageing).
+    ``x_bar`` is extrapolated in both cases."""
     from edge_node.core.memory import NeighbourMemory
 
     cfg = TrackerConfig(hold_frames=3)
-    mem = NeighbourMemory(cfg, "n")
     x = np.array([1.0, 2.0, 0.5, 1.7, 1.0, 0.0])
-    mem.remember([FrameMessage("n", 1, 10, (TrackerInfo((1, 0), x, np.zeros(6), np.zeros((6, 6)), 2, None, 0),))])
-    got = {k: mem.at(k)[0].trackers[0] for k in range(10, 16)}
-    assert [got[k].ell for k in range(10, 16)] == [2, 2, 2, 2, 3, 4]
-    assert np.isclose(got[15].x_bar[0], 1.0 + 5 * cfg.dt * 1.0)
+    first = FrameMessage("n", 1, 10, (TrackerInfo((1, 0), x, np.zeros(6), np.zeros((6, 6)), 2, None, 0),))
+    heard, unheard = NeighbourMemory(cfg, "n"), NeighbourMemory(cfg, "n")
+    heard.remember([first])
+    unheard.remember([first])
+    ells = {"heard": [], "unheard": []}
+    for k in range(10, 16):
+        if k > 10:
+            heard.remember([FrameMessage("n", 1, k)])  # a beacon: the neighbour is there
+        ells["heard"].append(heard.at(k)[0].trackers[0].ell)
+        ells["unheard"].append(unheard.at(k)[0].trackers[0].ell)
+    assert ells == {"heard": [2, 2, 2, 2, 3, 4], "unheard": [2, 3, 4, 5, 6, 7]}
+    assert np.isclose(heard.at(16)[0].trackers[0].x_bar[0], 1.0 + 6 * cfg.dt * 1.0)
 
 
 def test_fault_plan_is_seeded_and_validated(tmp_path):

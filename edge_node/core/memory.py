@@ -4,9 +4,10 @@ modes"; the paper's asynchronous remark at the end of Sec. III-A, after He et al
 Neighbours send a tracker only when they have something new about it, and messages may come
 late, twice or out of order. The memory keeps each neighbour's newest entry per tracker and,
 every frame ``k``, hands back those entries brought to ``k``: ``x_bar`` predicted forward with
-the constant-velocity model, ``ell`` as sent for ``hold_frames`` frames and aged by the frames
-beyond (eq. 8: a neighbour's silence means "no change" until its heartbeat is due; the trigger
-sends when its ``ell`` changes), and ``u, U`` only once and only within ``staleness_frames``
+the constant-velocity model, ``ell`` as sent while the neighbour is heard from but silent about
+the tracker (for up to ``hold_frames``: its silence means "no change" until its heartbeat is
+due; the trigger sends when its ``ell`` changes) and aged by one per frame beyond that and for
+every frame the neighbour itself is not heard from (late or lost messages: eq. 8's ageing), and ``u, U`` only once and only within ``staleness_frames``
 (older measurement information would pull the estimate to where the target was). Entries older than ``kappa`` frames are forgotten: a neighbour that died
 or dropped the tracker.
 """
@@ -28,9 +29,11 @@ class NeighbourMemory:
         self.network = network
         # neighbour -> tracker -> (frame, entry, u/U already fused)
         self.entries: dict[int, dict[TrackerId, tuple[int, TrackerInfo, bool]]] = {}
+        self.newest: dict[int, int] = {}  # neighbour -> frame of its newest message (any)
 
     def remember(self, arrived: Iterable[FrameMessage]) -> None:
         for m in arrived:
+            self.newest[m.sender] = max(self.newest.get(m.sender, m.frame), m.frame)
             mem = self.entries.setdefault(m.sender, {})
             for t in m.trackers:
                 old = mem.get(t.id)
@@ -43,6 +46,7 @@ class NeighbourMemory:
         out = []
         for sender in sorted(self.entries):
             mem = self.entries[sender]
+            newest = self.newest.get(sender, k)
             aged = []
             for tid in sorted(mem):
                 frame, t, consumed = mem[tid]
@@ -60,7 +64,16 @@ class NeighbourMemory:
                 if keep_info:  # a measurement of where the target was, moved to where it is now
                     U = t.U
                     u = t.u + U[:, :2] @ (age * self.cfg.dt * np.asarray(t.x_bar)[4:6])
-                aged.append(replace(t, x_bar=A @ t.x_bar, ell=t.ell + max(0, age - self.cfg.hold_frames),
+                aged.append(replace(t, x_bar=A @ t.x_bar, ell=t.ell + self._aged(k, frame, newest),
                                     u=u, U=U))
             out.append(FrameMessage(self.network, sender, k, tuple(aged)))
         return out
+
+    def _aged(self, k: int, frame: int, newest: int) -> int:
+        """How much a neighbour's ``ell`` sent at ``frame`` has grown by frame ``k``, as far as
+        this node can tell. The sender's silence since (up to its newest message, ``newest``) is
+        deliberate: nothing changed, so it holds for ``hold_frames``. The time since its newest
+        message is the link's lag (late or lost messages): then nobody says what changed, and
+        ``ell`` ages by one per frame, as eq. 8 assumes of a neighbour it does not hear from."""
+        silence = max(0, newest - frame)
+        return max(0, k - max(newest, frame)) + max(0, silence - self.cfg.hold_frames)
