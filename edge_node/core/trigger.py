@@ -17,9 +17,10 @@ An entry is sent when
   ``KL = 1/2 [tr((I + P U)^-1) - 6 + ln det(I + P U) + d^T P^-1 d]``,
   ``d = (P^-1 + U)^-1 (u - U x_bar)``: the first three terms are what the information adds
   (the uncertainty it removes), the last how far it moves the mean. ``gain = 0`` sends every
-  measurement (every frame a camera sees the target). The default, 0.3 nats (with a 5-frame heartbeat), halves the bytes
-  of sync operation at the same ground MOTA on terrace-sim, campus-sim and ring8-sim (README
-  "Bandwidth"; ``sim_cluster bandwidth-sweep`` measures the whole curve);
+  measurement (every frame a camera sees the target). The default, 1 nat (with a 5-frame
+  heartbeat), sends 0.44-0.46 of sync operation's bytes at ground MOTA within 0.5 % of sync on
+  terrace-sim, terrace-gt, campus-sim and ring8-sim (README "Bandwidth";
+  ``sim_cluster bandwidth-sweep`` measures the whole curve);
 * drift: ``x_bar`` moved more than ``drift`` (metres) from what the neighbours extrapolate from
   the entry they last got;
 * ``ell`` changed from the value last sent: the drop consensus (eq. 8) must hear that someone
@@ -54,7 +55,7 @@ from protocol.messages import FrameMessage, TrackerId
 class TriggerConfig:
     heartbeat_frames: int = integer(5, lo=1, doc="frames between two sends of one tracker")
     drift: float = positive(0.1, "m, prediction drift that triggers a send")
-    gain: float = nonnegative(0.3, "nats: withheld measurement information worth sending "
+    gain: float = nonnegative(1.0, "nats: withheld measurement information worth sending "
                                     "(KL divergence it causes); 0 sends every measurement")
 
     def __post_init__(self) -> None:

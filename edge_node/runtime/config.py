@@ -30,8 +30,8 @@ Schema (defaults in brackets)::
     heartbeat_frames = 5            # async: send at least every N frames  [core.trigger's: 5]
     drift_m = 0.1                   # async: send a tracker when it drifted this far (metres)
                                     #        from what the neighbours extrapolate  [core.trigger's]
-    gain_nats = 0.3                 # async: send withheld measurement information once it is
-                                    #        worth this much (KL divergence, nats)  [core.trigger's: 0.3]
+    gain_nats = 1.0                 # async: send withheld measurement information once it is
+                                    #        worth this much (KL divergence, nats)  [core.trigger's: 1]
     staleness_frames = 2            # async: use a stale message's u, U only this many frames
                                     #        (sets TrackerConfig.staleness_frames)     [tracker's]
 
