@@ -200,14 +200,15 @@ def _task_dict(task: Task) -> dict:
 class _Progress:
     """Runs done: a tqdm bar on a terminal, a line about every 10% otherwise (logs, CI)."""
 
-    def __init__(self, total: int, enabled: bool = True, stream=None):
+    def __init__(self, total: int, enabled: bool = True, stream=None, name: str = "ablation"):
         self.total, self.done, self.enabled = total, 0, enabled and total > 0
+        self.name = name
         self.stream = stream or sys.stderr
         self.t0 = time.monotonic()
         self.bar = None
         self.next_pct = 10
         if self.enabled and self.stream.isatty():
-            self.bar = tqdm(total=total, desc="ablation", unit="run", file=self.stream)
+            self.bar = tqdm(total=total, desc=name, unit="run", file=self.stream)
 
     def step(self, label: str = "") -> None:
         self.done += 1
@@ -221,7 +222,7 @@ class _Progress:
         if pct >= self.next_pct or self.done == self.total:
             el = time.monotonic() - self.t0
             left = el / self.done * (self.total - self.done)
-            print(f"ablation: {self.done}/{self.total} runs ({pct}%), {_hms(el)} elapsed, "
+            print(f"{self.name}: {self.done}/{self.total} runs ({pct}%), {_hms(el)} elapsed, "
                   f"~{_hms(left)} left", file=self.stream, flush=True)
             self.next_pct = pct - pct % 10 + 10
 
@@ -635,7 +636,7 @@ def _uses_data_root(scenario: str) -> bool:
 
 
 def probe(scenarios: Sequence[str], seed: int, data_root: str | None,
-          log=None) -> tuple[dict[str, dict], dict[str, str]]:
+          log=None, name: str = "ablation") -> tuple[dict[str, dict], dict[str, str]]:
     """Load each scenario's first frame: its cameras, or why it is skipped (missing data).
 
     An unknown or invalid scenario raises ``AblationError``.
@@ -651,7 +652,7 @@ def probe(scenarios: Sequence[str], seed: int, data_root: str | None,
             raise AblationError(str(e)) from None
         except OSError as e:  # epfl.DataNotFoundError: the data is not there
             skipped[sc] = str(e)
-            print(f"ablation: skipping {sc}: {e}", file=log, flush=True)
+            print(f"{name}: skipping {sc}: {e}", file=log, flush=True)
             continue
         n = d.num_cameras
         info[sc] = {"cameras": n, "data_root": root,
