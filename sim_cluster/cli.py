@@ -9,6 +9,7 @@ and as real processes on loopback.
     sim_cluster check-scale --scenario DIR     # units_per_metre against the people in the data
     sim_cluster up --topology chain [--detach]; status | kill N | restart N | down
     sim_cluster ablation --scenarios terrace-sim,lab-sim --seeds 0-4 --out DIR
+    sim_cluster bandwidth-sweep --out DIR     # bytes vs MOTA/IDF1 over the trigger's gain
 """
 from __future__ import annotations
 
@@ -25,7 +26,8 @@ from edge_node.settings import SettingsError
 from protocol.keys import is_valid_network
 from sim_cluster.cluster import commands as cluster
 from sim_cluster.cluster.state import ClusterError
-from sim_cluster.experiments import ablation, bench, bench_cluster, faultreport, fuzz, run, soak
+from sim_cluster.experiments import ablation, bandwidth, bench, bench_cluster, faultreport, fuzz, \
+    run, soak
 from sim_cluster.experiments.ablation import AblationError
 from sim_cluster.network.topology import TopologyError
 from sim_cluster.scenarios import commands as scenarios
@@ -390,6 +392,32 @@ def build_parser() -> argparse.ArgumentParser:
     a.add_argument("--out", default="runs/ablation")
     a.add_argument("--quiet", action="store_true", help="no progress")
     a.set_defaults(func=ablation.main)
+
+    bw = sub.add_parser("bandwidth-sweep", help="bytes per frame against ground MOTA/IDF1 over "
+                        "the async trigger's gain, sync as the reference (CSV, PNG, tables)")
+    bw.add_argument("--scenarios", default=",".join(bandwidth.DEFAULT_SCENARIOS),
+                    help="comma-separated presets or scenario files (missing data: skipped; "
+                         f"default {','.join(bandwidth.DEFAULT_SCENARIOS)})")
+    bw.add_argument("--topology", default="ring",
+                    help="complete | ring | chain | star | edge-list file (default ring)")
+    bw.add_argument("--config", default=bandwidth.CONFIG, choices=CONFIG_NAMES)
+    bw.add_argument("--gains", default=",".join(f"{g:g}" for g in bandwidth.DEFAULT_GAINS),
+                    help="comma-separated trigger gains in nats for the async runs (default "
+                         "%(default)s)")
+    bw.add_argument("--late", default=",".join(f"{g:g}" for g in bandwidth.DEFAULT_LATE),
+                    metavar="GAINS",
+                    help="gains of the async runs with every message 1-4 frames late (default "
+                         "%(default)s; none: skip them)")
+    bw.add_argument("--seed", type=integer(0), default=0)
+    bw.add_argument("--frames", type=integer(1), default=None,
+                    help="frames per run (default: the scenario's)")
+    bw.add_argument("--jobs", type=integer(1), default=1,
+                    help="worker processes (default 1; runs take seconds each)")
+    bw.add_argument("--data-root", default=None,
+                    help="folder holding epfl_pom/ (default: $DMTT_DATA or ../shared/data)")
+    bw.add_argument("--out", default="docs/results/bandwidth")
+    bw.add_argument("--quiet", action="store_true", help="no progress")
+    bw.set_defaults(func=bandwidth.main)
     return p
 
 
