@@ -115,6 +115,8 @@ def test_markdown_tables(sweep):
     rows = _rows(out)
     sync = _find(rows, "sync")
     assert "- **terrace-gt skipped**" in md
+    assert ("Reproduce with `sim_cluster bandwidth-sweep --scenarios terrace-sim,terrace-gt "
+            f"--gains 0,10 --late 0 --frames {FRAMES}`.") in md
     assert "| scenario | sync B/frame | gain (largest within 2%) | bytes ratio |" in md
     assert "## terrace-sim" in md
     # the per-scenario table: one line per run, numbers as in the CSV

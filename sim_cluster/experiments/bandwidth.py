@@ -321,6 +321,9 @@ def markdown(rows: Sequence[Mapping], summ: Mapping[str, Mapping], meta: Mapping
         "tracker entry on one link, appearance excluded. MOTA / IDF1: median over nodes; ground "
         "within 1 m, image IoU >= 0.5. Ratios are to the scenario's sync run.")
     lines.append("")
+    if meta.get("command"):
+        lines.append(f"Reproduce with `{meta['command']}`.")
+        lines.append("")
     for sc, reason in meta.get("skipped", {}).items():
         lines.append(f"- **{sc} skipped**: {reason}")
     if meta.get("failed"):
@@ -378,8 +381,9 @@ def markdown(rows: Sequence[Mapping], summ: Mapping[str, Mapping], meta: Mapping
 
 
 def plot(path: Path, rows: Sequence[Mapping], summ: Mapping[str, Mapping]) -> None:
-    """``bandwidth.png``: a panel per scenario, x bytes per frame (kB), y ground MOTA and
-    IDF1; async on time as lines (gains annotated), late as hollow markers, sync as stars."""
+    """``bandwidth.png``: a panel per scenario, x bytes per frame (kB; the top axis the ratio to
+    sync), y ground MOTA and IDF1; async on time as lines (gains annotated), late as hollow
+    markers, sync as stars; dotted: sync MOTA - 2% and half of sync's bytes (issue 16's goal)."""
     import matplotlib  # plotting only here
 
     matplotlib.use("Agg")
@@ -389,7 +393,7 @@ def plot(path: Path, rows: Sequence[Mapping], summ: Mapping[str, Mapping]) -> No
     n = max(len(scenarios), 1)
     ncol = 2 if n > 1 else 1
     nrow = (n + ncol - 1) // ncol
-    fig, axes = plt.subplots(nrow, ncol, squeeze=False, figsize=(6.2 * ncol, 4.2 * nrow))
+    fig, axes = plt.subplots(nrow, ncol, squeeze=False, figsize=(6.2 * ncol, 4.4 * nrow))
     styles = (("ground_mota", "ground MOTA", "#08306b"), ("ground_idf1", "ground IDF1", "#e6550d"))
     for i, sc in enumerate(scenarios):
         ax = axes[i // ncol][i % ncol]
@@ -398,6 +402,7 @@ def plot(path: Path, rows: Sequence[Mapping], summ: Mapping[str, Mapping]) -> No
                          key=lambda r: r["gain"])
         late = [r for r in mine if r["late"]]
         sync = summ[sc]["sync"]
+        xmax = 1.08 * max(r["bytes_per_frame"] for r in mine) / 1e3
         for col, name, color in styles:
             pts = [(r["bytes_per_frame"] / 1e3, r[col]) for r in on_time if r[col] is not None]
             if pts:
@@ -405,39 +410,52 @@ def plot(path: Path, rows: Sequence[Mapping], summ: Mapping[str, Mapping]) -> No
             lp = [(r["bytes_per_frame"] / 1e3, r[col]) for r in late if r[col] is not None]
             if lp:
                 ax.plot(*zip(*lp), "s", mfc="none", color=color, ms=7,
-                        label=f"async, late: {name}")
+                        label=f"async, {LATE_TEXT}: {name}")
             if sync is not None and sync[col] is not None:
                 ax.plot([sync["bytes_per_frame"] / 1e3], [sync[col]], "*", color=color, ms=14,
                         mec="black", mew=0.6, label=f"sync: {name}")
         if sync is not None and sync["ground_mota"] is not None:
             ax.axhline((1 - MOTA_TOLERANCE) * sync["ground_mota"], color="#08306b", lw=0.7,
                        ls=":", label=f"sync MOTA - {MOTA_TOLERANCE:.0%}")
+        if sync is not None and sync["bytes_per_frame"]:
+            sb = sync["bytes_per_frame"] / 1e3
+            ax.axvline(GOAL_BYTES_RATIO * sb, color="grey", lw=0.7, ls=":",
+                       label=f"{GOAL_BYTES_RATIO:g} x sync bytes")
+            top = ax.secondary_xaxis("top", functions=(lambda x, sb=sb: x / sb,
+                                                       lambda r, sb=sb: r * sb))
+            top.set_xlabel("bytes / sync", fontsize=8)
+            top.tick_params(labelsize=8)
+        last_x, depth = None, 0  # labels of points close together go one line lower
         for r in on_time:
-            if r["ground_mota"] is not None:
-                ax.annotate(f"{r['gain']:g}", (r["bytes_per_frame"] / 1e3, r["ground_mota"]),
-                            textcoords="offset points", xytext=(0, -11), ha="center",
-                            fontsize=7, color="#08306b")
+            if r["ground_mota"] is None:
+                continue
+            x = r["bytes_per_frame"] / 1e3
+            depth = depth + 1 if last_x is not None and abs(x - last_x) < 0.05 * xmax else 0
+            last_x = x
+            ax.annotate(f"{r['gain']:g}", (x, r["ground_mota"]), textcoords="offset points",
+                        xytext=(0, -11 - 8 * (depth % 3)), ha="center", fontsize=7,
+                        color="#08306b")
         for r in late:
             if r["ground_mota"] is not None:
-                ax.annotate(f"late {r['gain']:g}", (r["bytes_per_frame"] / 1e3, r["ground_mota"]),
-                            textcoords="offset points", xytext=(6, -3), fontsize=7,
-                            color="#555555")
-        ax.set_xlim(0, 1.08 * max(r["bytes_per_frame"] for r in mine) / 1e3)
+                x = r["bytes_per_frame"] / 1e3
+                right = x > 0.75 * xmax  # near the right edge: the label on the left
+                ax.annotate(f"late, gain {r['gain']:g}", (x, r["ground_mota"]),
+                            textcoords="offset points", xytext=(-7 if right else 7, -3),
+                            ha="right" if right else "left", fontsize=7, color="#555555")
+        ax.set_xlim(0, xmax)
         ax.set_xlabel("kB per frame, whole network")
         ax.set_title(f"{sc} ({mine[0]['nodes']} cameras, {mine[0]['frames']} frames); "
                      "labels: gain (nats)", fontsize=9)
         ax.grid(alpha=0.3)
         ys = [r[c] for r in mine for c, _, _ in styles if r[c] is not None]
         if ys:
-            lo = min(ys)
-            ax.set_ylim(max(min(lo - 0.03, 0.9), -1.0), 1.005)
+            ax.set_ylim(max(min(min(ys) - 0.03, 0.9), -1.0), 1.005)
     for j in range(len(scenarios), nrow * ncol):
         axes[j // ncol][j % ncol].axis("off")
     handles, labels = axes[0][0].get_legend_handles_labels()
     if handles:
         fig.legend(handles, labels, loc="upper center", ncol=4, frameon=False, fontsize=8)
-    top = 1 - 0.75 / (4.2 * nrow)
-    fig.tight_layout(rect=(0, 0, 1, top))
+    fig.tight_layout(rect=(0, 0, 1, 1 - 0.55 / (4.4 * nrow)))
     fig.savefig(path, dpi=110)
     plt.close(fig)
 
@@ -450,6 +468,23 @@ def write_outputs(out: Path, rows: Sequence[Mapping], summ: Mapping, meta: Mappi
     paths[1].write_text(markdown(rows, summ, meta))
     plot(paths[2], rows, summ)
     return paths
+
+
+def command(scenarios: Sequence[str], gains: Sequence[float], late: Sequence[float],
+            args) -> str:
+    """The command line that makes these outputs again (``--out`` and ``--jobs`` left out)."""
+    parts = ["sim_cluster bandwidth-sweep", "--scenarios " + ",".join(scenarios)]
+    if args.topology != "ring":
+        parts.append(f"--topology {args.topology}")
+    if args.config != CONFIG:
+        parts.append(f"--config {args.config}")
+    parts.append("--gains " + ",".join(f"{g:g}" for g in gains))
+    parts.append("--late " + (",".join(f"{g:g}" for g in late) or "none"))
+    if args.seed:
+        parts.append(f"--seed {args.seed}")
+    if args.frames:
+        parts.append(f"--frames {args.frames}")
+    return " ".join(parts)
 
 
 # -- command ------------------------------------------------------------------------------------------
@@ -480,7 +515,8 @@ def main(args) -> int:
     rows = with_ratios([r for r in results if r is not None])
     summ = summary(rows)
     meta = {"topology": args.topology, "config": args.config, "seed": args.seed,
-            "frames": args.frames, "skipped": skipped, "failed": failed}
+            "frames": args.frames, "skipped": skipped, "failed": failed,
+            "command": command(scenarios, gains, late, args)}
     paths = write_outputs(Path(args.out), rows, summ, meta)
     if rows:
         print(summary_text(summ))
