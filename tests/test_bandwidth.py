@@ -171,8 +171,10 @@ def test_plan_order():
 def test_bad_gains_are_one_line_errors(capsys, tmp_path):
     assert bandwidth.parse_gains("1,0,0.1,1") == [0.0, 0.1, 1.0]
     assert bandwidth.parse_gains("none", "--late", allow_empty=True) == []
-    for bad in (["--gains", "0,-1"], ["--gains", "x"], ["--gains", ""], ["--late", "nan"]):
-        assert cli.main(["bandwidth-sweep", *bad, "--out", str(tmp_path), "--quiet"]) == 2
+    for bad in (["--gains", "0,-1"], ["--gains", "x"], ["--gains", ""], ["--late", "nan"],
+                ["--topology", "rnig"], ["--topology", "centralized"], ["--scenarios", "nope"]):
+        assert cli.main(["bandwidth-sweep", "--scenarios", "lab-sim", *bad, "--out",
+                         str(tmp_path), "--quiet"]) == 2
         err = capsys.readouterr().err
         assert err.startswith("sim_cluster: error: ") and len(err.strip().splitlines()) == 1
     assert not any(tmp_path.iterdir())  # nothing written

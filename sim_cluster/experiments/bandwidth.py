@@ -44,6 +44,8 @@ from edge_node.faults import FaultPlan
 from sim_cluster.experiments.ablation import PAPER, AblationError, _hms, _md_table, _Progress, \
     parse_list, probe
 from sim_cluster.experiments.run import run_once
+from sim_cluster.network import topology as topo
+from sim_cluster.network.inprocess import CENTRALIZED
 from sim_cluster.scenarios.loader import load_scenario
 
 DEFAULT_SCENARIOS = ("terrace-sim", "terrace-gt", "campus-sim", "ring8-sim")
@@ -503,6 +505,11 @@ def main(args) -> int:
     runnable = [s for s in scenarios if s in info]
     if not runnable:
         raise BandwidthError("nothing to run: every scenario was skipped")
+    if args.topology == CENTRALIZED:
+        raise BandwidthError("--topology centralized has no links to send on: pick a network "
+                             "topology")
+    for s in runnable:  # a bad name or edge-list file: one line now, not a failure per run
+        topo.build(args.topology, info[s]["cameras"])
     tasks = plan(runnable, gains, late, topology=args.topology, config=args.config,
                  seed=args.seed, frames=args.frames,
                  data_root={s: info[s]["data_root"] for s in runnable})
