@@ -389,7 +389,7 @@ def plot(path: Path, rows: Sequence[Mapping], summ: Mapping[str, Mapping]) -> No
     import matplotlib  # plotting only here
 
     matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    import matplotlib.pyplot as plt  # plotting only here (after choosing the headless backend)
 
     scenarios = list(summ)
     n = max(len(scenarios), 1)
