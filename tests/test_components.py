@@ -9,6 +9,7 @@ from edge_node.core.association import LocalDataAssociation, Observation
 from edge_node.core.gallery import Gallery, cosine_distance
 from edge_node.core.identity import IdentityBook
 from edge_node.core.initiator import Initiator
+from edge_node.core.reidstore import ReidStore
 from edge_node.core.manager import DistributedTrackerManager, IndependentTrackers
 from edge_node.core.measurement import measure
 from edge_node.geometry import Camera
@@ -164,14 +165,69 @@ def test_identity_book_memory_is_bounded():
     cfg = TrackerConfig(max_old_trackers=3)
     book = IdentityBook(0, cfg)
     for c in range(10):
-        book.retire((1, c), Gallery(), keep_gallery=True)
+        book.retire((1, c), Gallery(), keep_gallery=True, frame=c, xy=np.zeros(2))
         book.retire((2, c), Gallery(), keep_gallery=False)
     assert list(book.old) == [(1, 7), (1, 8), (1, 9)]
+    assert sorted(book.last) == [(1, 7), (1, 8), (1, 9)]
+    book.old.take((1, 8))  # re-identified: where it was dropped goes with it
+    assert sorted(book.last) == [(1, 7), (1, 9)]
     assert len(book.dropped) == 10
     for c in range(100):
         book.alias((5, c), (6, c))
     book.forget(set())
     assert len(book.aliases) <= 10 * cfg.max_old_trackers
+
+
+def _full_gallery(seed: int, n: int = 20, dim: int = 512) -> Gallery:
+    rng = np.random.default_rng(seed)
+    return Gallery(20, 1, rng.standard_normal((n, dim)))
+
+
+def test_reid_store_keeps_float16_within_a_count_and_a_byte_budget():
+    assert _full_gallery(0).nbytes == 20 * 512 * 8 == 4 * _full_gallery(0).astype(np.float16).nbytes
+    store = ReidStore(max_count=200, max_bytes=5 * 20 * 512 * 2)  # room for five, as float16
+    for c in range(500):  # a node that runs for months drops trackers without end
+        store.put((0, c), _full_gallery(c, n=1 + c % 20), frame=c, xy=np.array([c, 0.0]))
+        assert store.nbytes <= store.max_bytes and len(store) <= store.max_count
+        assert set(store.last) <= set(store)
+    assert store.nbytes == sum(store[t].nbytes for t in store)
+    assert all(store[t].matrix().dtype == np.float16 for t in store)
+    assert list(store)[-1] == (0, 499)  # the newest stay
+    # a short gallery costs its rows only (not the 20 a live one preallocates)
+    store.put((9, 9), _full_gallery(1, n=3))
+    assert store[(9, 9)].nbytes == 3 * 512 * 2
+    # the count bound still holds where descriptors are small
+    small = ReidStore(max_count=3, max_bytes=1 << 30)
+    for c in range(10):
+        small.put((1, c), _full_gallery(c, n=2, dim=8), frame=c, xy=np.zeros(2))
+    assert list(small) == [(1, 7), (1, 8), (1, 9)] and sorted(small.last) == list(small)
+
+
+def test_reid_store_distances_are_the_float64_galleries_to_float16_rounding():
+    store = ReidStore(10, 1 << 20)
+    g = _full_gallery(3)
+    store.put((0, 1), g)
+    q = _full_gallery(4, n=5)
+    near = Gallery(20, 1, g.matrix()[:2] + 0.3 * q.matrix()[:2])
+    for query in (q, near):
+        assert abs(query.distance_to(store[(0, 1)]) - query.distance_to(g)) < 1e-3
+    back = store.take((0, 1))  # taken back by a new tracker: float64 again, out of the store
+    assert back.matrix().dtype == np.float64 and len(back) == 20 and (0, 1) not in store
+    assert store.nbytes == 0
+    np.testing.assert_allclose(back.matrix(), g.matrix(), atol=1e-3)
+    back.add(q.matrix()[0], 5)  # it lives on as a tracker's gallery
+    assert len(back) == 20
+
+
+def test_reid_store_extend_keeps_the_place_and_the_budget():
+    store = ReidStore(10, 30 * 16 * 2)
+    store.put((0, 1), _full_gallery(1, n=4, dim=16))
+    store.put((0, 2), _full_gallery(2, n=4, dim=16))
+    store.extend((0, 1), _full_gallery(3, n=30, dim=16))  # merged: at most its capacity (20)
+    assert list(store) == [(0, 1), (0, 2)] and len(store[(0, 1)]) == 20
+    assert store.nbytes == (20 + 4) * 16 * 2 <= store.max_bytes
+    store.extend((0, 2), _full_gallery(4, n=30, dim=16))  # 40 rows: over budget, oldest out
+    assert list(store) == [(0, 2)] and store.nbytes == 20 * 16 * 2
 
 
 # -- assembly ---------------------------------------------------------------------------------------

@@ -104,6 +104,7 @@ class TrackerConfig:
     kappa: int = integer(15, lo=1, doc="drop a tracker when ell exceeds kappa (eq. 8)")
     epsilon: float = nonnegative(0.25, "re-identification threshold on s_a against old trackers")
     max_old_trackers: int = integer(200, lo=1, doc="bounded memory of dropped trackers")
+    max_old_mib: float = positive(4.0, "MiB, byte budget of the dropped trackers' galleries, kept as float16 (200 full galleries of 512-d descriptors take 3.9)")
     reid_frames: int = integer(50, lo=0, doc="without appearance: frames a dropped tracker may be re-identified")
     reid_gate: float = positive(1.5, "m, without appearance: how near its birth a dropped tracker must be")
     report_coast: int = integer(1, lo=0, doc="frames a tracker nobody sees is still reported")

@@ -22,8 +22,9 @@ class Gallery:
     frames (paper III-B: "saving a new patch every N frames, and discarding the oldest one").
 
     The descriptors are the rows of one array, oldest first (``matrix()`` is a view of it): a
-    gallery costs its descriptors once, and a node that keeps ``max_old_trackers`` dropped
-    galleries for re-identification holds no second copy of each.
+    gallery costs its descriptors once. A live tracker's gallery holds float64; the dropped
+    trackers' galleries kept for re-identification (``reidstore.ReidStore``) are float16 copies
+    trimmed to their rows (:meth:`astype`), the precision descriptors travel in on the wire.
     """
 
     def __init__(self, capacity: int = 20, every: int = 20,
@@ -49,7 +50,8 @@ class Gallery:
             self._a[-1] = u
             return
         if self._n == len(self._a):
-            grown = np.empty((min(self.capacity, max(4, 2 * self._n)), u.size))
+            grown = np.empty((min(self.capacity, max(4, 2 * self._n)), u.size),
+                             self._a.dtype if self._n else np.float64)
             if self._n:
                 grown[:self._n] = self._a[:self._n]
             self._a = grown
@@ -123,3 +125,16 @@ class Gallery:
         g._a, g._n = self._a[:self._n].copy(), self._n
         g._last_frame = self._last_frame
         return g
+
+    def astype(self, dtype: np.dtype | type) -> "Gallery":
+        """A copy holding exactly its descriptors, as ``dtype`` (float16: what the re-id store
+        keeps of a dropped tracker, a quarter of float64; float64: back to a live tracker)."""
+        g = self.copy()
+        if self._n:
+            g._a = g._a.astype(dtype)
+        return g
+
+    @property
+    def nbytes(self) -> int:
+        """Bytes of the descriptor array (rows allocated, not only those used)."""
+        return int(self._a.nbytes)

@@ -7,9 +7,10 @@ and the trackers that were dropped (paper III-C).
   ties to the smaller id (the paper's "smallest id" for simultaneous initialisations).
 * A merge ``loser -> winner`` is remembered as an alias (messages naming the loser reach the
   winner) and announced for ``merge_announce_frames`` frames so it propagates hop by hop.
-* Dropped trackers: with the manager, their galleries are kept for re-identification (bounded by
-  ``max_old_trackers``); without it, their ids are remembered so a neighbour cannot bring them
-  back (a camera's drop decision is its own).
+* Dropped trackers: with the manager, their galleries are kept for re-identification
+  (``reidstore.ReidStore``: at most ``max_old_trackers`` of them and ``max_old_mib`` of
+  descriptors); without it, their ids are remembered so a neighbour cannot bring them back (a
+  camera's drop decision is its own).
 
 Every table is bounded: a node runs for months.
 """
@@ -21,6 +22,7 @@ import numpy as np
 
 from edge_node.core.config import TrackerConfig
 from edge_node.core.gallery import Gallery
+from edge_node.core.reidstore import ReidStore
 from protocol.messages import Merge, TrackerId
 
 UNKNOWN_BIRTH = 2**62  # ranks an id whose birth frame this node never heard after every known one
@@ -47,10 +49,14 @@ class IdentityBook:
         self.counter = int(first_counter)  # a restarted process continues, never reuses
         self.aliases: dict[TrackerId, TrackerId] = {}
         self.born: dict[TrackerId, int] = {}  # birth frame of every id this node has heard of
-        self.old: OrderedDict[TrackerId, Gallery] = OrderedDict()  # dropped, for re-id (DTM)
-        self.last: dict[TrackerId, tuple[int, np.ndarray]] = {}  # dropped: frame and where
+        self.old = ReidStore(cfg.max_old_trackers, int(cfg.max_old_mib * 2**20))  # dropped (DTM)
         self.dropped: OrderedDict[TrackerId, None] = OrderedDict()  # dropped ids (no DTM)
         self._announce: dict[tuple[TrackerId, TrackerId], int] = {}
+
+    @property
+    def last(self) -> dict[TrackerId, tuple[int, np.ndarray]]:
+        """Where and when each tracker in :attr:`old` was dropped."""
+        return self.old.last
 
     # -- ids and ranks ------------------------------------------------------------------------
     def new_id(self) -> TrackerId:
@@ -98,12 +104,7 @@ class IdentityBook:
         """``tid`` was dropped at ``frame`` (estimated at ``xy``): keep its gallery and where it
         went for re-identification, or only its id."""
         if keep_gallery:
-            self.old[tid] = gallery
-            if xy is not None:
-                self.last[tid] = (frame, np.asarray(xy, float).copy())
-            while len(self.old) > self.cfg.max_old_trackers:
-                gone, _ = self.old.popitem(last=False)
-                self.last.pop(gone, None)
+            self.old.put(tid, gallery, frame, xy)
         else:
             self.dropped[tid] = None
             while len(self.dropped) > 10 * self.cfg.max_old_trackers:

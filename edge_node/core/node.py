@@ -282,7 +282,7 @@ class CameraNode:
         first, last = chain.observations[0], chain.observations[-1]
         tid = self.manager.reidentify(gallery, self.book.old, k, last.z[:2], self.book.last)
         if tid is not None:
-            old_gallery = self.book.old.pop(tid)
+            old_gallery = self.book.old.take(tid)
             old_gallery.extend(gallery)
             gallery = old_gallery
             born = self.book.born.get(tid, k)
@@ -534,7 +534,7 @@ class CameraNode:
         src = infos[0]  # messages are sorted by sender: deterministic choice
         gallery = Gallery(self.cfg.gallery_size, self.cfg.gallery_every)
         if tid in self.book.old:
-            gallery = self.book.old.pop(tid)
+            gallery = self.book.old.take(tid)
             self.stats.reactivated += 1
         else:
             self.stats.adopted += 1
@@ -572,16 +572,16 @@ class CameraNode:
             lt.born = self.book.born.get(winner, lt.born)
             lt.announced = False  # neighbours may not know the winner's appearance
             if winner in old:
-                lt.gallery.extend(old.pop(winner))
+                lt.gallery.extend(old.take(winner))
             self.trackers[winner] = lt
         elif loser in old:  # a dropped tracker's gallery follows its id
-            g = old.pop(loser)
+            g = old.take(loser)
             if wt is not None:
                 wt.gallery.extend(g)
             elif winner in old:
-                old[winner].extend(g)
+                old.extend(winner, g)
             else:
-                old[winner] = g
+                old.put(winner, g)
         self.manager.merged(loser)
 
     # ------------------------------------------------------------------------------------

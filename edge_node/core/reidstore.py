@@ -1,0 +1,90 @@
+"""The re-identification store: what a node keeps of the trackers it dropped (paper III-C, "old
+trackers"), so that a new tracker whose gallery matches one takes its id back (eq. 7 against
+``epsilon``), or, without appearance, one born near where it was dropped.
+
+Bounded twice, oldest dropped first out: at most ``max_count`` entries and at most
+``max_bytes`` of descriptors. The galleries are kept as float16, trimmed to their rows: the
+precision a descriptor travels in on the wire (protocol/codec.py), a quarter of a live
+gallery's float64. A full 20-descriptor gallery of 512-d descriptors costs 20 kB instead of
+80 kB (the preallocated float64 rows), so 200 of them fill 3.9 MiB, not 16 MB. A gallery taken back
+(:meth:`ReidStore.take`) is float64 again. Its distances to a query differ from the float64
+gallery's by float16 rounding (about 1e-4 on a cosine distance).
+
+A :class:`collections.abc.Mapping` from id to the stored gallery (what
+``manager.reidentify`` reads); where each tracker was dropped is :attr:`ReidStore.last`.
+Pure and deterministic.
+"""
+from __future__ import annotations
+
+from collections import OrderedDict
+from collections.abc import Iterator, Mapping
+
+import numpy as np
+
+from edge_node.core.gallery import Gallery
+from protocol.messages import TrackerId
+
+STORED = np.float16  # descriptors of dropped trackers (the wire's precision)
+
+
+class ReidStore(Mapping):
+    """Dropped trackers' galleries (float16) and where they were dropped, within a count and
+    a byte budget (module docstring)."""
+
+    def __init__(self, max_count: int, max_bytes: int):
+        self.max_count = int(max_count)
+        self.max_bytes = int(max_bytes)
+        self._g: OrderedDict[TrackerId, Gallery] = OrderedDict()  # oldest first
+        self.last: dict[TrackerId, tuple[int, np.ndarray]] = {}  # frame and where dropped
+        self.nbytes = 0  # descriptor bytes held
+
+    # -- Mapping ------------------------------------------------------------------------------
+    def __getitem__(self, tid: TrackerId) -> Gallery:
+        return self._g[tid]
+
+    def __iter__(self) -> Iterator[TrackerId]:
+        return iter(self._g)
+
+    def __len__(self) -> int:
+        return len(self._g)
+
+    def __contains__(self, tid: object) -> bool:
+        return tid in self._g
+
+    # -- changes ------------------------------------------------------------------------------
+    def put(self, tid: TrackerId, gallery: Gallery, frame: int | None = None,
+            xy: np.ndarray | None = None) -> None:
+        """Keep ``gallery`` (a float16 copy) for ``tid``, newest, and where it was dropped
+        (``frame``, ``xy``) when known; then the oldest go until both bounds hold."""
+        self.take(tid)
+        g = gallery.astype(STORED)
+        self._g[tid] = g
+        self.nbytes += g.nbytes
+        if xy is not None:
+            self.last[tid] = (int(frame or 0), np.asarray(xy, float).copy())
+        self._shrink()
+
+    def take(self, tid: TrackerId) -> Gallery | None:
+        """Remove ``tid`` (and where it was dropped); its gallery as float64, or ``None``."""
+        self.last.pop(tid, None)
+        g = self._g.pop(tid, None)
+        if g is None:
+            return None
+        self.nbytes -= g.nbytes
+        return g.astype(np.float64)
+
+    def extend(self, tid: TrackerId, gallery: Gallery) -> None:
+        """Add ``gallery``'s descriptors to the stored gallery of ``tid`` (two dropped
+        trackers turned out to be one), keeping its place in the order."""
+        g = self._g[tid]
+        self.nbytes -= g.nbytes
+        g.extend(gallery)
+        self._g[tid] = g = g.astype(STORED)  # trimmed again
+        self.nbytes += g.nbytes
+        self._shrink()
+
+    def _shrink(self) -> None:
+        while self._g and (len(self._g) > self.max_count or self.nbytes > self.max_bytes):
+            gone, g = self._g.popitem(last=False)
+            self.nbytes -= g.nbytes
+            self.last.pop(gone, None)
