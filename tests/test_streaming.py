@@ -21,7 +21,7 @@ from sim_cluster.scenarios.epfl import (build_ground_truth, load_epfl_gt, load_s
                                         open_epfl_gt)
 from sim_cluster.scenarios.files import read_scenario_toml, resolve_scenario_path
 from sim_cluster.scenarios.loader import load_scenario, open_scenario
-from sim_cluster.scenarios.synthetic.appearance import _KEEP, AppearanceModel
+from sim_cluster.scenarios.synthetic.appearance import _KEEP_PER_CAMERA, AppearanceModel
 from sim_cluster.scenarios.synthetic.schema import parse_synthetic
 from sim_cluster.scenarios.synthetic.world import PeopleWalk, simulate_people
 from tests.test_epfl import _real_root
@@ -123,11 +123,18 @@ def test_camera_subset_and_materialise_round_trip():
 def test_appearance_cache_is_bounded_and_forgetting_changes_nothing():
     m = AppearanceModel(seed=5)
     first = m.base(1, 0).copy()
-    for pid in range(2, _KEEP + 50):
+    kept = m.base(2, 0).copy()
+    for pid in range(3, 10 * _KEEP_PER_CAMERA):  # a one-camera process: people keep coming
         m.base(pid, 0)
-    assert len(m._base) <= _KEEP and len(m._identity) <= _KEEP
-    assert (1, 0) not in m._base  # forgotten, and derived again identically
-    np.testing.assert_array_equal(m.base(1, 0), first)
+        m.base(2, 0)  # someone who stays: used every time, never forgotten
+    assert len(m._base) == len(m._identity) == _KEEP_PER_CAMERA
+    assert (1, 0) not in m._base and (2, 0) in m._base
+    np.testing.assert_array_equal(m.base(1, 0), first)  # derived again identically
+    np.testing.assert_array_equal(m.base(2, 0), kept)
+    for cam in range(1, 4):  # a model that serves four cameras keeps four times as many
+        for pid in range(10 * _KEEP_PER_CAMERA):
+            m.base(pid, cam)
+    assert len(m._base) == len(m._identity) == 4 * _KEEP_PER_CAMERA
 
 
 def test_a_camera_process_makes_only_its_camera_and_sees_the_same():

@@ -33,8 +33,11 @@ _TAG_IDENTITY = 0x1D
 _TAG_VIEW = 0x71E
 _TAG_SHARED = 0x5A
 _BLOCK = 512  # rows of noise drawn at a time
-_KEEP = 4096  # identity and view vectors kept (derived again when needed: an endless world's
-# people keep coming, and a camera process runs for months)
+# Identity and view vectors are kept for the people recently asked for, at most this many per
+# camera the model has served (least recently used out; derived again when needed): an endless
+# world's people keep coming and a camera process runs for months, so a cache sized for 64
+# cameras (4096 vectors of 4 kB each, twice) filled a one-camera process by 16 MB over an hour.
+_KEEP_PER_CAMERA = 64  # a camera sees far fewer people at once (terrace: 9; corridor: 6.25)
 
 
 class AppearanceError(ValueError):
@@ -101,11 +104,19 @@ def _unit(v: np.ndarray) -> np.ndarray:
     return v / np.linalg.norm(v, axis=-1, keepdims=True)
 
 
-def _keep(cache: dict, key, value) -> None:
-    """Remember ``value``, forgetting the oldest entry beyond ``_KEEP`` (values are derived from
-    their key, so forgetting changes nothing but time)."""
+def _recall(cache: dict, key):
+    """The value remembered for ``key`` (now the most recently used), or ``None``."""
+    value = cache.pop(key, None)
+    if value is not None:
+        cache[key] = value
+    return value
+
+
+def _keep(cache: dict, key, value, limit: int) -> None:
+    """Remember ``value``, forgetting the least recently used entries beyond ``limit`` (values
+    are derived from their key, so forgetting changes nothing but time)."""
     cache[key] = value
-    if len(cache) > _KEEP:
+    while len(cache) > limit:
         del cache[next(iter(cache))]
 
 
@@ -122,8 +133,9 @@ class AppearanceModel:
         self.seed = _key(seed)
         p = self.params
         self._shared = p.shared * self._random_unit([self.seed, _TAG_SHARED])
-        self._base: dict[tuple[int, int], np.ndarray] = {}
+        self._base: dict[tuple[int, int], np.ndarray] = {}  # least recently used first
         self._identity: dict[int, np.ndarray] = {}
+        self._cameras: set[int] = set()  # the cameras served: the caches' size scales with them
 
     @property
     def dim(self) -> int:
@@ -136,21 +148,27 @@ class AppearanceModel:
     def identity(self, person_id: int) -> np.ndarray:
         """The person's unit identity vector (the same for every camera)."""
         pid = int(person_id)
-        v = self._identity.get(pid)
+        v = _recall(self._identity, pid)
         if v is None:
             v = self._random_unit([self.seed, _TAG_IDENTITY, _key(pid)])
-            _keep(self._identity, pid, v)
+            _keep(self._identity, pid, v, self._limit)
         return v
+
+    @property
+    def _limit(self) -> int:
+        """How many vectors each cache keeps (``_KEEP_PER_CAMERA`` per camera served)."""
+        return _KEEP_PER_CAMERA * max(1, len(self._cameras))
 
     def base(self, person_id: int, camera: int) -> np.ndarray:
         """The noise-free (unnormalised) descriptor of a person as seen by a camera."""
         key = (int(person_id), int(camera))
-        b = self._base.get(key)
+        b = _recall(self._base, key)
         if b is None:
+            self._cameras.add(key[1])
             p = self.params
             view = self._random_unit([self.seed, _TAG_VIEW, _key(key[0]), _key(key[1])])
             b = p.identity * self.identity(key[0]) + p.view * view + self._shared
-            _keep(self._base, key, b)
+            _keep(self._base, key, b, self._limit)
         return b
 
     def descriptors(self, person_ids: np.ndarray, camera: int, rng: np.random.Generator) -> np.ndarray:
