@@ -10,7 +10,7 @@ from edge_node.core.gallery import Gallery, cosine_distance
 from edge_node.core.identity import IdentityBook
 from edge_node.core.initiator import Initiator
 from edge_node.core.reidstore import ReidStore
-from edge_node.core.manager import DistributedTrackerManager, IndependentTrackers
+from edge_node.core.manager import DistributedTrackerManager, IndependentTrackers, reidentify
 from edge_node.core.measurement import measure
 from edge_node.geometry import Camera
 from fakes import box_at, det, identity, topdown_camera
@@ -217,6 +217,32 @@ def test_reid_store_distances_are_the_float64_galleries_to_float16_rounding():
     np.testing.assert_allclose(back.matrix(), g.matrix(), atol=1e-3)
     back.add(q.matrix()[0], 5)  # it lives on as a tracker's gallery
     assert len(back) == 20
+
+
+def test_reidentification_decides_from_the_float16_store_as_from_float64():
+    """Eq. 7 against epsilon over 300 dropped galleries (synthetic OSNet-like descriptors, the
+    query seen by another camera), float64 galleries against the store, with epsilon set
+    between two of the true matches' distances so that half of them fall on each side."""
+    from sim_cluster.scenarios.synthetic.appearance import AppearanceModel
+
+    model, rng = AppearanceModel(seed=1), np.random.default_rng(0)
+    plain, store = {}, ReidStore(1000, 1 << 30)
+    for pid in range(300):
+        g = Gallery(20, 1, model.descriptors(np.full(20, pid), 0, rng))
+        plain[(0, pid)] = g
+        store.put((0, pid), g)
+    queries = {pid: Gallery(20, 1, model.descriptors(np.full(2, pid), 1, rng))
+               for pid in range(150, 450)}  # half of them dropped here before, half never seen
+    true = np.sort([queries[p].distance_to(plain[(0, p)]) for p in range(150, 300)])
+    cfg = TrackerConfig(epsilon=float(true[74] + true[75]) / 2)
+    found, gap = 0, 0.0
+    for pid, q in queries.items():
+        tid = reidentify(q, plain, cfg)
+        assert reidentify(q, store, cfg) == tid
+        found += tid is not None
+        if (0, pid) in plain:
+            gap = max(gap, abs(q.distance_to(store[(0, pid)]) - q.distance_to(plain[(0, pid)])))
+    assert 70 <= found <= 80 and gap < 1e-3
 
 
 def test_reid_store_extend_keeps_the_place_and_the_budget():

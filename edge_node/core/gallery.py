@@ -24,7 +24,7 @@ class Gallery:
     The descriptors are the rows of one array, oldest first (``matrix()`` is a view of it): a
     gallery costs its descriptors once. A live tracker's gallery holds float64; the dropped
     trackers' galleries kept for re-identification (``reidstore.ReidStore``) are float16 copies
-    trimmed to their rows (:meth:`astype`), the precision descriptors travel in on the wire.
+    trimmed to their rows (:meth:`astype`): finer than the wire's int8 (protocol/codec.py).
     """
 
     def __init__(self, capacity: int = 20, every: int = 20,
