@@ -62,7 +62,7 @@ from edge_node.formats.tracks import TrackWriter
 from edge_node.outbox import Delivery, Outbox, OutboxCounters
 from edge_node.runtime import transport as tr
 from edge_node.runtime.config import NodeConfig, NodeConfigError
-from edge_node.runtime.memory import freeze_startup, release_freed_memory
+from edge_node.runtime.memory import freeze_startup, heap, release_freed_memory, steady_allocator
 from edge_node.runtime.output import (StatusWriter, counters_path, latency_summary, state_path,
                                       status_path, tracks_path, write_json_atomic)
 from edge_node.runtime.preflight import preflight
@@ -466,6 +466,8 @@ def run_node(cfg: NodeConfig, *, frames: int | None = None, mode: str | None = N
         cfg = cfg.with_runtime(**changes)
     rt = cfg.runtime
     mode = rt.mode
+    if freeze_gc:  # a camera process: glibc's settings for months of frames, before any thread
+        steady_allocator()
     ready = preflight(cfg)  # the checks `edge_node check` runs: source, tracker, id counter
     source, tcfg = ready.source, ready.tracker
     total = source.frames if rt.frames is None else min(source.frames, rt.frames)
@@ -605,5 +607,6 @@ def write_counters(cfg: NodeConfig, loop: FrameLoop, node: CameraNode, transport
                   "frames": None if st.cpu_at_first_frame is None
                   else time.process_time() - st.cpu_at_first_frame},
         "rotations": loop.writer.rotations,
+        "heap": heap(),  # glibc's in-use and free heap, MB (null elsewhere)
         "node_stats": dict(vars(node.stats)),
     })

@@ -13,6 +13,16 @@ took 24 ms of CPU (measured), more than half a 25 fps frame, at a moment nobody 
 ``freeze_startup`` moves everything allocated before the first frame out of the collector's
 reach (``gc.freeze``): those objects live as long as the process anyway, and a full collection
 afterwards traverses only what the frames allocated.
+
+``steady_allocator`` fixes two of glibc's settings before the first frame. (1) The size above
+which a block is its own memory mapping, unmapped when freed (128 KiB): by default glibc raises
+it to the size of every larger block freed, up to 32 MiB, and with it the free heap top it keeps
+(twice that), so a source's per-chunk arrays of a few MB (100 frames of descriptors) were kept
+in the heap after their frame and resident memory swung by ~10 MB between two trims. (2) At most
+two arenas: Zenoh's threads decode messages into arenas of their own, and each arena keeps what
+the frame loop freed there.
+
+``heap()`` reports glibc's own figures (bytes in use and free in the heap) for the counters file.
 """
 from __future__ import annotations
 
@@ -20,13 +30,29 @@ import ctypes
 import ctypes.util
 import gc
 
+MMAP_THRESHOLD = 128 * 1024  # bytes: larger blocks are mapped and unmapped on their own
+ARENAS = 2
+_M_MMAP_THRESHOLD, _M_ARENA_MAX = -3, -8  # glibc's mallopt parameters (malloc.h)
+
 _libc = None
 try:
     _name = ctypes.util.find_library("c")
     _libc = ctypes.CDLL(_name) if _name else None
     _trim = getattr(_libc, "malloc_trim", None) if _libc is not None else None
+    _mallopt = getattr(_libc, "mallopt", None) if _libc is not None else None
+    _mallinfo2 = getattr(_libc, "mallinfo2", None) if _libc is not None else None
 except OSError:  # no C library to load: nothing to trim
-    _trim = None
+    _trim = _mallopt = _mallinfo2 = None
+
+
+class _MallInfo2(ctypes.Structure):
+    _fields_ = [(name, ctypes.c_size_t) for name in (
+        "arena", "ordblks", "smblks", "hblks", "hblkhd", "usmblks", "fsmblks", "uordblks",
+        "fordblks", "keepcost")]
+
+
+if _mallinfo2 is not None:
+    _mallinfo2.restype = _MallInfo2
 
 
 def release_freed_memory() -> bool:
@@ -39,3 +65,21 @@ def freeze_startup() -> None:
     (``gc.freeze``; module docstring). Call it once, before the first frame."""
     gc.collect()
     gc.freeze()
+
+
+def steady_allocator() -> bool:
+    """glibc's mmap threshold fixed at ``MMAP_THRESHOLD`` and at most ``ARENAS`` arenas (module
+    docstring); whether both were set (False elsewhere than glibc). Call it once, early: before
+    Zenoh starts its threads."""
+    if _mallopt is None:
+        return False
+    return bool(_mallopt(_M_MMAP_THRESHOLD, MMAP_THRESHOLD)) & bool(_mallopt(_M_ARENA_MAX, ARENAS))
+
+
+def heap() -> dict[str, float] | None:
+    """glibc's heap figures in MB: ``in_use`` (allocated blocks, mapped ones included) and
+    ``free`` (held by the allocator, not returned); ``None`` elsewhere."""
+    if _mallinfo2 is None:
+        return None
+    m = _mallinfo2()
+    return {"in_use_mb": (m.uordblks + m.hblkhd) / 2**20, "free_mb": m.fordblks / 2**20}
