@@ -250,27 +250,32 @@ def _label(t: Task) -> str:
     return f"{t.scenario} s{t.seed} {t.config} {t.topology}{o}"
 
 
-def execute(tasks: Sequence[Task], jobs: int = 1, progress: bool = True) -> list[dict | None]:
+def execute(tasks: Sequence, jobs: int = 1, progress: bool = True, *, run=None, label=None,
+            name: str = "ablation") -> list[dict | None]:
     """Run ``tasks`` (in parallel when ``jobs > 1``); results in task order, ``None`` for a run
-    that raised (reported with one line on stderr)."""
+    that raised (reported with one line on stderr). ``run(task)`` (a module-level function: it
+    crosses to worker processes) and ``label(task)`` default to the ablation's; ``name`` starts
+    the progress lines (other sweeps share this loop)."""
+    run_task_ = run or run_task
+    _label_ = label or _label
     results: list[dict | None] = [None] * len(tasks)
-    bar = _Progress(len(tasks), progress)
+    bar = _Progress(len(tasks), progress, name=name)
 
-    def failed(t: Task, e: BaseException) -> None:
-        bar.write(f"ablation: run failed ({_label(t)}): {type(e).__name__}: {e}")
+    def failed(t, e: BaseException) -> None:
+        bar.write(f"{name}: run failed ({_label_(t)}): {type(e).__name__}: {e}")
 
     try:
         if jobs <= 1 or len(tasks) <= 1:
             for i, t in enumerate(tasks):
                 try:
-                    results[i] = run_task(t)
+                    results[i] = run_task_(t)
                 except Exception as e:  # one bad run must not lose the others
                     failed(t, e)
-                bar.step(_label(t))
+                bar.step(_label_(t))
             return results
         ex = ProcessPoolExecutor(max_workers=min(jobs, len(tasks)))
         try:
-            pending = {ex.submit(run_task, t): i for i, t in enumerate(tasks)}
+            pending = {ex.submit(run_task_, t): i for i, t in enumerate(tasks)}
             while pending:
                 done, _ = wait(pending, return_when=FIRST_COMPLETED)
                 for fut in done:
@@ -279,7 +284,7 @@ def execute(tasks: Sequence[Task], jobs: int = 1, progress: bool = True) -> list
                         results[i] = fut.result()
                     except Exception as e:
                         failed(tasks[i], e)
-                    bar.step(_label(tasks[i]))
+                    bar.step(_label_(tasks[i]))
         except BaseException:
             ex.shutdown(wait=False, cancel_futures=True)
             raise
@@ -384,12 +389,13 @@ def _csv_value(v) -> str:
     return str(v)
 
 
-def write_csv(path: Path, rows: Sequence[Mapping]) -> None:
+def write_csv(path: Path, rows: Sequence[Mapping], columns: Sequence[str] = CSV_COLS) -> None:
+    """``rows`` as CSV with ``columns`` (floats in full precision, ``None`` as empty)."""
     with open(path, "w", newline="") as fh:
         w = csv.writer(fh)
-        w.writerow(CSV_COLS)
+        w.writerow(columns)
         for r in rows:
-            w.writerow([_csv_value(r.get(c)) for c in CSV_COLS])
+            w.writerow([_csv_value(r.get(c)) for c in columns])
 
 
 def _pm(cell: Mapping | None, scale: float = 1.0, fmt: str = "{:.3f}") -> str:

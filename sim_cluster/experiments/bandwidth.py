@@ -27,13 +27,11 @@ whatever the completion order, so the files do not depend on ``--jobs``.
 """
 from __future__ import annotations
 
-import csv
 import functools
 import math
 import sys
 import time
 from collections.abc import Mapping, Sequence
-from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -41,8 +39,8 @@ from typing import Any
 from edge_node.core.config import CONFIG_NAMES, TrackerConfig
 from edge_node.core.trigger import TriggerConfig
 from edge_node.faults import FaultPlan
-from sim_cluster.experiments.ablation import PAPER, AblationError, _hms, _md_table, _Progress, \
-    parse_list, probe
+from sim_cluster.experiments import ablation
+from sim_cluster.experiments.ablation import PAPER, AblationError, _hms, _md_table, parse_list, probe
 from sim_cluster.experiments.run import run_once
 from sim_cluster.network import topology as topo
 from sim_cluster.network.inprocess import CENTRALIZED
@@ -172,41 +170,8 @@ def label(t: Task) -> str:
 
 def execute(tasks: Sequence[Task], jobs: int = 1, progress: bool = True) -> list[dict | None]:
     """Run ``tasks`` (a process pool when ``jobs > 1``); rows in task order, ``None`` for a run
-    that raised (reported with one line on stderr)."""
-    results: list[dict | None] = [None] * len(tasks)
-    bar = _Progress(len(tasks), progress, name="bandwidth-sweep")
-
-    def failed(t: Task, e: BaseException) -> None:
-        bar.write(f"bandwidth-sweep: run failed ({label(t)}): {type(e).__name__}: {e}")
-
-    try:
-        if jobs <= 1 or len(tasks) <= 1:
-            for i, t in enumerate(tasks):
-                try:
-                    results[i] = run_task(t)
-                except Exception as e:  # one bad run must not lose the others
-                    failed(t, e)
-                bar.step(label(t))
-            return results
-        ex = ProcessPoolExecutor(max_workers=min(jobs, len(tasks)))
-        try:
-            pending = {ex.submit(run_task, t): i for i, t in enumerate(tasks)}
-            while pending:
-                done, _ = wait(pending, return_when=FIRST_COMPLETED)
-                for fut in done:
-                    i = pending.pop(fut)
-                    try:
-                        results[i] = fut.result()
-                    except Exception as e:
-                        failed(tasks[i], e)
-                    bar.step(label(tasks[i]))
-        except BaseException:
-            ex.shutdown(wait=False, cancel_futures=True)
-            raise
-        ex.shutdown(wait=True)
-        return results
-    finally:
-        bar.close()
+    that raised (reported with one line on stderr). The ablation's loop, with this sweep's runs."""
+    return ablation.execute(tasks, jobs, progress, run=run_task, label=label, name="bandwidth-sweep")
 
 
 def _ratio(a, b) -> float | None:
@@ -249,20 +214,8 @@ def summary(rows: Sequence[Mapping], tolerance: float = MOTA_TOLERANCE) -> dict[
 
 
 # -- outputs ------------------------------------------------------------------------------------------
-def _csv_value(v) -> str:
-    if v is None:
-        return ""
-    if isinstance(v, float):
-        return repr(v)
-    return str(v)
-
-
 def write_csv(path: Path, rows: Sequence[Mapping]) -> None:
-    with open(path, "w", newline="") as fh:
-        w = csv.writer(fh)
-        w.writerow(CSV_COLS)
-        for r in rows:
-            w.writerow([_csv_value(r.get(c)) for c in CSV_COLS])
+    ablation.write_csv(path, rows, CSV_COLS)
 
 
 def _f(v, fmt: str = "{:.3f}") -> str:
