@@ -200,6 +200,10 @@ def build_parser() -> argparse.ArgumentParser:
                         "corridor-<N> / grid-<N> scenario's lattice) | edge-list file")
     r.add_argument("--config", default="dkf+lda+dtm", choices=CONFIG_NAMES)
     r.add_argument("--tracker-config", default=None, help="TOML file overriding tracker parameters")
+    r.add_argument("--reid-rank1", type=number(0, above=True), default=None, metavar="R",
+                   help="re-id quality of the simulated descriptors: cross-camera rank-1 in "
+                        "(0, 1] with 20 people (default: the scenario's [appearance]; the "
+                        "presets' is 1, perfect re-id)")
     r.add_argument("--ground-threshold", type=number(0, above=True), default=1.0,
                    help="ground matching threshold in metres (default 1)")
     r.add_argument("--mode", default="sync", choices=("sync", "async"),

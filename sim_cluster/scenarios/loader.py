@@ -41,32 +41,44 @@ SCENARIO_KINDS: dict[str, ScenarioLoader] = {
 }
 
 
+#: Scenario kinds whose descriptors the synthetic appearance model makes (``[appearance]``)
+SIMULATED_APPEARANCE = ("synthetic", "epfl-gt")
+
+
 def load_scenario(name_or_path: str | Path, seed: int | None = None,
                   frames: int | None = None, data_root: str | Path | None = None,
-                  options: ImportOptions | None = None) -> ScenarioData:
+                  options: ImportOptions | None = None,
+                  rank1: float | None = None) -> ScenarioData:
     """Load a scenario by preset name or file path, every frame in memory (``open_scenario``'s
     arguments)."""
-    return open_scenario(name_or_path, seed, frames, data_root, options).materialise()
+    return open_scenario(name_or_path, seed, frames, data_root, options, rank1).materialise()
 
 
 def open_scenario(name_or_path: str | Path, seed: int | None = None,
                   frames: int | None = None, data_root: str | Path | None = None,
-                  options: ImportOptions | None = None) -> ScenarioStream:
+                  options: ImportOptions | None = None,
+                  rank1: float | None = None) -> ScenarioStream:
     """Open a scenario by preset name or file path, frames on demand. ``seed`` / ``frames``
-    override the file's.
+    override the file's; ``rank1`` its re-id quality (``[appearance] rank1``, replacing any
+    ``rank1`` / ``mean_ap`` / ``decay`` of the file; scenarios that simulate descriptors only).
 
     Same file + same seed gives identical detections. A folder written by
     ``sim_cluster export-detections`` (or its ``calibration.json``) is a scenario too, and so is
     a folder of another tool's detection files (``edge_node.formats.layouts.LAYOUTS``), read
     with ``options`` (homographies, ground truth, units, frame rate, image size).
     """
-    made = _open(name_or_path, seed, frames, data_root, options)
+    made = _open(name_or_path, seed, frames, data_root, options, rank1)
     return made if isinstance(made, ScenarioStream) else ScenarioStream.of(made)
 
 
-def _open(name_or_path, seed, frames, data_root, options=None) -> ScenarioStream | ScenarioData:
+def _open(name_or_path, seed, frames, data_root, options=None,
+          rank1=None) -> ScenarioStream | ScenarioData:
     candidate = Path(str(name_or_path))
     if candidate.is_dir() or candidate.suffix == ".json":
+        if rank1 is not None:
+            raise ScenarioError(str(name_or_path), None, "a re-id quality (rank1) applies to "
+                                "scenarios that simulate descriptors (synthetic, epfl-gt), not "
+                                "to detection files: their descriptors are what they are")
         return open_det_files(candidate, frames=frames, seed=seed, options=options)
     if options is not None and options.given:
         raise ScenarioError(str(name_or_path), None,
@@ -94,6 +106,14 @@ def _open(name_or_path, seed, frames, data_root, options=None) -> ScenarioStream
         raise src.error("kind", f"must be one of {sorted(SCENARIO_KINDS)}, got {kind!r}")
     if data_root is not None and kind == "epfl-gt":  # --data-root beats the file and $DMTT_DATA
         raw.setdefault("source", {})["data_root"] = str(Path(data_root).expanduser().resolve())
+    if rank1 is not None:  # --reid-rank1 beats the file's quality
+        if kind not in SIMULATED_APPEARANCE:
+            raise src.error("kind", f"a re-id quality (rank1) applies to scenarios that simulate "
+                            f"descriptors ({', '.join(SIMULATED_APPEARANCE)}), not {kind!r}")
+        app = raw.setdefault("appearance", {})
+        for key in ("rank1", "mean_ap", "decay"):
+            app.pop(key, None)
+        app["rank1"] = rank1
     return SCENARIO_KINDS[kind](raw, path, int(seed), None if frames is None else int(frames))
 
 
@@ -107,7 +127,7 @@ def stream_from_args(args) -> ScenarioStream:
     options of another tool's layout where the command has them)."""
     return open_scenario(args.scenario, seed=args.seed, frames=args.frames,
                          data_root=getattr(args, "data_root", None),
-                         options=import_options(args))
+                         options=import_options(args), rank1=getattr(args, "reid_rank1", None))
 
 
 def import_options(args) -> ImportOptions:

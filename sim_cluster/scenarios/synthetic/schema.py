@@ -31,7 +31,9 @@ Synthetic schema (metres, degrees, pixels; see the presets for commented example
     [detector]   miss_rate, occlusion_miss_threshold, false_positives_per_frame, box_noise_px,
                  min_box_height_px, fp_person_height_m, fp_height_frac  (detector_model.DetectorParams)
     [appearance] dim and either the weights identity, view, noise, shared or the expected
-                 distances same_camera_distance, cross_camera_distance, different_person_distance
+                 distances same_camera_distance, cross_camera_distance, different_person_distance;
+                 the re-id quality rank1 (or mean_ap; cross-camera, 1 = perfect, the default)
+                 with quality_people (the gallery it is stated for, default 20), or decay
     [truth]      min_visible                         (world module docstring)
 
     [layout]                   # optional, instead of [area] and [[cameras]]: a generated
@@ -54,7 +56,7 @@ fields are errors (a typo must not silently fall back to a default). ``[detector
 """
 from __future__ import annotations
 
-from dataclasses import MISSING, fields
+from dataclasses import MISSING, fields, replace
 from pathlib import Path
 from typing import Any
 
@@ -64,7 +66,8 @@ from edge_node.geometry import Camera, GeometryError
 from edge_node.settings import Table
 from sim_cluster.scenarios.data import ScenarioStream
 from sim_cluster.scenarios.files import ScenarioError, scenario_table
-from sim_cluster.scenarios.synthetic.appearance import AppearanceError, AppearanceParams
+from sim_cluster.scenarios.synthetic.appearance import (QUALITY_PEOPLE, AppearanceError,
+                                                        AppearanceParams)
 from sim_cluster.scenarios.synthetic.calibration import CalibrationBump, CalibrationError
 from sim_cluster.scenarios.synthetic.detector_model import DetectorParams, DetectorParamsError
 from sim_cluster.scenarios.synthetic.layout import KINDS as LAYOUT_KINDS
@@ -274,17 +277,29 @@ def calibration_error_from_table(t: Table, n_cameras: int) -> CalibrationError:
 
 def appearance_params_from_table(t: Table) -> AppearanceParams:
     """``AppearanceParams`` from an ``[appearance]`` table: ``dim`` and either the weights
-    (``identity``, ``view``, ``noise``, ``shared``) or the expected distances
-    (``same_camera_distance``, ``cross_camera_distance``, ``different_person_distance``)."""
+    (``identity``, ``view``, ``noise``, ``shared``, ``decay``) or the expected distances
+    (``same_camera_distance``, ``cross_camera_distance``, ``different_person_distance``); and
+    optionally a re-id quality instead of ``decay``: ``rank1`` or ``mean_ap`` (cross-camera, in
+    (0, 1]; 1 is the default, perfect re-id) measured with ``quality_people`` people (default
+    ``appearance.QUALITY_PEOPLE``; ``AppearanceParams.from_quality``)."""
     dim = t.integer("dim", 512, lo=2, hi=65536)
     weights = ("identity", "view", "noise", "shared")
     dists = ("same_camera_distance", "cross_camera_distance", "different_person_distance")
-    t.declare(*weights, *dists)  # one set or the other; both are known
+    quality = ("rank1", "mean_ap")
+    t.declare(*weights, *dists, "decay", *quality, "quality_people")  # one set or the other
     has_w = [k for k in weights if t.has(k)]
     has_d = [k for k in dists if t.has(k)]
+    has_q = [k for k in quality if t.has(k)]
     try:
         if has_w and has_d:
             raise t.error(has_d[0], f"cannot be combined with {has_w[0]} (give weights or distances)")
+        if len(has_q) > 1:
+            raise t.error(has_q[1], f"cannot be combined with {has_q[0]} (give one re-id quality)")
+        if has_q and t.has("decay"):
+            raise t.error("decay", f"cannot be combined with {has_q[0]} (the quality sets it)")
+        if t.has("quality_people") and not has_q:
+            raise t.error("quality_people", "applies to rank1 or mean_ap, and neither is given")
+        decay = t.number("decay", 0.0, lo=0.0)
         if has_d:
             d = AppearanceParams.from_distances()
             ref = d.expected_distances()
@@ -292,10 +307,19 @@ def appearance_params_from_table(t: Table) -> AppearanceParams:
             cross = t.number("cross_camera_distance", ref["cross_camera"], lo=0.0, hi=1.0)
             diff = t.number("different_person_distance", ref["different_person"], lo=0.0, hi=1.0)
             params = AppearanceParams.from_distances(same, cross, diff, dim=dim)
+            params = replace(params, decay=decay)
         else:
             dflt = AppearanceParams()
             kw = {k: t.number(k, getattr(dflt, k), lo=0.0) for k in weights}
-            params = AppearanceParams(dim=dim, **kw)
+            params = AppearanceParams(dim=dim, decay=decay, **kw)
+        if has_q:
+            key = has_q[0]
+            target = t.number(key, lo=0.0, hi=1.0, lo_open=True)
+            people = t.integer("quality_people", QUALITY_PEOPLE, lo=2, hi=10000)
+            try:
+                params = AppearanceParams.from_quality(**{key: target}, base=params, people=people)
+            except AppearanceError as e:
+                raise t.error(key, str(e)) from None
     except AppearanceError as e:
         raise t.error(None, str(e)) from None
     t.finish()
