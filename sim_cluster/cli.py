@@ -10,6 +10,7 @@ and as real processes on loopback.
     sim_cluster up --topology chain [--detach]; status | kill N | restart N | down
     sim_cluster ablation --scenarios terrace-sim,lab-sim --seeds 0-4 --out DIR
     sim_cluster bandwidth-sweep --out DIR     # bytes vs MOTA/IDF1 over the trigger's gain
+    sim_cluster reid-sweep --scenarios terrace-sim,campus-sim --seeds 0-1 --out DIR
 """
 from __future__ import annotations
 
@@ -26,8 +27,8 @@ from edge_node.settings import SettingsError
 from protocol.keys import is_valid_network
 from sim_cluster.cluster import commands as cluster
 from sim_cluster.cluster.state import ClusterError
-from sim_cluster.experiments import ablation, bandwidth, bench, bench_cluster, faultreport, fuzz, \
-    run, soak
+from sim_cluster.experiments import (ablation, bandwidth, bench, bench_cluster, faultreport,
+                                     fuzz, reid_sweep, run, soak)
 from sim_cluster.experiments.ablation import AblationError
 from sim_cluster.network.topology import TopologyError
 from sim_cluster.scenarios import commands as scenarios
@@ -422,6 +423,27 @@ def build_parser() -> argparse.ArgumentParser:
     bw.add_argument("--out", default="docs/results/bandwidth")
     bw.add_argument("--quiet", action="store_true", help="no progress")
     bw.set_defaults(func=bandwidth.main)
+    rs = sub.add_parser("reid-sweep", help="tracking quality against re-id quality (rank-1 "
+                        "from perfect to none): CSV, PNG, table")
+    rs.add_argument("--scenarios", default=reid_sweep.DEFAULT_SCENARIOS,
+                    help="comma-separated presets or scenario files that simulate descriptors "
+                         f"(default {reid_sweep.DEFAULT_SCENARIOS})")
+    rs.add_argument("--levels", default=reid_sweep.DEFAULT_LEVELS,
+                    help="comma-separated cross-camera rank-1 levels in (0, 1] (with 20 people) "
+                         f"and 'none' for no descriptors (default {reid_sweep.DEFAULT_LEVELS})")
+    rs.add_argument("--seeds", default="0-1", help="e.g. 0-4 or 0,2,5 (default 0-1)")
+    rs.add_argument("--topology", default="ring",
+                    help="complete | ring | chain | disconnected | star | centralized "
+                         "(default ring)")
+    rs.add_argument("--config", default="dkf+lda+dtm", choices=CONFIG_NAMES,
+                    help="tracker configuration at the rank-1 levels ('none' drops appearance: "
+                         "dkf+lda+dtm becomes dkf+dtm)")
+    rs.add_argument("--frames", type=int, default=None,
+                    help="frames per run (default: the scenario's)")
+    rs.add_argument("--jobs", type=int, default=None, help="worker processes (default: all cores)")
+    rs.add_argument("--out", default="docs/results/reid")
+    rs.add_argument("--quiet", action="store_true", help="no progress")
+    rs.set_defaults(func=reid_sweep.main)
     return p
 
 

@@ -1,12 +1,16 @@
 """Re-id quality: the cross-camera rank-1 / mAP measurement, descriptors generated at a stated
 quality (checked with a rank-1 computed here, independently of ``evaluation.reid``), the
-``[appearance] rank1`` field."""
+``[appearance] rank1`` field, and ``sim_cluster reid-sweep`` end to end on a tiny run."""
 from __future__ import annotations
+
+import csv
 
 import numpy as np
 import pytest
 
+from sim_cluster import cli
 from sim_cluster.evaluation.reid import cross_camera_reid, scenario_reid
+from sim_cluster.experiments import reid_sweep
 from sim_cluster.scenarios.files import ScenarioError, scenario_table
 from sim_cluster.scenarios.loader import load_scenario
 from sim_cluster.scenarios.synthetic.appearance import (QUALITY_PEOPLE, AppearanceError,
@@ -172,3 +176,35 @@ def test_presets_default_to_perfect_reid_and_take_a_stated_one(tmp_path):
     assert low.rank1 < 0.8  # the same scene at a stated 0.5 (one scene: about 0.5 +- 0.1)
     with pytest.raises(ScenarioError, match="simulate descriptors"):
         load_scenario(str(tmp_path), rank1=0.8)
+
+
+# -- the sweep end to end -----------------------------------------------------------------------
+@pytest.mark.integration
+def test_reid_sweep_end_to_end(tmp_path, capsys):
+    out = tmp_path / "reid"
+    rc = cli.main(["reid-sweep", "--scenarios", "campus-sim", "--seeds", "0", "--frames", "30",
+                   "--levels", "1,0.5,none", "--jobs", "1", "--quiet", "--out", str(out)])
+    assert rc == 0
+    printed = capsys.readouterr().out
+    assert "campus-sim" in printed and "none" in printed
+    with open(out / "reid_sweep.csv", newline="") as fh:
+        rows = list(csv.DictReader(fh))
+    assert list(rows[0]) == list(reid_sweep.CSV_COLS)
+    assert [r["level"] for r in rows] == ["1", "0.5", "none"]
+    assert [r["config"] for r in rows] == ["dkf+lda+dtm", "dkf+lda+dtm", "dkf+dtm"]
+    assert rows[0]["decay"] == "0.0" and float(rows[1]["decay"]) > 0 and rows[2]["decay"] == ""
+    assert rows[0]["scene_rank1"] == "1.0" and rows[2]["scene_rank1"] == ""
+    for r in rows:
+        assert r["frames"] == "30" and r["topology"] == "ring"
+        for col in ("ground_mota", "ground_idf1", "image_mota", "image_idf1"):
+            float(r[col])
+    md = (out / "reid_sweep.md").read_text()
+    assert "## campus-sim" in md and "| none |" in md and "| 0.5 |" in md
+    assert (out / "reid_sweep.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    assert '"quality_people": 20' in (out / "summary.json").read_text()
+
+
+def test_reid_sweep_bad_levels_exit_2(tmp_path, capsys):
+    for bad in ("1.5", "0", "x", ","):
+        assert cli.main(["reid-sweep", "--levels", bad, "--out", str(tmp_path)]) == 2
+        assert "levels" in capsys.readouterr().err
