@@ -438,6 +438,8 @@ def build_parser() -> argparse.ArgumentParser:
     rs.add_argument("--config", default="dkf+lda+dtm", choices=CONFIG_NAMES,
                     help="tracker configuration at the rank-1 levels ('none' drops appearance: "
                          "dkf+lda+dtm becomes dkf+dtm)")
+    rs.add_argument("--tracker-config", default=None, metavar="FILE",
+                    help="TOML file overriding tracker parameters (e.g. merge_appearance)")
     rs.add_argument("--frames", type=int, default=None,
                     help="frames per run (default: the scenario's)")
     rs.add_argument("--jobs", type=int, default=None, help="worker processes (default: all cores)")

@@ -208,3 +208,12 @@ def test_reid_sweep_bad_levels_exit_2(tmp_path, capsys):
     for bad in ("1.5", "0", "x", ","):
         assert cli.main(["reid-sweep", "--levels", bad, "--out", str(tmp_path)]) == 2
         assert "levels" in capsys.readouterr().err
+
+
+def test_reid_sweep_checks_its_tracker_config_once(tmp_path, capsys):
+    bad = tmp_path / "bad.toml"
+    bad.write_text("[tracker]\nmerge_apperance = 0.2\n")
+    assert cli.main(["reid-sweep", "--scenarios", "campus-sim", "--tracker-config", str(bad),
+                     "--out", str(tmp_path / "out")]) == 2
+    assert "merge_apperance" in capsys.readouterr().err
+    assert not (tmp_path / "out").exists()

@@ -1,14 +1,17 @@
 """``sim_cluster reid-sweep``: tracking quality against re-id quality, from perfect re-id to none.
 
     sim_cluster reid-sweep --scenarios terrace-sim,campus-sim --seeds 0-1 --out docs/results/reid \\
-        [--levels 1,0.95,0.9,0.8,0.7,0.6,0.5,0.4,0.3,none] [--topology ring] [--frames N] [--jobs N]
+        [--levels 1,0.99,0.98,0.95,0.9,0.8,0.7,0.6,0.5,0.4,0.3,none] [--topology ring]
+        [--tracker-config FILE] [--frames N] [--jobs N]
 
 Each level is a stated cross-camera rank-1 of the simulated descriptors (``[appearance] rank1``,
 ``AppearanceParams.from_quality``: measured with ``appearance.QUALITY_PEOPLE`` people); ``none``
 runs the same detections without descriptors, which takes the geometry-only path
 (``dkf+lda+dtm`` becomes ``dkf+dtm``: duplicates merged by co-motion, re-identification by
-place). Every other setting is the scenario's and the tracker's default, so the curve shows what a
-given re-id model buys with the tracker as it ships: the curve a user needs to pick one.
+place). Every other setting is the scenario's and the tracker's default (or ``--tracker-config``'s:
+the appearance thresholds ``merge_appearance``, ``appearance_gate``, ``epsilon`` decide how a
+tracker copes with look-alikes), so the curve shows what a given re-id model buys with the tracker
+as configured: the curve a user needs to pick one.
 
 Beside the stated level each run records the re-id quality of its own scene's descriptors
 (``evaluation.reid.scenario_reid``: two detections per person and camera), which differs from the
@@ -32,13 +35,13 @@ from collections.abc import Mapping, Sequence
 from dataclasses import asdict, dataclass
 from pathlib import Path
 
-from edge_node.core.config import CONFIG_NAMES, TrackerConfig
+from edge_node.core.config import CONFIG_NAMES
 from sim_cluster.evaluation.reid import scenario_reid
 from sim_cluster.experiments.ablation import (GROUND_COLS, IDENTITY_COLS, IMAGE_COLS,
                                               TOPOLOGY_NAMES, AblationError, _csv_value, _hms,
                                               _md_table, _num, execute, parse_list, parse_seeds,
                                               probe)
-from sim_cluster.experiments.run import geometry_only, run_once
+from sim_cluster.experiments.run import geometry_only, run_once, tracker_config
 from sim_cluster.scenarios.files import read_scenario_toml, resolve_scenario_path, scenario_table
 from sim_cluster.scenarios.loader import load_scenario
 from sim_cluster.scenarios.synthetic.appearance import (QUALITY_PEOPLE, AppearanceParams,
@@ -46,7 +49,7 @@ from sim_cluster.scenarios.synthetic.appearance import (QUALITY_PEOPLE, Appearan
 from sim_cluster.scenarios.synthetic.schema import appearance_params_from_table
 
 NONE = "none"
-DEFAULT_LEVELS = "1,0.95,0.9,0.8,0.7,0.6,0.5,0.4,0.3,none"
+DEFAULT_LEVELS = "1,0.99,0.98,0.95,0.9,0.8,0.7,0.6,0.5,0.4,0.3,none"
 DEFAULT_SCENARIOS = "terrace-sim,campus-sim"
 
 KEY_COLS = ("scenario", "seed", "level", "rank1", "decay", "effective_dim", "scene_rank1",
@@ -75,6 +78,7 @@ class Task:
     topology: str
     config: str
     frames: int | None
+    tracker_config: str | None = None
 
 
 def parse_levels(text: str) -> list[float | None]:
@@ -106,10 +110,11 @@ def level_name(level: float | None) -> str:
 
 def plan(scenarios: Sequence[str], seeds: Sequence[int], levels: Sequence[float | None],
          topology: str = "ring", config: str = "dkf+lda+dtm",
-         frames: int | None = None) -> list[Task]:
+         frames: int | None = None, tracker_file: str | None = None) -> list[Task]:
     """Every run, in the order scenario, seed, level (a worker's scenario cache keeps hitting)."""
     grid = [(sc, int(s), lv) for sc in scenarios for s in seeds for lv in levels]
-    return [Task(i, sc, s, lv, topology, config, frames) for i, (sc, s, lv) in enumerate(grid)]
+    return [Task(i, sc, s, lv, topology, config, frames, tracker_file)
+            for i, (sc, s, lv) in enumerate(grid)]
 
 
 @functools.lru_cache(maxsize=2)
@@ -132,19 +137,20 @@ def appearance_at(scenario: str, level: float) -> AppearanceParams:
 
 
 def run_task(task: Task) -> dict:
-    """One run: ``{"task", "summary", "reid", "config", "decay"}`` (no tracks: small to
-    pickle)."""
+    """One run: ``{"task", "summary", "reid", "config", "decay", "effective_dim"}`` (no tracks:
+    small to pickle)."""
     data = _load(task.scenario, task.seed, task.frames, task.level)
-    reid = decay = None
+    reid = decay = eff = None
     if task.level is None:
         data = data.without_descriptors()
     else:
         reid = scenario_reid(data).to_dict()
-        decay = appearance_at(task.scenario, task.level).decay
-    cfg, _ = geometry_only(data, TrackerConfig.for_ablation(task.config))
+        params = appearance_at(task.scenario, task.level)
+        decay, eff = params.decay, effective_dimension(params.dim, params.decay)
+    cfg, _ = geometry_only(data, tracker_config(task.config, task.tracker_config))
     _, summary = run_once(data, task.topology, cfg, show_progress=False)
     return {"task": asdict(task), "summary": summary, "reid": reid, "config": cfg.ablation,
-            "decay": decay}
+            "decay": decay, "effective_dim": eff}
 
 
 def _label(t: Task) -> str:
@@ -156,10 +162,9 @@ def row_of(result: Mapping) -> dict:
     task, s, reid = result["task"], result["summary"], result["reid"]
     level = task["level"]
     med = {v: s.get("metrics", {}).get(v, {}).get("median", {}) for v in ("ground", "image")}
-    decay = result.get("decay")
     row = {"scenario": task["scenario"], "seed": task["seed"], "level": level_name(level),
-           "rank1": level, "decay": decay,
-           "effective_dim": None if decay is None else effective_dimension(512, decay),
+           "rank1": level, "decay": result.get("decay"),
+           "effective_dim": result.get("effective_dim"),
            "scene_rank1": None if reid is None else reid["rank1"],
            "scene_mean_ap": None if reid is None else reid["mean_ap"],
            "scene_people": None if reid is None else reid["people"],
@@ -213,7 +218,10 @@ def markdown(agg: Mapping, meta: Mapping) -> str:
         f"{meta['quality_people']} people (`[appearance] rank1`); `none`: no descriptors, the "
         f"geometry-only path (dkf+dtm). Scene rank-1 / mAP: the same measurement on each run's "
         f"own detections (two per person and camera). Topology {meta['topology']}, "
-        f"configuration {meta['config']}, seeds {', '.join(map(str, meta['seeds']))}, frames: "
+        f"configuration {meta['config']}"
+        + (f" with the parameters of `{Path(meta['tracker_config']).name}`"
+           if meta.get("tracker_config") else " with the default parameters")
+        + f", seeds {', '.join(map(str, meta['seeds']))}, frames: "
         f"{meta['frames'] or 'each scenario’s default'}. Cells: mean over seeds of the median "
         "over nodes (± the sample std when there are several seeds).")
     lines.append("")
@@ -311,7 +319,11 @@ def main(args) -> int:
     runnable = [s for s in scenarios if s in info]
     if not runnable:
         raise AblationError("nothing to run: every scenario was skipped")
-    tasks = plan(runnable, seeds, levels, topology, config, args.frames)
+    tracker_file = getattr(args, "tracker_config", None)
+    if tracker_file:
+        tracker_config(config, tracker_file)  # a bad file is one error now, not one per run
+        tracker_file = str(Path(tracker_file).expanduser().resolve())
+    tasks = plan(runnable, seeds, levels, topology, config, args.frames, tracker_file)
     quiet = getattr(args, "quiet", False)
     if not quiet:
         print(f"reid-sweep: {len(tasks)} runs ({len(runnable)} scenario(s) x {len(seeds)} "
@@ -326,7 +338,8 @@ def main(args) -> int:
     rows = [row_of(r) for r in ok]
     meta = {"scenarios": info, "skipped": skipped, "failed": failed, "seeds": seeds,
             "levels": [level_name(lv) for lv in levels], "topology": topology,
-            "config": config, "frames": args.frames, "quality_people": QUALITY_PEOPLE,
+            "config": config, "tracker_config": tracker_file, "frames": args.frames,
+            "quality_people": QUALITY_PEOPLE,
             "std": "sample standard deviation over seeds (ddof=1; 0 with one seed)"}
     agg = aggregate(rows)
     paths = write_outputs(Path(args.out), rows, agg, meta)
