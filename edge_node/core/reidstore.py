@@ -58,7 +58,7 @@ class ReidStore(Mapping):
             xy: np.ndarray | None = None) -> None:
         """Keep ``gallery`` (a float16 copy) for ``tid``, newest, and where it was dropped
         (``frame``, ``xy``) when known; then the oldest go until both bounds hold."""
-        self.take(tid)
+        self._discard(tid)
         g = gallery.astype(STORED)
         self._g[tid] = g
         self.nbytes += g.nbytes
@@ -68,12 +68,16 @@ class ReidStore(Mapping):
 
     def take(self, tid: TrackerId) -> Gallery | None:
         """Remove ``tid`` (and where it was dropped); its gallery as float64, or ``None``."""
+        g = self._discard(tid)
+        return None if g is None else g.astype(np.float64)
+
+    def _discard(self, tid: TrackerId) -> Gallery | None:
+        """Remove ``tid`` and where it was dropped; its stored gallery, or ``None``."""
         self.last.pop(tid, None)
         g = self._g.pop(tid, None)
-        if g is None:
-            return None
-        self.nbytes -= g.nbytes
-        return g.astype(np.float64)
+        if g is not None:
+            self.nbytes -= g.nbytes
+        return g
 
     def extend(self, tid: TrackerId, gallery: Gallery) -> None:
         """Add ``gallery``'s descriptors to the stored gallery of ``tid`` (two dropped
@@ -87,6 +91,4 @@ class ReidStore(Mapping):
 
     def _shrink(self) -> None:
         while self._g and (len(self._g) > self.max_count or self.nbytes > self.max_bytes):
-            gone, g = self._g.popitem(last=False)
-            self.nbytes -= g.nbytes
-            self.last.pop(gone, None)
+            self._discard(next(iter(self._g)))
