@@ -105,7 +105,6 @@ _F32 = np.dtype("<f4")
 _F16 = np.dtype("<f2")
 _I8 = np.dtype("i1")
 _INT_DTYPES = (np.dtype("<u1"), np.dtype("<u2"), np.dtype("<u4"), np.dtype("<i8"))
-_INT_LIMITS = (0xFF, 0xFFFF, 0xFFFF_FFFF)  # largest value of width codes 0, 1, 2
 _COLUMNS = ("camera", "counter", "born", "ell")
 _MESSAGE_LEN = 10
 _F32_MAX = float(np.finfo(np.float32).max)

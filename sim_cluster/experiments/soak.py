@@ -47,7 +47,6 @@ from edge_node.faults import FaultPlan, Network
 from edge_node.formats.tracks import ID_BASE
 from edge_node.runtime.output import tracks_path
 from sim_cluster.cluster.launcher import Cluster
-from sim_cluster.cluster.processes import alive
 from sim_cluster.cluster.state import ClusterError, node_status
 from sim_cluster.evaluation.metrics import ground_distances, summarize
 from sim_cluster.network.inprocess import run_network
