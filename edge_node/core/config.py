@@ -44,6 +44,10 @@ class TrackerConfig:
     accel_sigma: float = positive(1.0, "m/s^2, white-noise acceleration on the constant-velocity part")
     size_sigma: float = nonnegative(0.01, "m per frame, random walk on (w, h)")
 
+    # --- DKF consensus step (eq. 4; edge_node/core/dkf.py, "Stability of the consensus step") ---
+    consensus_bound: float = number(0.9, lo=0.0, lo_open=True, hi=1.0,
+                                    doc="gamma of eq. 4 is scaled down where degree * ||gamma M||_2 would exceed this (below 1: every disagreement mode decays)")
+
     # --- measurement model (H, R_i) ----------------------------------------------------------
     pixel_sigma: float = positive(2.0, "px, detector noise on box edges, through the homography")
     calib_sigma: float = nonnegative(0.4, "m, per-camera ground offset (calibration + foot point)")

@@ -6,6 +6,41 @@ Per camera ``i`` and target: measurement information ``u_i = H^T R_i^-1 z_i``,
 ``M_i = (P_i^-1 + S_i)^-1``; correction with a consensus term on the neighbours' predictions
 (eq. 4); then ``P_i <- A M_i A^T + Q``. Pure functions; covariances kept symmetric, inverses
 replaced by solves.
+
+Stability of the consensus step (eq. 4). Written for the nodes holding one tracker, the
+consensus term ``x_i <- x_i + G_i sum_{j in N_i} (x_j - x_i)`` with ``G_i = gamma_i M_i`` is
+``x <- (I - D (L (x) I)) x``: ``L`` the Laplacian of the links whose entries arrived, ``D`` the
+block diagonal of the ``G_i`` (symmetric, positive semi-definite). With every ``G_i`` positive
+definite, ``D (L (x) I)`` is similar to the symmetric ``D^1/2 (L (x) I) D^1/2``, so its eigenvalues
+are real and non-negative, and with ``w_i = G_i^1/2 v_i``::
+
+    v^T D^1/2 (L (x) I) D^1/2 v = sum_{edges ij} |w_i - w_j|^2 <= 2 sum_i d_i |w_i|^2
+                                 <= 2 max_i (d_i ||G_i||_2) |v|^2
+
+(``d_i`` the number of terms of node ``i``'s sum). If ``d_i ||G_i||_2 <= c < 1`` at every node,
+the iteration matrix has its eigenvalues in ``[1 - 2c, 1]``, inside ``(-1, 1]``, the eigenvalue 1
+only on agreement (``L 1 = 0``; a connected graph); it is self-adjoint in the ``D^-1`` inner
+product, so the step never expands the disagreement in that norm, and every mode of
+disagreement shrinks. This is the matrix form of the step bound ``epsilon < 1/Delta`` of
+discrete-time consensus (the Perron matrix ``I - epsilon L``; Olfati-Saber, Fax & Murray, Proc.
+IEEE 2007), taken per node with its own degree, and it is tight: for ``G_i = g I`` on an even
+ring (bipartite, ``lambda_max(L) = 2d``) ``g d < 1`` is necessary. The prediction that follows is
+the same ``A`` at every node. The argument is for one frame's graph and gains (synchronous
+links); with gains that change every frame and one-way or lost entries (event-triggered runs)
+it is the per-frame condition, checked by runs rather than proved
+(``tests/test_consensus_stability.py``).
+
+The paper's ``gamma = 1/(1 + ||M||)`` gives ``||gamma M||_2 < 1``: the condition for one
+neighbour only. For a target no camera near node ``i`` measures, ``M = P`` grows every frame and
+``||gamma M||_2 -> lambda_max(P) / ||P||_F`` (about 0.7 for a round position uncertainty): with two
+neighbours ``d_i ||G_i||_2`` reaches 1.4, and on a chain or an even ring the alternating mode
+(eigenvalue about ``1 - 4 * 0.7``) grows 1.8-fold per frame. Such estimates ran off at hundreds
+of m/s (corridor-16 without regional scope: 58k neighbour entries refused as
+``implausible_state`` in 300 frames). :func:`consensus_gamma` therefore keeps the paper's
+``gamma`` wherever ``d_i ||gamma M_i||_2 <= c`` (every measured target in practice, and one
+neighbour up to ``c``) and scales it down to ``c / (d_i ||M_i||_2)`` where it is not
+(``TrackerConfig.consensus_bound``, ``c``). Olfati-Saber's Kalman-consensus filter has the same
+freedom: his ``gamma = epsilon / (1 + ||M||)`` leaves the rate ``epsilon`` to the designer.
 """
 from __future__ import annotations
 
@@ -14,6 +49,10 @@ from collections.abc import Iterable
 import numpy as np
 
 from edge_node.core.model import MEAS_DIM, STATE_DIM
+
+# c of the stability condition ``degree ||gamma M||_2 <= c`` (module docstring); the default of
+# ``TrackerConfig.consensus_bound``
+CONSENSUS_BOUND = 0.9
 
 
 def symmetric(M: np.ndarray) -> np.ndarray:
@@ -62,33 +101,48 @@ def gain(P: np.ndarray, S: np.ndarray) -> np.ndarray:
     return symmetric(M)
 
 
-def consensus_gamma(M: np.ndarray) -> float | np.ndarray:
-    """``gamma = 1 / (1 + ||M||)`` (Frobenius norm), the consensus step of eq. 4; one matrix or
-    a stack ``(n, 6, 6)`` (then one ``gamma`` per matrix)."""
+def consensus_gamma(M: np.ndarray, degree: int | np.ndarray = 1,
+                    bound: float = CONSENSUS_BOUND) -> float | np.ndarray:
+    """The consensus step of eq. 4: the paper's ``gamma = 1 / (1 + ||M||)`` (Frobenius norm),
+    scaled down where the consensus sum's ``degree`` terms would step farther than ``bound``:
+    ``gamma = min(1 / (1 + ||M||), bound / (degree ||M||_2))``, so that
+    ``degree ||gamma M||_2 <= bound`` (the stability condition in the module docstring; ``M``
+    symmetric positive semi-definite, ``||M||_2`` its largest eigenvalue). One matrix or a stack
+    ``(n, 6, 6)`` with one ``degree`` each (then one ``gamma`` per matrix)."""
+    M = np.asarray(M, float)
     g = 1.0 / (1.0 + np.linalg.norm(M, axis=(-2, -1)))
+    step = np.asarray(degree, float) * g * np.linalg.eigvalsh(symmetric(M))[..., -1]
+    g = np.where(step > bound, g * bound / np.where(step > bound, step, 1.0), g)
     return float(g) if np.ndim(g) == 0 else g
 
 
 def correct(x_bar: np.ndarray, P: np.ndarray, y: np.ndarray, S: np.ndarray,
             neighbour_x_bars: Iterable[np.ndarray] = (),
             own_x_bar_sent: np.ndarray | None = None,
-            units_per_metre: float = 1.0) -> tuple[np.ndarray, np.ndarray]:
+            units_per_metre: float = 1.0,
+            bound: float = CONSENSUS_BOUND) -> tuple[np.ndarray, np.ndarray]:
     """Eq. 4 for one tracker (see :func:`corrects`): ``x_bar_j`` are the neighbours'
     predictions and ``own_x_bar_sent`` this camera's prediction as they received it (rounded to
     the wire's precision; ``x_bar`` when ``None``). Returns ``(x_hat, M)``."""
     ref = x_bar if own_x_bar_sent is None else own_x_bar_sent
     diff = np.zeros(STATE_DIM)
+    degree = 0
     for xj in neighbour_x_bars:
         diff = diff + (np.asarray(xj, float) - ref)
-    x_hat, M = corrects(x_bar[None], P[None], y[None], S[None], diff[None], units_per_metre)
+        degree += 1
+    x_hat, M = corrects(x_bar[None], P[None], y[None], S[None], diff[None], units_per_metre,
+                        degree=np.array([degree]), bound=bound)
     return x_hat[0], M[0]
 
 
 def corrects(x_bar: np.ndarray, P: np.ndarray, y: np.ndarray, S: np.ndarray, diff: np.ndarray,
-             units_per_metre: float = 1.0) -> tuple[np.ndarray, np.ndarray]:
+             units_per_metre: float = 1.0, *, degree: np.ndarray,
+             bound: float = CONSENSUS_BOUND) -> tuple[np.ndarray, np.ndarray]:
     """Eq. 4 for ``n`` trackers at once: ``x_hat = x_bar + M (y - S x_bar) + gamma M diff``
     with ``diff = sum_j (x_bar_j - x_bar)`` over the neighbours (shapes ``(n, 6)`` and
-    ``(n, 6, 6)``). Returns ``(x_hat, M)``.
+    ``(n, 6, 6)``) and ``degree`` ``(n,)`` the number of terms of each tracker's sum (the
+    neighbours whose entries arrived), which bounds ``gamma`` (:func:`consensus_gamma`, the
+    stability condition of the module docstring). Returns ``(x_hat, M)``.
 
     ``diff`` uses this camera's prediction as its neighbours received it (rounded to the wire's
     precision), so that cameras that agree exactly see a zero consensus term.
@@ -103,7 +157,7 @@ def corrects(x_bar: np.ndarray, P: np.ndarray, y: np.ndarray, S: np.ndarray, dif
     pull = np.any(diff != 0, axis=1)
     if pull.any():
         M_m = M[pull] / units_per_metre**2
-        gamma = consensus_gamma(M_m)
+        gamma = consensus_gamma(M_m, np.maximum(np.asarray(degree)[pull], 1), bound)
         x_hat[pull] = x_hat[pull] + gamma[:, None] * (M_m @ diff[pull][..., None])[..., 0]
     return x_hat, M
 
@@ -116,4 +170,4 @@ def predict(x_hat: np.ndarray, M: np.ndarray, A: np.ndarray, Q: np.ndarray
 
 
 __all__ = ["information", "informations", "no_information", "fuse", "gain", "consensus_gamma",
-           "correct", "corrects", "predict", "symmetric", "MEAS_DIM"]
+           "correct", "corrects", "predict", "symmetric", "MEAS_DIM", "CONSENSUS_BOUND"]

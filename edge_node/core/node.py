@@ -453,14 +453,17 @@ class CameraNode:
             np.add.at(S, rows, entries.U)
             np.add.at(diff, rows, entries.x_bar - ref[rows])
         upm = self.cfg.units_per_metre
+        deg = np.bincount(rows, minlength=len(ids))  # terms of each consensus sum (eq. 4)
+        bound = self.cfg.consensus_bound
         try:
-            x_hat, M = dkf.corrects(x_bar, P, y, S, diff, upm)
+            x_hat, M = dkf.corrects(x_bar, P, y, S, diff, upm, degree=deg, bound=bound)
         except (np.linalg.LinAlgError, ValueError, FloatingPointError):
             x_hat, M = np.full_like(x_bar, np.nan), np.full_like(P, np.nan)
             for i in range(len(ids)):  # one at a time: a failure stays with its tracker
                 try:
                     x_hat[i:i + 1], M[i:i + 1] = dkf.corrects(x_bar[i:i + 1], P[i:i + 1], y[i:i + 1],
-                                                              S[i:i + 1], diff[i:i + 1], upm)
+                                                              S[i:i + 1], diff[i:i + 1], upm,
+                                                              degree=deg[i:i + 1], bound=bound)
                 except (np.linalg.LinAlgError, ValueError, FloatingPointError):
                     pass
         bad = ~(np.all(np.isfinite(x_hat), axis=1) & np.all(np.isfinite(M), axis=(1, 2)))
