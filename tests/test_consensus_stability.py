@@ -108,9 +108,10 @@ def test_one_neighbour_is_stable_and_unchanged():
     adj = graph("chain", 2)
     P = coasting_P(300)
     assert disagreement_radius(iteration(adj, P, paper_gain), 2) < 1.0
-    g = dkf.consensus_gamma(P, 1, C)
-    if np.linalg.eigvalsh(P)[-1] / (1 + np.linalg.norm(P)) <= C:
-        assert g == pytest.approx(1.0 / (1.0 + np.linalg.norm(P)), rel=1e-12)
+    weight = np.linalg.eigvalsh(P)[-1] / (1 + np.linalg.norm(P))
+    assert 0.6 < weight <= C  # ~0.7: one neighbour is inside the bound, two are not
+    assert dkf.consensus_gamma(P, 1, C) == pytest.approx(1.0 / (1.0 + np.linalg.norm(P)), rel=1e-12)
+    assert dkf.consensus_gamma(P, 2, C) < 1.0 / (1.0 + np.linalg.norm(P))
 
 
 def test_the_code_is_the_iteration_and_converges():
