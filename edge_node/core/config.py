@@ -117,7 +117,7 @@ class TrackerConfig:
     # --- trust boundary (edge_node/core/screen.py): what a neighbour's entry may claim -----
     world_radius: float = positive(1000.0, "m, states farther than this from every camera of the node are implausible")
     max_size: float = positive(20.0, "m, largest plausible target width or height")
-    max_speed: float = positive(150.0, "m/s, largest plausible speed of an estimate (honest coasting estimates in a ring reached 103)")
+    max_speed: float = positive(150.0, "m/s, largest plausible speed of an estimate (before eq. 4's step was bounded by the degree, honest coasting estimates in a ring reached 103; since, 2.8 on ring8 over 10 minutes)")
 
     # --- asynchronous operation (event-triggered consensus) ----------------------------------
     staleness_frames: int = integer(2, lo=0, doc="a neighbour's u, U older than this is ignored")
