@@ -14,11 +14,11 @@ and no id in any frame. The event-triggered run was re-recorded again when the t
 holding a silent neighbour's ``ell`` and accumulating withheld information (issue 16). Recorded
 by::
 
-(Re-recorded once more when eq. 4's consensus step was bounded by each tracker's degree: ids
-unchanged in every frame, positions moved by up to 0.07 m and velocities by up to 0.21 m/s,
-mostly just-born trackers whose prior pulled with weight 1.07 from two neighbours.)
-
     python tests/core_reference.py tests/data/core_reference.npz
+
+It was re-recorded once more when eq. 4's consensus step was bounded by each tracker's degree:
+ids unchanged in every frame, positions moved by up to 0.07 m and velocities by up to 0.21 m/s,
+mostly just-born trackers whose prior pulled with weight 1.07 from two neighbours.
 
 Re-record it (from the commit that changes them, saying why in the message) only when the
 tracks are meant to change.
