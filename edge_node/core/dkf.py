@@ -79,6 +79,13 @@ def informations(z: np.ndarray, R: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return u, U
 
 
+def carried(u: np.ndarray, U: np.ndarray, shift: np.ndarray) -> np.ndarray:
+    """``u`` of measurement information ``u = U z`` whose ground position is moved by ``shift``
+    ``(2,)`` (``U`` unchanged): ``U (z + s) = u + U s``. What an event-triggered node does with a
+    measurement of where a target was, to use it where the target is now."""
+    return u + U[:, :2] @ shift
+
+
 def no_information() -> tuple[np.ndarray, np.ndarray]:
     """What a camera without a measurement of the target contributes: ``u = 0``, ``U = 0``."""
     return np.zeros(STATE_DIM), np.zeros((STATE_DIM, STATE_DIM))
@@ -169,5 +176,5 @@ def predict(x_hat: np.ndarray, M: np.ndarray, A: np.ndarray, Q: np.ndarray
     return x_hat @ A.T, symmetric(A @ M @ A.T + Q)
 
 
-__all__ = ["information", "informations", "no_information", "fuse", "gain", "consensus_gamma",
+__all__ = ["information", "informations", "carried", "no_information", "fuse", "gain", "consensus_gamma",
            "correct", "corrects", "predict", "symmetric", "MEAS_DIM", "CONSENSUS_BOUND"]

@@ -7,8 +7,10 @@ every frame ``k``, hands back those entries brought to ``k``: ``x_bar`` predicte
 the constant-velocity model, ``ell`` as sent while the neighbour is heard from but silent about
 the tracker (for up to ``hold_frames``: its silence means "no change" until its heartbeat is
 due; the trigger sends when its ``ell`` changes) and aged by one per frame beyond that and for
-every frame the neighbour itself is not heard from (late or lost messages: eq. 8's ageing), and ``u, U`` only once and only within ``staleness_frames``
-(older measurement information would pull the estimate to where the target was). Entries older than ``kappa`` frames are forgotten: a neighbour that died
+every frame the neighbour itself is not heard from (late or lost messages: eq. 8's ageing), and
+``u, U`` only once and only within ``staleness_frames`` (older measurement information would
+pull the estimate to where the target was; moved along the velocity to where it is now).
+Entries older than ``kappa`` frames are forgotten: a neighbour that died
 or dropped the tracker.
 """
 from __future__ import annotations
@@ -19,6 +21,7 @@ from dataclasses import replace
 import numpy as np
 
 from edge_node.core.config import TrackerConfig
+from edge_node.core.dkf import carried
 from edge_node.core.model import STATE_DIM, transition
 from protocol.messages import FrameMessage, TrackerId, TrackerInfo
 
@@ -63,7 +66,7 @@ class NeighbourMemory:
                 u, U = np.zeros(STATE_DIM), np.zeros((STATE_DIM, STATE_DIM))
                 if keep_info:  # a measurement of where the target was, moved to where it is now
                     U = t.U
-                    u = t.u + U[:, :2] @ (age * self.cfg.dt * np.asarray(t.x_bar)[4:6])
+                    u = carried(t.u, U, age * self.cfg.dt * np.asarray(t.x_bar)[4:6])
                 aged.append(replace(t, x_bar=A @ t.x_bar, ell=t.ell + self._aged(k, frame, newest),
                                     u=u, U=U))
             out.append(FrameMessage(self.network, sender, k, tuple(aged)))

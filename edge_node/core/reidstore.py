@@ -26,7 +26,7 @@ import numpy as np
 from edge_node.core.gallery import Gallery
 from protocol.messages import TrackerId
 
-STORED = np.float16  # descriptors of dropped trackers (the wire's precision)
+STORED = np.float16  # descriptors of dropped trackers (finer than the wire's int8)
 
 
 class ReidStore(Mapping):

@@ -46,7 +46,8 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from edge_node.core.model import MEAS_DIM, STATE_DIM, transition
+from edge_node.core.dkf import carried
+from edge_node.core.model import STATE_DIM, transition
 from edge_node.core.params import ConfigError, check, integer, nonnegative, positive
 from protocol.messages import FrameMessage, TrackerId
 
@@ -132,10 +133,8 @@ class EventTrigger:
         measured = bool(t.U[0, 0] > 0)
         if w is None:
             return _Withheld(k, np.array(t.u, float), np.array(t.U, float)) if measured else None
-        if w.frame != k:
-            s = np.zeros(STATE_DIM)
-            s[:2] = (k - w.frame) * self.dt * np.asarray(t.x_bar)[4:6]
-            w.u[:MEAS_DIM] += w.U[:MEAS_DIM, :MEAS_DIM] @ s[:MEAS_DIM]  # z moved to where it is now
+        if w.frame != k:  # z moved to where the target is now
+            w.u = carried(w.u, w.U, (k - w.frame) * self.dt * np.asarray(t.x_bar)[4:6])
             w.frame = k
         if measured:
             w.u += t.u
