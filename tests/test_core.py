@@ -83,7 +83,8 @@ def test_simultaneous_inits_converge_to_one_id(topology):
 def test_duplicate_from_neighbour_and_own_camera_merges():
     """Node 1's camera is 0.8 m off from node 0's. Node 1 first holds the person only through
     node 0 (its camera does not see them); when its own camera starts seeing the person it ends
-    up with one tracker, the network's id, within a few frames."""
+    up with one tracker, the network's id: its own new tracker is merged at once (a new tracker
+    of the same look within ``tau_gda``, the paper's rule)."""
     # a tight R and no registration: the offset detection fails the LDA gate
     cfg = TrackerConfig(calib_sigma=0.05, registration=False, recover=False)
     nodes = make_nodes({0: (1,), 1: (0,)}, cfg, offsets={1: (0.8, 0.0)})
@@ -97,7 +98,7 @@ def test_duplicate_from_neighbour_and_own_camera_merges():
     assert counts[14] == 1  # before: the neighbour's tracker only
     assert nodes[1].stats.births >= 1  # its own camera did start a second tracker...
     assert nodes[1].stats.merged + nodes[0].stats.merged >= 1  # ...which was merged
-    assert all(c == 1 for c in counts[18:])  # one track per person from 3 frames on
+    assert all(c == 1 for c in counts[1:])  # never two tracks of one person
     assert [t.id for t in out[1]] == [(0, 0)] and [t.id for t in out[0]] == [(0, 0)]
 
 
@@ -187,22 +188,41 @@ def test_returning_person_gets_their_old_id():
     assert nodes[0].stats.reidentified == 1
 
 
-def test_find_merges_needs_streak_for_established_trackers():
-    cfg = TrackerConfig(merge_frames=3)
+def test_find_merges_needs_co_motion_for_established_trackers():
+    """Two established trackers of one look merge only after ``comotion_frames`` frames within
+    ``comotion_gate``; appearance can forbid a merge but never hurries one."""
+    cfg = TrackerConfig(comotion_frames=4)
     g = _gallery(1)
     a = MergeView((0, 0), np.array([0.0, 0.0]), g, False, frozenset())
     b = MergeView((1, 0), np.array([0.5, 0.0]), g, False, frozenset())
     streaks = {}
-    assert find_merges([a, b], streaks, cfg) == []
-    assert find_merges([a, b], streaks, cfg) == []
+    assert [find_merges([a, b], streaks, cfg) for _ in range(3)] == [[], [], []]
     assert find_merges([a, b], streaks, cfg) == [((1, 0), (0, 0))]
+    # identical galleries 1.2 m apart (beyond comotion_gate, within tau_gda): never merged
+    far = MergeView((1, 0), np.array([1.2, 0.0]), g, False, frozenset())
+    assert all(find_merges([a, far], streaks, cfg) == [] for _ in range(10))
+    # a new tracker of the same look within tau_gda merges at once (the paper's cases 2, 3)...
+    new = MergeView((1, 1), np.array([1.2, 0.0]), g, True, frozenset())
+    assert find_merges([a, new], {}, cfg) == [((1, 1), (0, 0))]
+    # ...without appearance only right on top of the other (under half the comotion_gate)
+    bare = Gallery(20, 20)
+    a0 = MergeView((0, 0), np.array([0.0, 0.0]), bare, False, frozenset())
+    assert find_merges([a0, MergeView((1, 1), np.array([0.6, 0.0]), bare, True, frozenset())],
+                       {}, cfg) == []
+    assert find_merges([a0, MergeView((1, 1), np.array([0.4, 0.0]), bare, True, frozenset())],
+                       {}, cfg) == [((1, 1), (0, 0))]
     # two trackers this node's camera saw as two measurements are never merged
     c = MergeView((0, 0), np.array([0.0, 0.0]), g, True, frozenset({0}))
     d = MergeView((1, 0), np.array([0.1, 0.0]), g, True, frozenset({0}))
     assert find_merges([c, d], {}, cfg) == []
+    # nor two whose entries from one neighbour both carry a measurement (it saw two people),
+    # however alike they look
+    e = MergeView((0, 0), np.array([0.0, 0.0]), g, False, frozenset(), measured_by=frozenset({3}))
+    f = MergeView((1, 0), np.array([0.1, 0.0]), g, False, frozenset(), measured_by=frozenset({3}))
+    assert all(find_merges([e, f], streaks, cfg) == [] for _ in range(10))
     # different appearance: never merged
-    e = MergeView((1, 0), np.array([0.1, 0.0]), _gallery(2), True, frozenset())
-    assert find_merges([a, e], {}, cfg) == []
+    h = MergeView((1, 0), np.array([0.1, 0.0]), _gallery(2), True, frozenset())
+    assert all(find_merges([a, h], streaks, cfg) == [] for _ in range(10))
 
 
 def test_tracker_is_unit_invariant():

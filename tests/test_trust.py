@@ -256,7 +256,7 @@ def test_honest_runs_reject_nothing():
 def test_three_or_more_simultaneous_births_merge_at_once(n):
     """``n`` fully connected cameras start the same person in the same frame (frame 1): the
     paper merges "two or more" at once, so after that frame's update every node holds one
-    tracker, the oldest id (0, 0), not a duplicate for ``merge_frames`` frames."""
+    tracker, the oldest id (0, 0), not a duplicate for ``comotion_frames`` frames."""
     from fakes import graph, step
     adj = graph("complete", n)
     nodes = make_nodes(adj, TrackerConfig())

@@ -11,8 +11,11 @@ over unchanged, while the gates are re-expressed here:
   of true 2-D innovations); pairs outside it are never assigned (the paper scores them 1).
 * ``alpha_lda`` normalises ``s_d = d / alpha`` (eq. 6); inside the gate it only scales all costs,
   so it does not change the optimal assignment. Default ``tau`` so ``s_d`` lies in ``[0, 1)``.
-* ``tau_gda_m`` / ``alpha_gda_m`` are the Euclidean gate and normaliser (``V = I``) of the
-  distributed global data association, in metres.
+* ``tau_gda`` / ``alpha_gda`` are the Euclidean gate and normaliser (``V = I``) of the
+  distributed global data association, in metres: ``tau_gda`` gates a new tracker's merge
+  (the paper) and the second association stage (a left-over measurement against another
+  camera's tracker); established duplicates merge within the tighter ``comotion_gate``
+  (:func:`edge_node.core.manager.pair_score`).
 """
 from __future__ import annotations
 
@@ -100,10 +103,9 @@ class TrackerConfig:
     # --- distributed tracker manager --------------------------------------------------------------
     tau_gda: float = positive(1.5, "m, Euclidean gate (V = I) between trackers of two cameras")
     alpha_gda: float = positive(1.5, "m, s_d normaliser of the global association")
-    merge_appearance: float = nonnegative(0.4, "max gallery-to-gallery cosine distance to merge")
-    merge_frames: int = integer(3, lo=1, doc="consecutive frames two established trackers must agree to merge")
-    comotion_gate: float = positive(1.0, "m, without appearance: how close two trackers of one target stay")
-    comotion_frames: int = integer(10, lo=1, doc="without appearance: frames they must stay so to merge")
+    merge_appearance: float = nonnegative(0.4, "galleries farther apart (cosine) are never merged")
+    comotion_gate: float = positive(1.0, "m, how close two trackers of one target stay")
+    comotion_frames: int = integer(10, lo=1, doc="frames they must stay so to merge")
     merge_announce_frames: int = integer(3, lo=1, doc="frames a merge announcement is repeated")
     kappa: int = integer(15, lo=1, doc="drop a tracker when ell exceeds kappa (eq. 8)")
     epsilon: float = nonnegative(0.25, "re-identification threshold on s_a against old trackers")
