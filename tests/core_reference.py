@@ -24,6 +24,9 @@ And when two *established* duplicate trackers began to need ``comotion_frames`` 
 co-motion to merge even where appearance matched (before: ``merge_frames``, 3; issue 17):
 only the registration run changed, 3624 -> 3664 reported (node, frame, tracker) rows, a
 duplicate reported for a few more frames before its merge; the other five runs unchanged.
+Re-recorded again right after, when the presets' descriptors became a realistic re-id
+(``[appearance] decay``, cross-camera rank-1 0.8; issue 17): new inputs for the four runs on
+presets with descriptors.
 
 Re-record it (from the commit that changes them, saying why in the message) only when the
 tracks are meant to change.
