@@ -20,13 +20,12 @@ It was re-recorded once more when eq. 4's consensus step was bounded by each tra
 ids unchanged in every frame, positions moved by up to 0.07 m and velocities by up to 0.21 m/s,
 mostly just-born trackers whose prior pulled with weight 1.07 from two neighbours.
 
-And when two *established* duplicate trackers began to need ``comotion_frames`` (10) frames of
-co-motion to merge even where appearance matched (before: ``merge_frames``, 3; issue 17):
-only the registration run changed, 3624 -> 3664 reported (node, frame, tracker) rows, a
-duplicate reported for a few more frames before its merge; the other five runs unchanged.
-Re-recorded again right after, when the presets' descriptors became a realistic re-id
-(``[appearance] decay``, cross-camera rank-1 0.8; issue 17): new inputs for the four runs on
-presets with descriptors.
+And when the merge rule changed for a realistic re-id (issue 17: appearance merges at once
+only a tracker this node's camera started or two simultaneous births, other duplicates merge
+by co-motion) and the presets' descriptors became a realistic re-id (``[appearance] decay``,
+cross-camera rank-1 0.8), which gives the runs on presets new inputs; at the same time a
+tracker only a late neighbour sees stopped counting the link's lag as coasting (the
+event-triggered runs report more rows: 3366 -> 3554 with loss and delay).
 
 Re-record it (from the commit that changes them, saying why in the message) only when the
 tracks are meant to change.

@@ -81,24 +81,32 @@ def test_simultaneous_inits_converge_to_one_id(topology):
 
 
 def test_duplicate_from_neighbour_and_own_camera_merges():
-    """Node 1's camera is 0.8 m off from node 0's. Node 1 first holds the person only through
-    node 0 (its camera does not see them); when its own camera starts seeing the person it ends
-    up with one tracker, the network's id: its own new tracker is merged at once (a new tracker
-    of the same look within ``tau_gda``, the paper's rule)."""
-    # a tight R and no registration: the offset detection fails the LDA gate
-    cfg = TrackerConfig(calib_sigma=0.05, registration=False, recover=False)
-    nodes = make_nodes({0: (1,), 1: (0,)}, cfg, offsets={1: (0.8, 0.0)})
-    rng = np.random.default_rng(2)
-    counts = []
-    for k in range(40):
-        x = 3.0 + 0.03 * k
-        dets = {0: [det(x, 5.0, 3, rng)], 1: [det(x, 5.0, 3, rng)] if k >= 15 else []}
-        out = step(nodes, k, dets)
-        counts.append(len(out[1]))
-    assert counts[14] == 1  # before: the neighbour's tracker only
-    assert nodes[1].stats.births >= 1  # its own camera did start a second tracker...
-    assert nodes[1].stats.merged + nodes[0].stats.merged >= 1  # ...which was merged
-    assert all(c == 1 for c in counts[1:])  # never two tracks of one person
+    """Node 1's camera is 0.8 m off from node 0's, and its R is tight, so its detection fails
+    the LDA gate of the network's tracker. Node 1 first holds the person only through node 0
+    (its camera does not see them). When its camera starts seeing the person, the second
+    association stage takes the detection into the network's tracker (within ``tau_gda``):
+    never a second tracker. Without that stage node 1 starts its own tracker, which node 1 (the
+    camera that started it, and sees nobody else there) merges into the network's in the frame
+    it is born: their galleries match and they are within ``tau_gda``."""
+    def run(recover):
+        cfg = TrackerConfig(calib_sigma=0.05, registration=False, recover=recover)
+        nodes = make_nodes({0: (1,), 1: (0,)}, cfg, offsets={1: (0.8, 0.0)})
+        rng = np.random.default_rng(2)
+        counts = []
+        for k in range(40):
+            x = 3.0 + 0.03 * k
+            dets = {0: [det(x, 5.0, 3, rng)], 1: [det(x, 5.0, 3, rng)] if k >= 15 else []}
+            out = step(nodes, k, dets)
+            counts.append(len(out[1]))
+        return cfg, nodes, counts, out
+
+    cfg, nodes, counts, out = run(recover=True)
+    assert counts[1:] == [1] * 39 and nodes[1].stats.births == 0
+    assert [t.id for t in out[1]] == [(0, 0)] and [t.id for t in out[0]] == [(0, 0)]
+
+    cfg, nodes, counts, out = run(recover=False)
+    assert counts[1:] == [1] * 39
+    assert nodes[1].stats.births >= 1 and nodes[1].stats.merged >= 1
     assert [t.id for t in out[1]] == [(0, 0)] and [t.id for t in out[0]] == [(0, 0)]
 
 
@@ -201,16 +209,23 @@ def test_find_merges_needs_co_motion_for_established_trackers():
     # identical galleries 1.2 m apart (beyond comotion_gate, within tau_gda): never merged
     far = MergeView((1, 0), np.array([1.2, 0.0]), g, False, frozenset())
     assert all(find_merges([a, far], streaks, cfg) == [] for _ in range(10))
-    # a new tracker of the same look within tau_gda merges at once (the paper's cases 2, 3)...
-    new = MergeView((1, 1), np.array([1.2, 0.0]), g, True, frozenset())
-    assert find_merges([a, new], {}, cfg) == [((1, 1), (0, 0))]
-    # ...without appearance only right on top of the other (under half the comotion_gate)
-    bare = Gallery(20, 20)
-    a0 = MergeView((0, 0), np.array([0.0, 0.0]), bare, False, frozenset())
-    assert find_merges([a0, MergeView((1, 1), np.array([0.6, 0.0]), bare, True, frozenset())],
-                       {}, cfg) == []
-    assert find_merges([a0, MergeView((1, 1), np.array([0.4, 0.0]), bare, True, frozenset())],
-                       {}, cfg) == [((1, 1), (0, 0))]
+    # the camera that starts a tracker merges it at once into one of the same look within
+    # tau_gda (it sees nobody else there), and so do two trackers both new this frame (the
+    # paper's simultaneous initialisations)...
+    started = MergeView((1, 1), np.array([1.2, 0.0]), g, True, frozenset(), started=True)
+    assert find_merges([a, started], {}, cfg) == [((1, 1), (0, 0))]
+    both = [MergeView((0, 1), np.array([0.0, 0.0]), g, True, frozenset()),
+            MergeView((1, 1), np.array([1.2, 0.0]), g, True, frozenset())]
+    assert find_merges(both, {}, cfg) == [((1, 1), (0, 1))]
+    # ...but a tracker adopted from a neighbour (new here, started elsewhere) merges at once
+    # into an established one only right on top of it (under half the comotion_gate),
+    # whatever it looks like: a look-alike next to it may be someone else
+    for gallery in (g, Gallery(20, 20)):
+        a0 = MergeView((0, 0), np.array([0.0, 0.0]), gallery, False, frozenset())
+        near = MergeView((1, 1), np.array([0.4, 0.0]), gallery, True, frozenset())
+        off = MergeView((1, 1), np.array([0.6, 0.0]), gallery, True, frozenset())
+        assert find_merges([a0, near], {}, cfg) == [((1, 1), (0, 0))]
+        assert find_merges([a0, off], {}, cfg) == []
     # two trackers this node's camera saw as two measurements are never merged
     c = MergeView((0, 0), np.array([0.0, 0.0]), g, True, frozenset({0}))
     d = MergeView((1, 0), np.array([0.1, 0.0]), g, True, frozenset({0}))

@@ -12,10 +12,9 @@ over unchanged, while the gates are re-expressed here:
 * ``alpha_lda`` normalises ``s_d = d / alpha`` (eq. 6); inside the gate it only scales all costs,
   so it does not change the optimal assignment. Default ``tau`` so ``s_d`` lies in ``[0, 1)``.
 * ``tau_gda`` / ``alpha_gda`` are the Euclidean gate and normaliser (``V = I``) of the
-  distributed global data association, in metres: ``tau_gda`` gates a new tracker's merge
-  (the paper) and the second association stage (a left-over measurement against another
-  camera's tracker); established duplicates merge within the tighter ``comotion_gate``
-  (:func:`edge_node.core.manager.pair_score`).
+  distributed global data association, in metres: ``tau_gda`` gates the second association
+  stage (a left-over measurement against another camera's tracker); duplicate trackers merge
+  within the tighter ``comotion_gate`` (:func:`edge_node.core.manager.pair_score`).
 """
 from __future__ import annotations
 
@@ -101,7 +100,7 @@ class TrackerConfig:
     candidate_appearance: float = nonnegative(0.5, "max cosine distance between the two observations")
 
     # --- distributed tracker manager --------------------------------------------------------------
-    tau_gda: float = positive(1.5, "m, Euclidean gate (V = I) between trackers of two cameras")
+    tau_gda: float = positive(1.5, "m, Euclidean gate (V = I) of a left-over measurement to another camera's tracker")
     alpha_gda: float = positive(1.5, "m, s_d normaliser of the global association")
     merge_appearance: float = nonnegative(0.4, "galleries farther apart (cosine) are never merged")
     comotion_gate: float = positive(1.0, "m, how close two trackers of one target stay")

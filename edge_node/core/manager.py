@@ -53,6 +53,7 @@ class MergeView:
     seen_by: frozenset[int]  # cameras of this node that associated a measurement this frame
     born: int = 0  # birth frame at the originating camera: the older tracker survives a merge
     measured_by: frozenset[int] = frozenset()  # neighbours whose entry carries a measurement
+    started: bool = False  # born this frame from this node's own camera's observations
 
     @property
     def rank(self) -> tuple[int, TrackerId]:
@@ -65,43 +66,48 @@ def pair_score(a: MergeView, b: MergeView, cfg: TrackerConfig) -> tuple[float, i
     ``unknown_appearance`` where a gallery is missing) and how many consecutive frames they must
     agree before they are merged; ``None`` when they cannot be one target.
 
-    The paper merges trackers of one target when they are initialised (its cases 2 and 3) by
-    appearance and a distance gate; we also merge duplicates that arise later, and there place
-    and co-motion decide while appearance can only forbid:
+    Appearance merges at once only where the deciding node can vouch for it; elsewhere place
+    and co-motion decide and appearance can only forbid (the paper merges on appearance
+    within a distance gate):
 
     * No camera may see them as two: neither this node's (it associated them to two different
       measurements this frame) nor a neighbour whose entries of both carry measurement
       information.
     * Appearance known on both sides and ``s_a > merge_appearance``: two people.
-    * A tracker new on this node merges at once: within ``tau_gda`` when appearance is known on
-      both sides (the paper), within half the ``comotion_gate`` when it is not.
-    * Two established trackers merge once they have stayed within ``comotion_gate`` of each
-      other for ``comotion_frames`` frames in a row.
+    * At once within ``tau_gda``, appearance matching: a tracker this node's camera started this
+      frame (the camera sees the target and nobody else beside it, or the first rule applies),
+      or two trackers both new on this node (the paper's simultaneous initialisations).
+    * At once by place: a tracker new on this node within half the ``comotion_gate`` of another.
+    * Otherwise the two must stay within ``comotion_gate`` of each other for
+      ``comotion_frames`` frames in a row.
 
-    Why appearance no longer hurries an established pair: a real re-id network confuses some
-    people (cross-camera rank-1 around 0.8), and two look-alikes walking side by side passed
-    the old rule (``tau_gda`` and three frames of agreement). A wrong merge takes one person's
-    track away; their camera starts a new one next to the merged track, which is merged again.
-    terrace-sim at rank-1 0.99 issued 6.8 ids per person (1.06 with perfect re-id) and at 0.8
-    tracked worse than without descriptors (ground MOTA 0.837 against 0.957); with this rule
-    1.7 ids per person and 0.962 (README, "Re-id quality"). A detector that splits one person
-    into two boxes makes a camera "see" a duplicate pair as two people; the pair then waits.
+    Why not more appearance: a real re-id network confuses some people (cross-camera rank-1
+    around 0.8). Merging on appearance anywhere (within ``tau_gda`` at once for a new tracker,
+    after three frames otherwise) merged look-alikes walking near each other; a wrong merge
+    takes one person's track away, their camera starts a new one next to the merged track,
+    which is merged again. At rank-1 0.8 terrace-sim issued 10.5 ids per person and tracked
+    worse than without descriptors (ground MOTA 0.837 against 0.957); keeping the at-once rule
+    for trackers adopted from neighbours, ring8-sim issued 13.3 ids per person (0.890). With
+    this rule 1.7 and 7.1, ground MOTA 0.967 and 0.943, and with perfect re-id the same figures
+    as before on terrace-sim, terrace-gt and ring8-sim (README, "What we tuned"). A detector
+    that splits one person into two boxes makes a camera "see" a duplicate pair as two people;
+    the pair then waits.
     """
     if a.seen_by & b.seen_by or a.measured_by & b.measured_by:
         return None
     d = float(np.linalg.norm(a.xy - b.xy))
-    if d >= cfg.m(cfg.tau_gda):
+    if d >= max(cfg.m(cfg.comotion_gate), cfg.m(cfg.tau_gda)):
         return None
     s_a = a.gallery.distance_to(b.gallery)
     known = not np.isnan(s_a)
     if known and s_a > cfg.merge_appearance:
         return None
     score = max(s_a if known else cfg.unknown_appearance, 1e-3) * d / cfg.m(cfg.alpha_gda)
-    if (a.new or b.new) and (known or d < cfg.m(cfg.comotion_gate) / 2.0):
+    if known and (a.started or b.started or (a.new and b.new)) and d < cfg.m(cfg.tau_gda):
         return score, 1
     if d >= cfg.m(cfg.comotion_gate):
         return None
-    return score, cfg.comotion_frames
+    return score, 1 if (a.new or b.new) and d < cfg.m(cfg.comotion_gate) / 2.0 else cfg.comotion_frames
 
 
 def find_merges(views: Sequence[MergeView], streaks: dict[tuple[TrackerId, TrackerId], int],
@@ -120,7 +126,8 @@ def find_merges(views: Sequence[MergeView], streaks: dict[tuple[TrackerId, Track
     ordered = sorted(views, key=lambda v: v.id)
     if len(ordered) > 1:
         xy = np.array([v.xy for v in ordered])
-        near = np.linalg.norm(xy[:, None] - xy[None], axis=2) < cfg.m(cfg.tau_gda)
+        near = np.linalg.norm(xy[:, None] - xy[None], axis=2) < max(cfg.m(cfg.comotion_gate),
+                                                                    cfg.m(cfg.tau_gda))
         rows, cols = np.nonzero(np.triu(near, 1))  # only nearby pairs are scored in full
         for i, j in zip(rows.tolist(), cols.tolist()):
             a, b = ordered[i], ordered[j]

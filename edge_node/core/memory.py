@@ -33,6 +33,9 @@ class NeighbourMemory:
         # neighbour -> tracker -> (frame, entry, u/U already fused)
         self.entries: dict[int, dict[TrackerId, tuple[int, TrackerInfo, bool]]] = {}
         self.newest: dict[int, int] = {}  # neighbour -> frame of its newest message (any)
+        # tracker -> the smallest ell of the entries handed back by ``at``, aged by the senders'
+        # silences only: what eq. 8 would give were no link late (``lagless``)
+        self.lagless_ell: dict[TrackerId, int] = {}
 
     def remember(self, arrived: Iterable[FrameMessage]) -> None:
         for m in arrived:
@@ -47,6 +50,7 @@ class NeighbourMemory:
         """Every neighbour's newest entry per tracker brought to frame ``k``, one message per
         neighbour (senders and trackers in order: deterministic)."""
         out = []
+        self.lagless_ell = {}
         for sender in sorted(self.entries):
             mem = self.entries[sender]
             newest = self.newest.get(sender, k)
@@ -61,6 +65,7 @@ class NeighbourMemory:
                 mem[tid] = (frame, t, True)  # its u, U are fused at most once
                 if age == 0 and keep_info:
                     aged.append(t)
+                    self._lagless(tid, t.ell)
                     continue
                 A = transition(age * self.cfg.dt)
                 u, U = np.zeros(STATE_DIM), np.zeros((STATE_DIM, STATE_DIM))
@@ -69,8 +74,18 @@ class NeighbourMemory:
                     u = carried(t.u, U, age * self.cfg.dt * np.asarray(t.x_bar)[4:6])
                 aged.append(replace(t, x_bar=A @ t.x_bar, ell=t.ell + self._aged(k, frame, newest),
                                     u=u, U=U))
+                self._lagless(tid, t.ell + self._aged(k, frame, newest) - self._lag(k, frame, newest))
             out.append(FrameMessage(self.network, sender, k, tuple(aged)))
         return out
+
+    def _lagless(self, tid: TrackerId, ell: int) -> None:
+        self.lagless_ell[tid] = min(ell, self.lagless_ell.get(tid, ell))
+
+    @staticmethod
+    def _lag(k: int, frame: int, newest: int) -> int:
+        """The part of :meth:`_aged` that is the link's lag: frames since the sender's newest
+        message."""
+        return max(0, k - max(newest, frame))
 
     def _aged(self, k: int, frame: int, newest: int) -> int:
         """How much a neighbour's ``ell`` sent at ``frame`` has grown by frame ``k``, as far as
@@ -79,4 +94,4 @@ class NeighbourMemory:
         message is the link's lag (late or lost messages): then nobody says what changed, and
         ``ell`` ages by one per frame, as eq. 8 assumes of a neighbour it does not hear from."""
         silence = max(0, newest - frame)
-        return max(0, k - max(newest, frame)) + max(0, silence - self.cfg.hold_frames)
+        return self._lag(k, frame, newest) + max(0, silence - self.cfg.hold_frames)

@@ -370,11 +370,13 @@ class CameraNode:
             if tid not in self.trackers:
                 self._adopt(k, tid, received[tid])
         entries = Entries.of(sorted(self.trackers), received)
-        self._correct(entries)
+        self._correct(entries, self.memory.lagless_ell if stale_ok else None)
         if self.registrations:
             self._register(entries)
+        mine = {c.id for c in self.cameras}
         views = [MergeView(t.id, t.x_hat[:2], t.gallery, t.since == k, frozenset(t.local.seen_by),
-                           t.born, measured.get(t.id, frozenset()))
+                           t.born, measured.get(t.id, frozenset()),
+                           started=t.born == k and t.id[0] in mine)
                  for t in self.trackers.values()]
         for loser, winner in self.manager.merges(views):
             self._merge(loser, winner)
@@ -426,9 +428,15 @@ class CameraNode:
                     measured[rid] = measured.get(rid, frozenset()) | {m.sender}
         return received, measured
 
-    def _correct(self, entries: "Entries") -> None:
+    def _correct(self, entries: "Entries", lagless: dict[TrackerId, int] | None = None) -> None:
         """Eqs. 3-4 for every tracker with its neighbours' entries, all at once, then ``ell``
-        (eq. 8).
+        (eq. 8) and ``coast``, the frames in a row ``ell`` grew. With late messages
+        (event-triggered operation) a neighbour's ``ell`` ages by its link's lag
+        (``NeighbourMemory``), which is right for the drop (eq. 8) but is no news that nobody
+        sees the target: ``coast`` counts only growth beyond the lag (``lagless``: per tracker
+        the neighbours' smallest ``ell`` aged by their silences alone). Without it a target only
+        a neighbour saw stopped being reported whenever the lag jittered up: with every message
+        1-4 frames late terrace-gt's ground misses went from 460 to 1096.
 
         Eq. 3 sums this node's information and each neighbour's (``y``, ``S``), in the order
         the entries arrive (sender order), and the consensus term's differences
@@ -472,9 +480,11 @@ class CameraNode:
             x_hat[bad], M[bad] = x_bar[bad], P[bad]
         for tr, g, x_i, M_i in zip(trs, got, x_hat, M):
             tr.x_hat, tr.M = x_i, M_i
-            ell_before = tr.ell
+            seen_before = tr.ell - tr.lag
             tr.ell = self.manager.ell(tr.local.ell_sent, [t.ell for t in g])
-            tr.coast = tr.coast + 1 if tr.ell > ell_before else 0
+            tr.lag = 0 if lagless is None else tr.ell - self.manager.ell(
+                tr.local.ell_sent, [lagless[tr.id]] if tr.id in lagless else [])
+            tr.coast = tr.coast + 1 if tr.ell - tr.lag > seen_before else 0
 
     def _register(self, entries: "Entries") -> None:
         """Registration residuals of this frame (``registration``, R2-R3): each of this node's

@@ -54,6 +54,7 @@ class Tracker:
     gallery: Gallery
     ell: int = 0  # eq. 8 after the last update
     coast: int = 0  # consecutive frames ell grew: nobody in the network saw the target
+    lag: int = 0  # how much of ell is the neighbours' link lag (late messages; 0 in sync)
     born: int = 0  # frame its originating camera created it (same on every node)
     since: int = 0  # frame it appeared on this node
     announced: bool = False  # appearance already sent by this node
@@ -86,6 +87,8 @@ class Tracker:
             self.local.u, self.local.U = other.local.u, other.local.U
         self.local.seen_by |= other.local.seen_by
         self.gallery.extend(other.gallery)
+        if other.ell < self.ell:
+            self.lag = other.lag
         self.ell = min(self.ell, other.ell)
         self.coast = min(self.coast, other.coast)
         self.local.ell_sent = min(self.local.ell_sent, other.local.ell_sent)
