@@ -25,7 +25,8 @@ only a tracker this node's camera started or two simultaneous births, other dupl
 by co-motion) and the presets' descriptors became a realistic re-id (``[appearance] decay``,
 cross-camera rank-1 0.8), which gives the runs on presets new inputs; at the same time a
 tracker only a late neighbour sees stopped counting the link's lag as coasting (the
-event-triggered runs report more rows: 3366 -> 3554 with loss and delay).
+event-triggered run with loss and delay changed; the synchronous runs cannot: the rule is
+``update(stale_ok=True)``'s only).
 
 Re-record it (from the commit that changes them, saying why in the message) only when the
 tracks are meant to change.

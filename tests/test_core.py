@@ -329,6 +329,32 @@ def test_stale_messages_fused_once_and_aged():
     assert n1.stats.ignored_messages == before + 1  # too old to use
 
 
+def test_a_target_only_a_late_neighbour_sees_is_reported_every_frame():
+    """Node 0 alone sees a person and every message to node 1 arrives 1-4 frames late
+    (jittered, sometimes two at once, sometimes none). The person is seen all along, so node 1
+    reports them every frame: its ``ell`` ages by the link's lag (eq. 8, for the drop), but the
+    lag is no news that nobody sees the target. Once node 0 stops seeing the person, node 1
+    stops reporting them within ``report_coast`` frames after the news can have arrived (the
+    longest lag, 4). Before, node 1 missed the person in 16 of 75 frames."""
+    cfg = TrackerConfig()
+    nodes = make_nodes({0: (1,), 1: (0,)}, cfg)
+    rng, jitter = np.random.default_rng(3), np.random.default_rng(4)
+    due: dict[int, list] = {}
+    reported = []
+    for k in range(100):
+        dets = [det(3.0 + 0.02 * k, 5.0, 1, rng)] if k < 80 else []
+        m0 = nodes[0].prepare(k, dets)
+        nodes[1].prepare(k, [])
+        nodes[0].update([], stale_ok=True)
+        due.setdefault(k + 1 + int(jitter.integers(0, 4)), []).append(m0)
+        out = nodes[1].update(due.pop(k, []), stale_ok=True)
+        reported.append(len(out))
+    first = next(k for k, n in enumerate(reported) if n)
+    assert first <= 1 + cfg.init_observations + 4
+    assert reported[first:80] == [1] * (80 - first)
+    assert reported[80 + 4 + cfg.report_coast + 1:] == [0] * (100 - 80 - 4 - cfg.report_coast - 1)
+
+
 def test_targets_only_a_dead_node_saw_are_dropped_by_the_survivors():
     """Node 0 alone sees person 5 and dies at frame 20. Its neighbours stop hearing about the
     person; the ell consensus drops it on every survivor within kappa + diameter frames."""

@@ -36,6 +36,10 @@ class NeighbourMemory:
         # tracker -> the smallest ell of the entries handed back by ``at``, aged by the senders'
         # silences only: what eq. 8 would give were no link late (``lagless``)
         self.lagless_ell: dict[TrackerId, int] = {}
+        # trackers some neighbour said something about since the previous ``at``: a message of
+        # that neighbour newer than any before arrived (``news``)
+        self.news: set[TrackerId] = set()
+        self._heard: dict[int, int] = {}  # neighbour -> its newest frame at the previous ``at``
 
     def remember(self, arrived: Iterable[FrameMessage]) -> None:
         for m in arrived:
@@ -50,10 +54,14 @@ class NeighbourMemory:
         """Every neighbour's newest entry per tracker brought to frame ``k``, one message per
         neighbour (senders and trackers in order: deterministic)."""
         out = []
-        self.lagless_ell = {}
+        self.lagless_ell, self.news = {}, set()
         for sender in sorted(self.entries):
             mem = self.entries[sender]
             newest = self.newest.get(sender, k)
+            heard = newest > self._heard.get(sender, newest - 1)
+            self._heard[sender] = newest
+            if heard:
+                self.news.update(mem)
             aged = []
             for tid in sorted(mem):
                 frame, t, consumed = mem[tid]
