@@ -404,3 +404,20 @@ def test_core_imports_no_heavy_dependency():
             "print(sorted(m for m in ('zenoh', 'rerun', 'torch', 'cv2') if m in sys.modules))")
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
     assert out.stdout.strip() == "[]"
+
+
+def test_reidentification_by_appearance_must_be_reachable():
+    """A new tracker takes a dropped tracker's id by appearance (eq. 7, ``epsilon``) only if the
+    dropped person could have walked there: within ``reid_gate`` plus ``reid_speed`` times the
+    frames since the drop (25 fps here)."""
+    from edge_node.core.manager import reidentify
+
+    cfg = TrackerConfig()
+    old = {(0, 3): _gallery(1), (1, 4): _gallery(2)}
+    last = {(0, 3): (100, np.array([0.0, 0.0])), (1, 4): (100, np.array([0.0, 0.0]))}
+    reach_1s = cfg.reid_gate + cfg.reid_speed * 1.0  # metres, one second after the drop
+    assert reidentify(_gallery(1), old, cfg, 125, np.array([reach_1s - 0.1, 0.0]), last) == (0, 3)
+    assert reidentify(_gallery(1), old, cfg, 125, np.array([reach_1s + 0.1, 0.0]), last) is None
+    assert reidentify(_gallery(1), old, cfg, 150, np.array([reach_1s + 0.1, 0.0]), last) == (0, 3)
+    assert reidentify(_gallery(1), old, cfg) == (0, 3)  # no place given: appearance alone
+    assert reidentify(_gallery(3), old, cfg, 125, np.zeros(2), last) is None  # nobody alike

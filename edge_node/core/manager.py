@@ -165,14 +165,26 @@ def find_merges(views: Sequence[MergeView], streaks: dict[tuple[TrackerId, Track
     return sorted(merges, key=lambda m: (m[1], m[0]))
 
 
-def reidentify(gallery: Gallery, old: Mapping[TrackerId, Gallery], cfg: TrackerConfig
+def reidentify(gallery: Gallery, old: Mapping[TrackerId, Gallery], cfg: TrackerConfig,
+               k: int = 0, xy: np.ndarray | None = None,
+               last: Mapping[TrackerId, tuple[int, np.ndarray]] | None = None
                ) -> TrackerId | None:
-    """The old tracker whose gallery best matches ``gallery`` with ``s_a < epsilon`` (eq. 7)."""
+    """The old tracker whose gallery best matches ``gallery`` with ``s_a < epsilon`` (eq. 7),
+    among those that could have walked from where they were dropped to ``xy``, where the new
+    tracker is born at frame ``k`` (within ``reid_gate`` plus ``reid_speed`` times the time
+    since; ours: with a real re-id's look-alikes, appearance alone handed a person entering late
+    the dropped id of someone who had left elsewhere). Without ``xy`` or ``last``, appearance
+    alone."""
     best: tuple[float, TrackerId] | None = None
     for tid, g in old.items():
         s = gallery.distance_to(g)
         if np.isnan(s) or s >= cfg.epsilon:
             continue
+        if xy is not None and last is not None and tid in last:
+            frame, where = last[tid]
+            reach = cfg.m(cfg.reid_gate) + cfg.m(cfg.reid_speed) * max(0, k - frame) * cfg.dt
+            if float(np.linalg.norm(np.asarray(where) - xy)) > reach:
+                continue
         if best is None or (s, tid) < best:
             best = (s, tid)
     return None if best is None else best[1]
@@ -213,7 +225,7 @@ class DistributedTrackerManager:
         if not old:
             return None
         if len(gallery):
-            return reidentify(gallery, old, self.cfg)
+            return reidentify(gallery, old, self.cfg, k, xy, last)
         if xy is None or not last:
             return None
         best = None
