@@ -151,9 +151,11 @@ class Outbox:
             return None
 
     def _count_saved(self, full: FrameMessage, sent: int, links: int) -> None:
-        """Bytes not sent on ``links`` links against sending ``full`` on them."""
+        """Bytes not sent on ``links`` links against sending ``full`` on them (its length from
+        the layout, ``codec.encoded_size``: encoding it again only to count cost ~70 us a
+        frame)."""
         try:
-            n = len(codec.encode(full))
+            n = codec.encoded_size(full)
         except ProtocolError:
             n = 0
         self.counters.bytes_saved += max(n - sent, 0) * links

@@ -35,6 +35,7 @@ from protocol import (
     parse_link_key,
     quantize,
 )
+from protocol import codec
 
 SETTINGS = settings(max_examples=200, deadline=None, suppress_health_check=[HealthCheck.too_slow])
 
@@ -165,6 +166,31 @@ def test_round_trip_is_exact_on_quantised_values(m: FrameMessage) -> None:
         for a in (t.x_bar, t.u, t.U) + (() if t.appearance is None else (t.appearance,)):
             assert a.dtype == np.float64 and not a.flags.writeable
         assert np.array_equal(t.U, t.U.T)
+
+
+@SETTINGS
+@given(messages())
+def test_encoded_size_is_the_length_of_the_encoding(m: FrameMessage) -> None:
+    assert codec.encoded_size(m) == len(encode(m))
+
+
+def test_encoded_size_of_large_blocks() -> None:
+    """Blocks past msgpack's one- and two-byte bin lengths (256 B, 64 kB), wide integers,
+    measured and unmeasured rows, merges."""
+    rng = np.random.default_rng(0)
+    U = np.diag([4.0, 4.0, 9.0, 9.0, 0.0, 0.0])
+    sizes = []
+    for n, dim, big in ((3, 64, 1), (140, 512, 1), (40, 8, 2**40)):
+        ts = []
+        for i in range(n):
+            x = rng.normal(size=6)
+            measured = dict(u=U @ (x + rng.normal(scale=0.1, size=6)), U=U) if i % 3 else {}
+            ts.append(_tracker(id=(i * big, i), x_bar=x, ell=i, **measured,
+                               appearance=rng.normal(size=(2, dim)) if i % 2 else None))
+        m = FrameMessage("n", 3, 123456, tuple(ts), merges=(Merge((9, 9), (0, 1), 4),), sent_at=1.5)
+        assert codec.encoded_size(m) == len(encode(m)), (n, dim)
+        sizes.append(len(encode(m)))
+    assert sizes[0] > 0x100 and sizes[1] > 0x10000
 
 
 def test_quantize_rounds_like_the_wire() -> None:
