@@ -421,3 +421,18 @@ def test_reidentification_by_appearance_must_be_reachable():
     assert reidentify(_gallery(1), old, cfg, 150, np.array([reach_1s + 0.1, 0.0]), last) == (0, 3)
     assert reidentify(_gallery(1), old, cfg) == (0, 3)  # no place given: appearance alone
     assert reidentify(_gallery(3), old, cfg, 125, np.zeros(2), last) is None  # nobody alike
+
+
+def test_merge_evidence_needs_a_measurement_of_both_here_or_next_door():
+    """With ``merge_evidence`` a node merges two look-alike trackers by co-motion only while its
+    camera or a neighbour measures each of them; without it, on co-motion alone."""
+    g = _gallery(1)
+    far = [MergeView((0, 0), np.array([0.0, 0.0]), g, False, frozenset()),
+           MergeView((1, 0), np.array([0.5, 0.0]), g, False, frozenset())]
+    near = [MergeView((0, 0), np.array([0.0, 0.0]), g, False, frozenset({0})),
+            MergeView((1, 0), np.array([0.5, 0.0]), g, False, frozenset(), measured_by=frozenset({2}))]
+    for views, on, merged in ((far, False, True), (far, True, False), (near, True, True)):
+        cfg = TrackerConfig(comotion_frames=3, merge_evidence=on)
+        streaks = {}
+        got = [find_merges(views, streaks, cfg) for _ in range(3)]
+        assert got[-1] == ([((1, 0), (0, 0))] if merged else []), (on, views[0].seen_by)

@@ -105,6 +105,7 @@ class TrackerConfig:
     merge_appearance: float = nonnegative(0.4, "galleries farther apart (cosine) are never merged")
     comotion_gate: float = positive(1.0, "m, how close two trackers of one target stay")
     comotion_frames: int = integer(10, lo=1, doc="frames they must stay so to merge")
+    merge_evidence: bool = boolean(False, "merge by co-motion only where this node's camera or a neighbour measures both trackers (README, What we tuned: large gains with look-alikes, Campus loses)")
     merge_announce_frames: int = integer(3, lo=1, doc="frames a merge announcement is repeated")
     kappa: int = integer(15, lo=1, doc="drop a tracker when ell exceeds kappa (eq. 8)")
     epsilon: float = nonnegative(0.25, "re-identification threshold on s_a against old trackers")

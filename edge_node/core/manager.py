@@ -80,6 +80,9 @@ def pair_score(a: MergeView, b: MergeView, cfg: TrackerConfig) -> tuple[float, i
     * At once by place: a tracker new on this node within half the ``comotion_gate`` of another.
     * Otherwise the two must stay within ``comotion_gate`` of each other for
       ``comotion_frames`` frames in a row.
+    * With ``merge_evidence`` (off by default), only while this node's camera or a neighbour
+      measures each of the two: a node that only hears of both through consensus cannot tell
+      two look-alikes walking together from a duplicate.
 
     Why not more appearance: a real re-id network confuses some people (cross-camera rank-1
     around 0.8). Merging on appearance anywhere (within ``tau_gda`` at once for a new tracker,
@@ -107,6 +110,8 @@ def pair_score(a: MergeView, b: MergeView, cfg: TrackerConfig) -> tuple[float, i
         return score, 1
     if d >= cfg.m(cfg.comotion_gate):
         return None
+    if cfg.merge_evidence and not ((a.seen_by or a.measured_by) and (b.seen_by or b.measured_by)):
+        return None  # neither this node's camera nor a neighbour measures both: it cannot tell
     return score, 1 if (a.new or b.new) and d < cfg.m(cfg.comotion_gate) / 2.0 else cfg.comotion_frames
 
 
