@@ -27,6 +27,9 @@ cross-camera rank-1 0.8), which gives the runs on presets new inputs; at the sam
 tracker only a late neighbour sees stopped counting the link's lag as coasting (the
 event-triggered run with loss and delay changed; the synchronous runs cannot: the rule is
 ``update(stale_ok=True)``'s only).
+The event-triggered run was re-recorded once more when a neighbour whose entry says ``ell``
+0, or whose newest entry (late, or held through the trigger's silence) said so, began to
+count as seeing the target for the merge exclusion (before: only entries carrying ``u, U``).
 
 Re-record it (from the commit that changes them, saying why in the message) only when the
 tracks are meant to change.

@@ -436,3 +436,31 @@ def test_merge_evidence_needs_a_measurement_of_both_here_or_next_door():
         streaks = {}
         got = [find_merges(views, streaks, cfg) for _ in range(3)]
         assert got[-1] == ([((1, 0), (0, 0))] if merged else []), (on, views[0].seen_by)
+
+
+def test_a_neighbour_that_saw_a_target_counts_as_seeing_it_without_u_U():
+    """The merge exclusion's "a neighbour saw them as two" reads what the neighbour's camera
+    saw: an entry with ``ell`` 0 whose measurement the trigger withheld counts, and so does,
+    in event-triggered operation, a newest entry up to ``hold_frames`` old that said so."""
+    from protocol.messages import FrameMessage, TrackerInfo
+
+    cfg = TrackerConfig()
+    nodes = make_nodes({0: (1,), 1: (0,)}, cfg)
+    node = nodes[1]
+    x = np.array([3.0, 5.0, 0.5, 1.7, 0.0, 0.0])
+
+    def entry(ell, measured):
+        U = np.diag([4.0, 4.0, 9.0, 9.0, 0.0, 0.0]) if measured else np.zeros((6, 6))
+        return TrackerInfo((0, 0), x, U @ x, U, ell)
+
+    def heard(t, frame=0):
+        return FrameMessage("t", 0, frame, (t,))
+
+    for t, seen in ((entry(0, True), True), (entry(0, False), True), (entry(2, False), False)):
+        _, measured = node._received([heard(t)])
+        assert (0 in measured.get((0, 0), frozenset())) == seen, t.ell
+    # event-triggered: node 0's frame-3 entry said ell 0; at frame 5 it is held, at 9 too old
+    node.memory.remember([heard(entry(0, False), frame=3)])
+    for k, seen in ((5, True), (3 + cfg.hold_frames, True), (4 + cfg.hold_frames, False)):
+        node.memory.at(k)
+        assert ((0, (0, 0)) in node.memory.observed) == seen, k

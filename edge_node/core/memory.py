@@ -40,6 +40,9 @@ class NeighbourMemory:
         # that neighbour newer than any before arrived (``news``)
         self.news: set[TrackerId] = set()
         self._heard: dict[int, int] = {}  # neighbour -> its newest frame at the previous ``at``
+        # (neighbour, tracker) whose newest entry, at most ``hold_frames`` old, said its camera
+        # saw the target (ell 0 as sent): what a late or withheld entry still tells (``observed``)
+        self.observed: set[tuple[int, TrackerId]] = set()
 
     def remember(self, arrived: Iterable[FrameMessage]) -> None:
         for m in arrived:
@@ -54,7 +57,7 @@ class NeighbourMemory:
         """Every neighbour's newest entry per tracker brought to frame ``k``, one message per
         neighbour (senders and trackers in order: deterministic)."""
         out = []
-        self.lagless_ell, self.news = {}, set()
+        self.lagless_ell, self.news, self.observed = {}, set(), set()
         for sender in sorted(self.entries):
             mem = self.entries[sender]
             newest = self.newest.get(sender, k)
@@ -70,6 +73,8 @@ class NeighbourMemory:
                     del mem[tid]
                     continue
                 keep_info = not consumed and age <= self.cfg.staleness_frames
+                if t.ell == 0 and age <= self.cfg.hold_frames:
+                    self.observed.add((sender, tid))
                 mem[tid] = (frame, t, True)  # its u, U are fused at most once
                 if age == 0 and keep_info:
                     aged.append(t)
