@@ -112,7 +112,7 @@ class TrackerConfig:
     max_old_trackers: int = integer(200, lo=1, doc="bounded memory of dropped trackers")
     max_old_mib: float = positive(4.0, "MiB, byte budget of the dropped trackers' galleries, kept as float16 (200 full galleries of 512-d descriptors take 3.9)")
     reid_frames: int = integer(50, lo=0, doc="without appearance: frames a dropped tracker may be re-identified")
-    reid_gate: float = positive(1.5, "m, without appearance: how near its birth a dropped tracker must be")
+    reid_gate: float = positive(1.5, "m, how near a new tracker's birth a dropped tracker must be (without appearance; with it, plus reid_speed x the time since the drop)")
     reid_speed: float = positive(2.0, "m/s, how fast a dropped person may have walked to where a new tracker re-identified as them is born")
     report_coast: int = integer(1, lo=0, doc="frames a tracker nobody sees is still reported")
     scope_hops: int = integer(0, lo=0, doc="regional scope (not in the paper; needs the DTM): a node keeps and sends a tracker only within this many hops of the cameras that see it; 0 = every node holds every tracker (the paper)")

@@ -52,7 +52,7 @@ class MergeView:
     new: bool  # born or adopted this frame (the paper's simultaneous-initialisation case)
     seen_by: frozenset[int]  # cameras of this node that associated a measurement this frame
     born: int = 0  # birth frame at the originating camera: the older tracker survives a merge
-    measured_by: frozenset[int] = frozenset()  # neighbours whose entry carries a measurement
+    measured_by: frozenset[int] = frozenset()  # neighbours whose camera saw it (node._received)
     started: bool = False  # born this frame from this node's own camera's observations
 
     @property
@@ -71,8 +71,8 @@ def pair_score(a: MergeView, b: MergeView, cfg: TrackerConfig) -> tuple[float, i
     within a distance gate):
 
     * No camera may see them as two: neither this node's (it associated them to two different
-      measurements this frame) nor a neighbour whose entries of both carry measurement
-      information.
+      measurements this frame) nor a neighbour whose camera saw both (its entries carry
+      measurement information or say ``ell`` 0).
     * Appearance known on both sides and ``s_a > merge_appearance``: two people.
     * At once within ``tau_gda``, appearance matching: a tracker this node's camera started this
       frame (the camera sees the target and nobody else beside it, or the first rule applies),
