@@ -507,6 +507,10 @@ class ZenohTransport:
                                        "not waiting for them until they catch up")
                     break
                 self._cond.wait(min(remaining, 0.1))
+            for s in lost & have:  # shown lost, then it came while another was waited for
+                self.lost[s] -= 1
+                if not self.lost[s]:
+                    del self.lost[s]
             out = {}
             for s in sorted(have):
                 out[s] = self._inbox.pop((s, frame))
