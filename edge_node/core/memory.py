@@ -85,9 +85,10 @@ class NeighbourMemory:
                 if keep_info:  # a measurement of where the target was, moved to where it is now
                     U = t.U
                     u = carried(t.u, U, age * self.cfg.dt * np.asarray(t.x_bar)[4:6])
-                aged.append(replace(t, x_bar=A @ t.x_bar, ell=t.ell + self._aged(k, frame, newest),
-                                    u=u, U=U))
-                self._lagless(tid, t.ell + self._aged(k, frame, newest) - self._lag(k, frame, newest))
+                silent = self._silent(frame, newest)
+                aged.append(replace(t, x_bar=A @ t.x_bar, u=u, U=U,
+                                    ell=t.ell + self._lag(k, frame, newest) + silent))
+                self._lagless(tid, t.ell + silent)
             out.append(FrameMessage(self.network, sender, k, tuple(aged)))
         return out
 
@@ -96,15 +97,14 @@ class NeighbourMemory:
 
     @staticmethod
     def _lag(k: int, frame: int, newest: int) -> int:
-        """The part of :meth:`_aged` that is the link's lag: frames since the sender's newest
-        message."""
+        """How much a neighbour's ``ell`` sent at ``frame`` has aged by frame ``k`` through the
+        link's lag: the frames since the sender's newest message (``newest``). Late or lost
+        messages: nobody says what changed, and ``ell`` ages by one per frame, as eq. 8 assumes
+        of a neighbour it does not hear from."""
         return max(0, k - max(newest, frame))
 
-    def _aged(self, k: int, frame: int, newest: int) -> int:
-        """How much a neighbour's ``ell`` sent at ``frame`` has grown by frame ``k``, as far as
-        this node can tell. The sender's silence since (up to its newest message, ``newest``) is
-        deliberate: nothing changed, so it holds for ``hold_frames``. The time since its newest
-        message is the link's lag (late or lost messages): then nobody says what changed, and
-        ``ell`` ages by one per frame, as eq. 8 assumes of a neighbour it does not hear from."""
-        silence = max(0, newest - frame)
-        return self._lag(k, frame, newest) + max(0, silence - self.cfg.hold_frames)
+    def _silent(self, frame: int, newest: int) -> int:
+        """How much it has aged through the sender's silence about it since (up to its newest
+        message): deliberate, "nothing changed", so it holds for ``hold_frames`` (the trigger's
+        heartbeat), then ages by one per frame."""
+        return max(0, max(0, newest - frame) - self.cfg.hold_frames)
