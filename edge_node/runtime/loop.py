@@ -352,7 +352,15 @@ class FrameLoop:
                 continue
             if fps > 0:
                 due = t_start + i / fps
-                if time.monotonic() - due > LATE_PACING_S:  # fell behind the clock: re-anchor
+                if self.mode == "sync" and ahead is not None and ahead > k:
+                    # one or two frames behind the network (fewer than a skip): no pause until
+                    # level, then paced from there. Paced at camera rate a node that far behind
+                    # stayed behind for good, and its neighbours, no longer waiting for it,
+                    # dropped every message it sent as late. (Sync only: in lock-step a
+                    # neighbour is ahead only of a node it no longer waits for; async nodes'
+                    # clocks drift by a frame either way and would chase each other.)
+                    t_start, i = time.monotonic(), 0
+                elif time.monotonic() - due > LATE_PACING_S:  # fell behind the clock: re-anchor
                     t_start, i = time.monotonic(), 0
                 else:
                     _sleep_until(due, self.stop)
