@@ -60,6 +60,11 @@ class MergeView:
         return rank(self.born, self.id)
 
 
+def merge_reach(cfg: TrackerConfig) -> float:
+    """The farthest apart two trackers may be merged by any rule of :func:`pair_score`."""
+    return max(cfg.m(cfg.comotion_gate), cfg.m(cfg.tau_gda))
+
+
 def pair_score(a: MergeView, b: MergeView, cfg: TrackerConfig) -> tuple[float, int] | None:
     """Global association of two trackers on this node: ``(score, frames)`` when they may be one
     target, the score ``s_a * d / alpha_gda`` (eqs. 5-7 with ``V = I``; ``s_a`` is
@@ -99,7 +104,7 @@ def pair_score(a: MergeView, b: MergeView, cfg: TrackerConfig) -> tuple[float, i
     if a.seen_by & b.seen_by or a.measured_by & b.measured_by:
         return None
     d = float(np.linalg.norm(a.xy - b.xy))
-    if d >= max(cfg.m(cfg.comotion_gate), cfg.m(cfg.tau_gda)):
+    if d >= merge_reach(cfg):
         return None
     s_a = a.gallery.distance_to(b.gallery)
     known = not np.isnan(s_a)
@@ -131,8 +136,7 @@ def find_merges(views: Sequence[MergeView], streaks: dict[tuple[TrackerId, Track
     ordered = sorted(views, key=lambda v: v.id)
     if len(ordered) > 1:
         xy = np.array([v.xy for v in ordered])
-        near = np.linalg.norm(xy[:, None] - xy[None], axis=2) < max(cfg.m(cfg.comotion_gate),
-                                                                    cfg.m(cfg.tau_gda))
+        near = np.linalg.norm(xy[:, None] - xy[None], axis=2) < merge_reach(cfg)
         rows, cols = np.nonzero(np.triu(near, 1))  # only nearby pairs are scored in full
         for i, j in zip(rows.tolist(), cols.tolist()):
             a, b = ordered[i], ordered[j]
