@@ -170,6 +170,31 @@ class TrackerBlock:
     def __len__(self) -> int:
         return len(self.camera)
 
+    def ids(self) -> list[TrackerId]:
+        """The rows' ids ``(camera, counter)`` as Python ints, in row order."""
+        return list(zip(self.camera.tolist(), self.counter.tolist()))
+
+    def take(self, rows: Sequence[int] | np.ndarray) -> TrackerBlock:
+        """The block of the given rows, in that order (increasing: appearance stays in order)."""
+        rows = np.asarray(rows, np.intp)
+        if len(rows) == len(self) and np.array_equal(rows, np.arange(len(self))):
+            return self
+        new_row = {r: i for i, r in enumerate(rows.tolist())}
+        apps = tuple((new_row[r], a) for r, a in self.appearance if r in new_row)
+        cols = [a[rows] for a in (self.camera, self.counter, self.born, self.ell, self.x_bar,
+                                  self.u, self.U)]
+        for a in cols:
+            a.setflags(write=False)
+        return TrackerBlock._trusted(*cols, tuple(sorted(apps, key=lambda e: e[0])))
+
+    def info(self, i: int) -> TrackerInfo:
+        """Row ``i`` as a ``TrackerInfo`` (sharing this block's read-only arrays)."""
+        t = object.__new__(TrackerInfo)
+        t.__dict__.update(id=(int(self.camera[i]), int(self.counter[i])), x_bar=self.x_bar[i],
+                          u=self.u[i], U=self.U[i], ell=int(self.ell[i]),
+                          appearance=dict(self.appearance).get(i), born=int(self.born[i]))
+        return t
+
     def infos(self) -> tuple[TrackerInfo, ...]:
         """One ``TrackerInfo`` per row, sharing this block's (read-only) arrays."""
         apps = dict(self.appearance)

@@ -438,10 +438,38 @@ def test_merge_evidence_needs_a_measurement_of_both_here_or_next_door():
         assert got[-1] == ([((1, 0), (0, 0))] if merged else []), (on, views[0].seen_by)
 
 
+def test_the_inbox_takes_one_entry_per_sender_and_surviving_id():
+    """A sender that still names both ids of a merge (its message left before it heard of the
+    merge) contributes one entry to the survivor: the one under the survivor's own id, in
+    whatever row order the sender wrote them; entries stack in sender order."""
+    from edge_node.core.entries import Inbox
+    from protocol.messages import FrameMessage, TrackerInfo
+
+    aliases = {(1, 4): (0, 2)}  # (1, 4) lost to (0, 2) here
+
+    def info(tid, x0, ell):
+        return TrackerInfo(tid, np.full(6, x0), np.zeros(6), np.zeros((6, 6)), ell)
+
+    m1 = FrameMessage("t", 1, 7, (info((1, 4), 1.0, 0), info((0, 2), 2.0, 3), info((3, 1), 9.0, 1)))
+    m0 = FrameMessage("t", 0, 7, (info((1, 4), 4.0, 2),))
+    inbox = Inbox([m0, m1], lambda t: aliases.get(t, t))
+    assert inbox.ids() == [(0, 2), (3, 1)]
+    e = inbox.entries([(0, 2), (3, 1), (5, 5)])
+    assert e.rows.tolist() == [0, 0, 1]
+    assert e.x_bar[:, 0].tolist() == [4.0, 2.0, 9.0]  # sender 0's alias entry, sender 1's own
+    assert e.ells() == [[2, 3], [1], []]
+    # sender 1's ell-0 entry was under the alias, not the one taken: nobody is said to see it
+    assert inbox.measured == {}
+    m1_own_seen = FrameMessage("t", 1, 7, (info((0, 2), 2.0, 0),))
+    assert Inbox([m0, m1_own_seen], lambda t: aliases.get(t, t)).measured == {(0, 2): frozenset({1})}
+    assert [t.x_bar[0] for t in inbox.infos((0, 2))] == [4.0, 2.0]
+
+
 def test_a_neighbour_that_saw_a_target_counts_as_seeing_it_without_u_U():
     """The merge exclusion's "a neighbour saw them as two" reads what the neighbour's camera
     saw: an entry with ``ell`` 0 whose measurement the trigger withheld counts, and so does,
     in event-triggered operation, a newest entry up to ``hold_frames`` old that said so."""
+    from edge_node.core.entries import Inbox
     from protocol.messages import FrameMessage, TrackerInfo
 
     cfg = TrackerConfig()
@@ -457,7 +485,7 @@ def test_a_neighbour_that_saw_a_target_counts_as_seeing_it_without_u_U():
         return FrameMessage("t", 0, frame, (t,))
 
     for t, seen in ((entry(0, True), True), (entry(0, False), True), (entry(2, False), False)):
-        _, measured = node._received([heard(t)])
+        measured = Inbox([heard(t)], node.book.resolve).measured
         assert (0 in measured.get((0, 0), frozenset())) == seen, t.ell
     # event-triggered: node 0's frame-3 entry said ell 0; at frame 5 it is held, at 9 too old
     node.memory.remember([heard(entry(0, False), frame=3)])

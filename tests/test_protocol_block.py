@@ -117,6 +117,19 @@ def test_replace_keeps_its_meaning() -> None:
         FrameMessage("n", 0, 0, got.trackers, block=got.block)
 
 
+def test_take_selects_rows_and_renumbers_their_appearance() -> None:
+    ts = infos(12)  # rows 0 and 7 carry appearance
+    b = block_of(ts)
+    kept = [2, 5, 7, 11]
+    sub = b.take(kept)
+    assert sub == block_of(tuple(ts[i] for i in kept))  # row 7 is row 2 of the selection
+    assert [r for r, _ in sub.appearance] == [2]
+    assert sub.ids() == [ts[i].id for i in kept]
+    assert b.take(range(12)) is b
+    assert all(b.info(i) == ts[i] for i in range(12))
+    assert not sub.x_bar.flags.writeable and not sub.camera.flags.writeable
+
+
 def test_equality_compares_rows() -> None:
     a, b = decode(encode(message(5))), decode(encode(message(5)))
     assert a == b

@@ -23,7 +23,7 @@ randomness: same inputs, same outputs.
 from __future__ import annotations
 
 from collections import Counter
-from collections.abc import Callable, Collection, Iterable, Mapping, Sequence
+from collections.abc import Callable, Iterable, Mapping, Sequence
 from dataclasses import dataclass, field, replace
 
 import numpy as np
@@ -32,6 +32,7 @@ import edge_node.core.dkf as dkf
 import edge_node.core.manager as manager
 from edge_node.core.association import Candidate, LocalDataAssociation, Observation
 from edge_node.core.config import TrackerConfig
+from edge_node.core.entries import Entries, Inbox
 from edge_node.core.gallery import Gallery
 from edge_node.core.identity import IdentityBook
 from edge_node.core.initiator import Initiator, Pending
@@ -47,31 +48,6 @@ from edge_node.geometry import Camera
 from protocol.messages import MAX_DESCRIPTORS, FrameMessage, TrackerBlock, TrackerId, TrackerInfo
 
 Manager = DistributedTrackerManager | IndependentTrackers
-
-
-@dataclass(frozen=True)
-class Entries:
-    """The neighbours' entries of a frame against this node's trackers: ``ids`` (sorted),
-    ``got[i]`` the entries for ``ids[i]`` in sender order, and all entries' numbers stacked in
-    that order with ``rows`` the tracker index of each (what batched sums over the inclusive
-    neighbourhood, eq. 3, read)."""
-
-    ids: list[TrackerId]
-    got: list[list[TrackerInfo]]
-    rows: np.ndarray  # (m,)
-    u: np.ndarray  # (m, 6)
-    U: np.ndarray  # (m, 6, 6)
-    x_bar: np.ndarray  # (m, 6)
-
-    @classmethod
-    def of(cls, ids: list[TrackerId], received: dict[TrackerId, list[TrackerInfo]]) -> "Entries":
-        got = [received.get(tid, []) for tid in ids]
-        rows = np.array([i for i, g in enumerate(got) for _ in g], dtype=np.intp)
-        flat = [t for g in got for t in g]
-        if not flat:
-            return cls(ids, got, rows, np.zeros((0, 6)), np.zeros((0, 6, 6)), np.zeros((0, 6)))
-        return cls(ids, got, rows, np.array([t.u for t in flat]), np.array([t.U for t in flat]),
-                   np.array([t.x_bar for t in flat]))
 
 
 class NodeStateError(RuntimeError):
@@ -365,11 +341,12 @@ class CameraNode:
         if stale_ok:
             self.memory.remember(msgs)
             msgs = self.memory.at(k)
-        received, measured = self._received(msgs, self.memory.observed if stale_ok else frozenset())
-        for tid in sorted(received):
+        inbox = Inbox(msgs, self.book.resolve, self.memory.observed if stale_ok else frozenset())
+        for tid in inbox.ids():
             if tid not in self.trackers:
-                self._adopt(k, tid, received[tid])
-        entries = Entries.of(sorted(self.trackers), received)
+                self._adopt(k, tid, inbox.infos(tid))
+        entries = inbox.entries(sorted(self.trackers))
+        measured = inbox.measured
         if stale_ok:
             self._correct(entries, self.memory.lagless_ell, self.memory.news)
         else:
@@ -412,32 +389,7 @@ class CameraNode:
             del self._taken[key]  # older frames are ignored anyway: bounded memory
         return sorted(msgs, key=lambda m: (m.sender, m.frame))
 
-    def _received(self, msgs: list[FrameMessage],
-                  observed: Collection[tuple[int, TrackerId]] = frozenset()
-                  ) -> tuple[dict[TrackerId, list[TrackerInfo]], dict[TrackerId, frozenset[int]]]:
-        """Neighbours' entries per surviving id (merge aliases followed); one entry per sender,
-        the one under the surviving id itself when a sender still names both. Also, per id, the
-        senders whose camera saw the target: their entry carries measurement information or
-        says ``ell`` 0, or (event-triggered) their newest entry, late or held through the
-        trigger's silence, said so (``observed``, ``NeighbourMemory``). The trigger withholds
-        measurements, so information alone made a neighbour that saw two look-alikes as two
-        look blind, and they were merged (ring8-sim async, gain 1: ground MOTA 0.891, with
-        this 0.952)."""
-        received: dict[TrackerId, list[TrackerInfo]] = {}
-        measured: dict[TrackerId, frozenset[int]] = {}
-        for m in msgs:
-            mine: dict[TrackerId, TrackerInfo] = {}
-            for t in m.trackers:
-                rid = self.book.resolve(t.id)
-                if rid not in mine or t.id == rid:
-                    mine[rid] = t
-            for rid, t in mine.items():
-                received.setdefault(rid, []).append(t)
-                if t.U[0, 0] > 0 or t.ell == 0 or (m.sender, t.id) in observed:
-                    measured[rid] = measured.get(rid, frozenset()) | {m.sender}
-        return received, measured
-
-    def _correct(self, entries: "Entries", lagless: dict[TrackerId, int] | None = None,
+    def _correct(self, entries: Entries, lagless: dict[TrackerId, int] | None = None,
                  news: set[TrackerId] | frozenset[TrackerId] = frozenset()) -> None:
         """Eqs. 3-4 for every tracker with its neighbours' entries, all at once, then ``ell``
         (eq. 8) and ``coast``, the frames in a row ``ell`` grew. With late messages
@@ -458,7 +410,7 @@ class CameraNode:
         positive definite ``I + P S`` is invertible and nothing here can fail; should a
         correction fail numerically anyway, that tracker alone keeps its prediction for the
         frame (counted in ``stats.numerical``) and every other tracker is corrected as usual."""
-        ids, got, rows = entries.ids, entries.got, entries.rows
+        ids, rows = entries.ids, entries.rows
         if not ids:
             return
         trs = [self.trackers[t] for t in ids]
@@ -491,10 +443,10 @@ class CameraNode:
         if bad.any():
             self.stats.numerical += int(bad.sum())
             x_hat[bad], M[bad] = x_bar[bad], P[bad]
-        for tr, g, x_i, M_i in zip(trs, got, x_hat, M):
+        for tr, g, x_i, M_i in zip(trs, entries.ells(), x_hat, M):
             tr.x_hat, tr.M = x_i, M_i
             seen_before = tr.ell - tr.lag
-            tr.ell = self.manager.ell(tr.local.ell_sent, [t.ell for t in g])
+            tr.ell = self.manager.ell(tr.local.ell_sent, g)
             if lagless is None:  # synchronous: every neighbour's news of frame k is here
                 tr.coast = tr.coast + 1 if tr.ell > seen_before else 0
                 continue
@@ -505,7 +457,7 @@ class CameraNode:
             elif tr.local.ell_sent == 0 or tr.id in news:  # seen, or news that did not age it
                 tr.coast = 0
 
-    def _register(self, entries: "Entries") -> None:
+    def _register(self, entries: Entries) -> None:
         """Registration residuals of this frame (``registration``, R2-R3): each of this node's
         cameras against what the other cameras measured of the same targets in the same frame:
         the neighbours' ``u, U`` and this node's other cameras (their information summed, eq. 3,

@@ -64,7 +64,7 @@ import numpy as np
 from edge_node.core.config import TrackerConfig
 from edge_node.core.identity import IdentityBook
 from edge_node.geometry import Camera
-from protocol.messages import FrameMessage, Merge, TrackerId, TrackerInfo
+from protocol.messages import FrameMessage, Merge, TrackerId
 
 RANK_TOL = 1e-9  # eigenvalues of U below this fraction of the largest count as unmeasured
 FLOAT_TOL = 1e-6  # float32 rounding on the wire: negative eigenvalues of U and components of u
@@ -116,7 +116,7 @@ class Screen:
             if blocks else []
         out, i = [], 0
         for m in msgs:
-            n = len(m.trackers)
+            n = len(m.block)
             out.append(self.message(m, book, (infos[i:i + n], bad[i:i + n])))
             i += n
         return out
@@ -133,26 +133,25 @@ class Screen:
         heard = self.heard.setdefault(s, {})
         for tid in [t for t, f in heard.items() if m.frame - f > self.window]:
             del heard[tid]
-        keep: list[TrackerInfo] = []
-        ts = m.trackers
+        b = m.block
         if verdicts is None:
-            verdicts = (self.informations(np.array([t.u for t in ts], float).reshape(-1, 6),
-                                          np.array([t.U for t in ts], float).reshape(-1, 6, 6)),
-                        self.states(np.array([t.x_bar for t in ts], float).reshape(-1, 6)).tolist())
-        for t, info, bad_state in zip(ts, *verdicts):
-            reason = self.entry(t, m, book, heard, info, bad_state)
+            verdicts = (self.informations(b.u, b.U), self.states(b.x_bar).tolist())
+        keep: list[int] = []
+        for i, (tid, born, ell, info, bad_state) in enumerate(
+                zip(b.ids(), b.born.tolist(), b.ell.tolist(), *verdicts)):
+            reason = self.entry(tid, born, ell, m, book, heard, info, bad_state)
             if reason not in BIRTH_REASONS:  # mentioned: the never-mentioned rule is not for it
-                heard[t.id] = max(m.frame, heard.get(t.id, m.frame))
+                heard[tid] = max(m.frame, heard.get(tid, m.frame))
             if reason:
                 self.rejected[reason] += 1
                 continue
-            if self.alias_born_later(t, book):
+            if self.relayed and self.alias_born_later(tid, born, book):
                 self.rejected["forged_alias"] += 1
-            if t.id not in book.born:
-                self.claimed.setdefault(t.id, t.born)
+            if tid not in book.born:
+                self.claimed.setdefault(tid, born)
                 while len(self.claimed) > 10 * self.cfg.max_old_trackers:
                     self.claimed.popitem(last=False)
-            keep.append(t)
+            keep.append(i)
         merges: list[Merge] = []
         for mg in m.merges:
             reason = self.merge(mg, book, heard, m.frame, m.sender)
@@ -160,23 +159,23 @@ class Screen:
                 self.rejected[reason] += 1
                 continue
             merges.append(mg)
-        if len(keep) == len(m.trackers) and len(merges) == len(m.merges):
+        if len(keep) == len(b) and len(merges) == len(m.merges):
             return m
-        return replace(m, trackers=tuple(keep), merges=tuple(merges))
+        return replace(m, block=b.take(keep), merges=tuple(merges))
 
     # -- one entry ------------------------------------------------------------------------
-    def entry(self, t: TrackerInfo, m: FrameMessage, book: IdentityBook,
+    def entry(self, tid: TrackerId, born: int, ell: int, m: FrameMessage, book: IdentityBook,
               heard: dict[TrackerId, int], info: str | None = None,
               bad_state: bool = False) -> str | None:
-        """The reason to drop tracker entry ``t`` of message ``m``, or ``None`` (``info`` and
-        ``bad_state``: the verdicts of :meth:`informations` and :meth:`states`, computed for the
-        whole message at once)."""
+        """The reason to drop the entry ``(tid, born, ell)`` of message ``m``, or ``None``
+        (``info`` and ``bad_state``: the verdicts of :meth:`informations` and :meth:`states`,
+        computed for the whole message at once)."""
         reason = info or ("implausible_state" if bad_state else None)
         if reason:
             return reason
-        if t.ell > 2 * self.cfg.kappa + 2:
+        if ell > 2 * self.cfg.kappa + 2:
             return "implausible_ell"
-        return self.birth(t.id, t.born, m.frame, m.sender, book, heard)
+        return self.birth(tid, born, m.frame, m.sender, book, heard)
 
     def information(self, u: np.ndarray, U: np.ndarray) -> str | None:
         """Eq. 2's ``u, U`` as a camera produces them, or why not."""
@@ -258,14 +257,15 @@ class Screen:
                 self.relayed.popitem(last=False)
         return None
 
-    def alias_born_later(self, t: TrackerInfo, book: IdentityBook) -> bool:
-        """Entry ``t`` names an id that a relayed merge aliased before it was born: that merge
-        was forged (an honest merge only links ids that exist). The alias is removed."""
-        at = self.relayed.get(t.id)
-        if at is None or t.born <= at:
+    def alias_born_later(self, tid: TrackerId, born: int, book: IdentityBook) -> bool:
+        """An entry names id ``tid``, born at ``born``, that a relayed merge aliased before it
+        was born: that merge was forged (an honest merge only links ids that exist). The alias
+        is removed."""
+        at = self.relayed.get(tid)
+        if at is None or born <= at:
             return False
-        del self.relayed[t.id]
-        book.aliases.pop(t.id, None)
+        del self.relayed[tid]
+        book.aliases.pop(tid, None)
         return True
 
     # -- helpers --------------------------------------------------------------------------
