@@ -19,20 +19,20 @@ from edge_node.core.model import STATE_DIM
 from protocol.messages import TrackerId
 
 
-def _zeros() -> np.ndarray:
-    return np.zeros(STATE_DIM)
-
-
-def _zeros2() -> np.ndarray:
-    return np.zeros((STATE_DIM, STATE_DIM))
+# No measurement: one shared, read-only pair of zeros (``add`` builds new arrays; a fresh pair
+# for every tracker and frame was 40 allocations a frame at 20 targets)
+_NO_u = np.zeros(STATE_DIM)
+_NO_U = np.zeros((STATE_DIM, STATE_DIM))
+_NO_u.setflags(write=False)
+_NO_U.setflags(write=False)
 
 
 @dataclass
 class LocalInfo:
     """One tracker's part of this node's frame: filled by ``prepare``, used by ``update``."""
 
-    u: np.ndarray = field(default_factory=_zeros)  # eq. 2, sum over this node's cameras
-    U: np.ndarray = field(default_factory=_zeros2)
+    u: np.ndarray = field(default_factory=lambda: _NO_u)  # eq. 2, sum over this node's cameras
+    U: np.ndarray = field(default_factory=lambda: _NO_U)
     seen_by: set[int] = field(default_factory=set)  # this node's cameras that associated it
     ell_sent: int = 0  # eq. 8 as this node reports it
     x_bar_sent: np.ndarray | None = None  # x_bar as the neighbours receive it (wire precision)
