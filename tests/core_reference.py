@@ -30,6 +30,11 @@ event-triggered run with loss and delay changed; the synchronous runs cannot: th
 The event-triggered run was re-recorded once more when a neighbour whose entry says ``ell``
 0, or whose newest entry (late, or held through the trigger's silence) said so, began to
 count as seeing the target for the merge exclusion (before: only entries carrying ``u, U``).
+And once more (issue 16, late messages) when a tracker heard of late began to count as a
+simultaneous initialisation with one that appeared here no earlier than that news was sent, and
+a first entry's appearance stopped being lost to a newer entry of the same sender (reordered or
+in one frame): 3559 -> 3492 reported tracks, the same 32 ids. The synchronous runs did not
+change (both rules are ``update(stale_ok=True)``'s only).
 
 Re-record it (from the commit that changes them, saying why in the message) only when the
 tracks are meant to change.

@@ -492,3 +492,49 @@ def test_a_neighbour_that_saw_a_target_counts_as_seeing_it_without_u_U():
     for k, seen in ((5, True), (3 + cfg.hold_frames, True), (4 + cfg.hold_frames, False)):
         node.memory.at(k)
         assert ((0, (0, 0)) in node.memory.observed) == seen, k
+
+
+def test_simultaneous_inits_heard_of_late_merge_at_once():
+    """Two cameras start the same person in the same frame; each hears of the other's tracker
+    three frames late (event-triggered operation). Had the news come on time the two would
+    have been new together (the paper's simultaneous initialisations, merged at once); so they
+    are when it comes, although this node's own tracker is no longer new by then. The cameras
+    place the person 0.8 m apart (beyond half the ``comotion_gate``: no merge at once by place).
+    Before, the pair waited ``comotion_frames`` (terrace-gt with every message 1-4 frames late
+    kept such duplicates through its first 40 frames)."""
+    cfg = TrackerConfig()
+    nodes = make_nodes({0: (1,), 1: (0,)}, cfg)
+    rng = np.random.default_rng(5)
+    due: dict[int, list] = {}
+    held = []
+    for k in range(12):
+        x = 3.0 + 0.02 * k
+        dets = {0: [det(x, 5.0, 7, rng)], 1: [det(x + 0.8, 5.0, 7, rng)]}
+        for i, n in nodes.items():
+            due.setdefault((1 - i, k + 3), []).append(codec.decode(codec.encode(n.prepare(k, dets[i]))))
+        for i, n in nodes.items():
+            n.update(due.pop((i, k), []), stale_ok=True)
+        held.append({i: sorted(n.trackers) for i, n in nodes.items()})
+    first = next(k for k, h in enumerate(held) if h[0])  # the births
+    assert held[first] == {0: [(0, 0)], 1: [(1, 0)]}
+    # the other's news arrives 3 frames after the births: merged in that frame, for good
+    assert all(h == {0: [(0, 0)], 1: [(0, 0)]} for h in held[first + 3:])
+    assert nodes[0].stats.merged + nodes[1].stats.merged >= 1
+
+
+def test_simultaneous_means_before_news_of_the_other():
+    """``simultaneous``: both new here; or one new from a neighbour's news of frame ``heard``
+    (come late) and the other here since that frame or later, not before it."""
+    from edge_node.core.manager import simultaneous
+    g = _gallery(1)
+    late = MergeView((1, 0), np.array([0.0, 0.0]), g, True, frozenset(), since=10, heard=7)
+    assert simultaneous(late, MergeView((0, 0), np.array([0.8, 0.0]), g, False, frozenset(), since=7))
+    assert simultaneous(MergeView((0, 0), np.array([0.8, 0.0]), g, False, frozenset(), since=9), late)
+    assert not simultaneous(late, MergeView((0, 0), np.array([0.8, 0.0]), g, False, frozenset(),
+                                            since=6))
+    on_time = MergeView((1, 0), np.array([0.0, 0.0]), g, True, frozenset(), since=10, heard=10)
+    assert not simultaneous(on_time, MergeView((0, 0), np.array([0.8, 0.0]), g, False, frozenset(),
+                                               since=9))
+    cfg = TrackerConfig()
+    assert find_merges([late, MergeView((0, 0), np.array([0.8, 0.0]), g, False, frozenset(),
+                                        since=8)], {}, cfg) == [((1, 0), (0, 0))]

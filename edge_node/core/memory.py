@@ -43,21 +43,45 @@ class NeighbourMemory:
         # (neighbour, tracker) whose newest entry, at most ``hold_frames`` old, said its camera
         # saw the target (ell 0 as sent): what a late or withheld entry still tells (``observed``)
         self.observed: set[tuple[int, TrackerId]] = set()
+        # tracker -> descriptors of a sender's first entry of it that came after a newer entry
+        # of the same sender (``late_appearance``, set by ``remember``)
+        self.late_appearance: dict[TrackerId, np.ndarray] = {}
+        # tracker -> the frame of the oldest message that told of it among those arrived since
+        # the previous ``at`` (``told``, set by ``at``: what a late adoption is judged as of)
+        self.told: dict[TrackerId, int] = {}
+        self._told: dict[TrackerId, int] = {}
 
     def remember(self, arrived: Iterable[FrameMessage]) -> None:
+        """Keep each sender's newest entry per tracker. A sender attaches a tracker's appearance
+        to its first entry only, so a newer entry does not lose it: one that replaces the first
+        before ``at`` handed it back (two messages of a sender arrived in one frame) takes its
+        appearance, and a first entry that comes after a newer one (reordered on a late link)
+        gives its appearance to the newer one kept and names it in ``late_appearance`` (the
+        receiver may have adopted the tracker without it). Before, with every message 1-4 frames
+        late, terrace-gt's nodes adopted 27 of 105 trackers without appearance, and held trackers
+        with an empty gallery in 243 node-frames (now 3)."""
+        self.late_appearance = {}
         for m in arrived:
             self.newest[m.sender] = max(self.newest.get(m.sender, m.frame), m.frame)
             mem = self.entries.setdefault(m.sender, {})
             for t in m.trackers:
+                self._told[t.id] = min(self._told.get(t.id, m.frame), m.frame)
                 old = mem.get(t.id)
                 if old is None or m.frame > old[0]:
+                    if t.appearance is None and old is not None and not old[2] \
+                            and old[1].appearance is not None:
+                        t = replace(t, appearance=old[1].appearance)
                     mem[t.id] = (m.frame, t, False)
+                elif t.appearance is not None and old[1].appearance is None:
+                    mem[t.id] = (old[0], replace(old[1], appearance=t.appearance), old[2])
+                    self.late_appearance[t.id] = t.appearance
 
     def at(self, k: int) -> list[FrameMessage]:
         """Every neighbour's newest entry per tracker brought to frame ``k``, one message per
         neighbour (senders and trackers in order: deterministic)."""
         out = []
         self.lagless_ell, self.news, self.observed = {}, set(), set()
+        self.told, self._told = self._told, {}
         for sender in sorted(self.entries):
             mem = self.entries[sender]
             newest = self.newest.get(sender, k)

@@ -267,7 +267,7 @@ class CameraNode:
             tid = self.book.new_id()
             self.stats.births += 1
         tr = Tracker(tid, quantize(birth_state(first.z)), self.P_birth.copy(), gallery,
-                     born=born, since=k)
+                     born=born, since=k, heard=k)
         self.book.born[tid] = born
         tr.local.add(cam_id, *dkf.information(last.z, last.R), last.raw)
         self._saw(tr, cam_id, k, last)
@@ -344,7 +344,9 @@ class CameraNode:
         inbox = Inbox(msgs, self.book.resolve, self.memory.observed if stale_ok else frozenset())
         for tid in inbox.ids():
             if tid not in self.trackers:
-                self._adopt(k, tid, inbox.infos(tid))
+                self._adopt(k, tid, inbox.infos(tid), self.memory.told.get(tid, k) if stale_ok else k)
+        if stale_ok:
+            self._late_appearance()
         entries = inbox.entries(sorted(self.trackers))
         measured = inbox.measured
         if stale_ok:
@@ -356,7 +358,7 @@ class CameraNode:
         mine = {c.id for c in self.cameras}
         views = [MergeView(t.id, t.x_hat[:2], t.gallery, t.since == k, frozenset(t.local.seen_by),
                            t.born, measured.get(t.id, frozenset()),
-                           started=t.born == k and t.id[0] in mine)
+                           started=t.born == k and t.id[0] in mine, since=t.since, heard=t.heard)
                  for t in self.trackers.values()]
         for loser, winner in self.manager.merges(views):
             self._merge(loser, winner)
@@ -498,8 +500,9 @@ class CameraNode:
                     self.registrations[cam_id].observe_many([raws[i] for i in ok], z_o, V_o)
             self.registrations[cam_id].end_frame()
 
-    def _adopt(self, k: int, tid: TrackerId, infos: list[TrackerInfo]) -> None:
-        """A tracker heard of from neighbours but not held here (paper III-C, case 1)."""
+    def _adopt(self, k: int, tid: TrackerId, infos: list[TrackerInfo], heard: int | None = None) -> None:
+        """A tracker heard of from neighbours but not held here (paper III-C, case 1);
+        ``heard``: the frame of the oldest message that told of it (``k`` unless it came late)."""
         ell = min(t.ell for t in infos)
         if ell > self.cfg.kappa or not self.manager.may_adopt(tid, self.book.dropped):
             return
@@ -525,19 +528,35 @@ class CameraNode:
         gallery = self._gallery(infos, gallery)
         born = self.book.note_born(tid, src.born)
         tr = Tracker(tid, np.array(src.x_bar, float), self.P_birth.copy(), gallery, born=born,
-                     since=k)
+                     since=k, heard=k if heard is None else min(heard, k),
+                     heard_appearance=any(t.appearance is not None for t in infos))
         tr.local.ell_sent = ell
         tr.local.x_bar_sent = tr.x_bar
         self.trackers[tid] = tr
 
+    def _late_appearance(self) -> None:
+        """Event-triggered: a neighbour's first entry of a tracker, which carries its
+        appearance, came after a newer entry (``NeighbourMemory.late_appearance``): a tracker
+        adopted here from entries without appearance takes it, as adoption would have."""
+        for tid, app in sorted(self.memory.late_appearance.items()):
+            tr = self.trackers.get(self.book.resolve(tid))
+            if tr is None or tr.heard_appearance:
+                continue
+            self._descriptors(app, tr.gallery)
+            tr.heard_appearance = True
+
     def _gallery(self, infos: list[TrackerInfo], gallery: Gallery) -> Gallery:
         """``gallery`` with the descriptors the neighbours' entries carry."""
         for t in infos:
-            for d in (t.appearance if t.appearance is not None else ()):
-                d = self.associate.descriptor(d)
-                if d is not None:
-                    gallery.add(d)
+            if t.appearance is not None:
+                self._descriptors(t.appearance, gallery)
         return gallery
+
+    def _descriptors(self, appearance: np.ndarray, gallery: Gallery) -> None:
+        for d in appearance:
+            d = self.associate.descriptor(d)
+            if d is not None:
+                gallery.add(d)
 
     def _merge(self, loser: TrackerId, winner: TrackerId, winner_born: int | None = None) -> None:
         """Apply ``loser -> winner`` here and announce it (so it propagates hop by hop)."""

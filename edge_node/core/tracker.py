@@ -57,6 +57,10 @@ class Tracker:
     lag: int = 0  # how much of ell is the neighbours' link lag (late messages; 0 in sync)
     born: int = 0  # frame its originating camera created it (same on every node)
     since: int = 0  # frame it appeared on this node
+    # frame of the news by which it appeared here: ``since`` for a birth or an adoption from
+    # messages on time; the frame of the oldest message that told of it when they came late
+    heard: int = 0
+    heard_appearance: bool = True  # adopted with the appearance a neighbour's entry carries
     announced: bool = False  # appearance already sent by this node
     x_hat: np.ndarray | None = None  # estimate of the last update (eq. 4)
     M: np.ndarray | None = None  # its covariance
@@ -93,6 +97,8 @@ class Tracker:
         self.coast = min(self.coast, other.coast)
         self.local.ell_sent = min(self.local.ell_sent, other.local.ell_sent)
         self.since = min(self.since, other.since)
+        self.heard = min(self.heard, other.heard)
+        self.heard_appearance = self.heard_appearance or other.heard_appearance
         for cam, (k, size) in other.views.items():
             if cam not in self.views or self.views[cam][0] < k:
                 self.views[cam] = (k, size)
