@@ -57,14 +57,14 @@ class Inbox:
                  observed: Collection[tuple[int, TrackerId]] = frozenset()):
         self.blocks = [m.block for m in msgs]
         self.by_id: dict[TrackerId, list[int]] = {}  # surviving id -> stacked rows naming it
-        self.measured: dict[TrackerId, frozenset[int]] = {}
+        measured: dict[TrackerId, list[int]] = {}
         self._where: list[tuple[int, int]] = []  # stacked row -> (message, row)
         for mi, (m, b) in enumerate(zip(msgs, self.blocks)):
             ids = b.ids()
             ells = b.ell.tolist()
             informs = (b.U[:, 0, 0] > 0).tolist()
             offset = len(self._where)
-            self._where.extend((mi, r) for r in range(len(ids)))
+            self._where.extend(zip([mi] * len(ids), range(len(ids))))
             mine: dict[TrackerId, int] = {}
             for r, tid in enumerate(ids):
                 rid = resolve(tid)
@@ -73,7 +73,9 @@ class Inbox:
             for rid, r in mine.items():
                 self.by_id.setdefault(rid, []).append(offset + r)
                 if informs[r] or ells[r] == 0 or (m.sender, ids[r]) in observed:
-                    self.measured[rid] = self.measured.get(rid, frozenset()) | {m.sender}
+                    measured.setdefault(rid, []).append(m.sender)
+        self.measured: dict[TrackerId, frozenset[int]] = {
+            rid: frozenset(senders) for rid, senders in measured.items()}
         if self.blocks:
             self._ell = np.concatenate([b.ell for b in self.blocks])
             self._u = np.concatenate([b.u for b in self.blocks])

@@ -35,6 +35,8 @@ def rank(born: int, tid: TrackerId) -> tuple[int, TrackerId]:
 
 def resolve(tid: TrackerId, aliases: dict[TrackerId, TrackerId]) -> TrackerId:
     """Follow merge announcements ``loser -> winner`` to the surviving id."""
+    if tid not in aliases:  # most ids: no set built
+        return tid
     seen = set()
     while tid in aliases and tid not in seen:
         seen.add(tid)

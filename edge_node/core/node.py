@@ -144,9 +144,11 @@ class CameraNode:
             unassigned = self._associate(k, cam.id, obs)
             for chain in self.initiators[cam.id].step(k, unassigned):
                 self._birth(k, cam.id, chain)
-        for tr in self.trackers.values():
+        trs = list(self.trackers.values())
+        sent = quantize(np.array([tr.x_bar for tr in trs])) if trs else ()  # all at once
+        for tr, x in zip(trs, sent):
             tr.local.ell_sent = manager.ell_sent(bool(tr.local.seen_by), tr.ell)
-            tr.local.x_bar_sent = quantize(tr.x_bar)
+            tr.local.x_bar_sent = x
         self._prepared = True
         return self._message(k)
 
@@ -626,9 +628,13 @@ class CameraNode:
         """The current estimates (after the last ``update``): the trackers it reports."""
         shown = [t for _, t in sorted(self.trackers.items())
                  if t.x_hat is not None and self._reported(t)]
+        if not shown:
+            return []
         boxes = self.views(shown)
-        return [Track(t.id, self._frame, t.x_hat.copy(), t.M.copy(), bool(t.local.seen_by), t.ell,
-                      b) for t, b in zip(shown, boxes)]
+        x_hat = np.array([t.x_hat for t in shown])  # copies, stacked once
+        M = np.array([t.M for t in shown])
+        return [Track(t.id, self._frame, x, M_i, bool(t.local.seen_by), t.ell, b)
+                for t, x, M_i, b in zip(shown, x_hat, M, boxes)]
 
     def _saw(self, tr: Tracker, cam_id: int, k: int, obs: Observation) -> None:
         if obs.raw is not None:

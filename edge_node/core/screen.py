@@ -137,8 +137,20 @@ class Screen:
         if verdicts is None:
             verdicts = (self.informations(b.u, b.U), self.states(b.x_bar).tolist())
         keep: list[int] = []
+        frame, ell_max, known = m.frame, 2 * self.cfg.kappa + 2, book.born
         for i, (tid, born, ell, info, bad_state) in enumerate(
                 zip(b.ids(), b.born.tolist(), b.ell.tolist(), *verdicts)):
+            # the common entry, inlined (the message's entries are the update's hot loop): a
+            # tracker held here, sound numbers, its birth as known; what :meth:`entry` says
+            k_born = known.get(tid)
+            if (info is None and not bad_state and ell <= ell_max and k_born is not None
+                    and k_born <= born <= frame):
+                h = heard.get(tid)
+                heard[tid] = frame if h is None or h < frame else h
+                if self.relayed and self.alias_born_later(tid, born, book):
+                    self.rejected["forged_alias"] += 1
+                keep.append(i)
+                continue
             reason = self.entry(tid, born, ell, m, book, heard, info, bad_state)
             if reason not in BIRTH_REASONS:  # mentioned: the never-mentioned rule is not for it
                 heard[tid] = max(m.frame, heard.get(tid, m.frame))
