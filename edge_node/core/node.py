@@ -227,9 +227,10 @@ class CameraNode:
         for n, (i, j) in enumerate(pairs):
             tr = self.trackers[ids[i]]
             tr.local.add(cam_id, u[n], U[n], obs[j].raw)
-            self._saw(tr, cam_id, k, obs[j])
             tr.gallery.offer(obs[j].descriptor, k, self.cfg.gallery_admit)
             assigned.add(j)
+        self._saw_many([self.trackers[ids[i]] for i, _ in pairs], cam_id, k,
+                       [obs[j] for _, j in pairs])
         for i, j in self.associate.recover(cands, obs, pairs):
             # outside the gate: R grown until the innovation sits on it; no registration residual
             tr = self.trackers[ids[i]]
@@ -639,6 +640,21 @@ class CameraNode:
     def _saw(self, tr: Tracker, cam_id: int, k: int, obs: Observation) -> None:
         if obs.raw is not None:
             tr.saw(cam_id, k, obs.raw.size, self.cfg.view_rate)
+
+    def _saw_many(self, trs: list[Tracker], cam_id: int, k: int, obs: list[Observation]) -> None:
+        """``_saw`` of a camera's associated pairs at once: ``Tracker.saw``'s smoothing of the
+        box sizes, batched."""
+        pairs = [(tr, o.raw.size) for tr, o in zip(trs, obs) if o.raw is not None]
+        if not pairs:
+            return
+        size = np.array([s for _, s in pairs], float)
+        old = [tr.views.get(cam_id) for tr, _ in pairs]
+        held = [i for i, v in enumerate(old) if v is not None]
+        if held:
+            before = np.array([old[i][1] for i in held])
+            size[held] = before + self.cfg.view_rate * (size[held] - before)
+        for (tr, _), s in zip(pairs, size):
+            tr.views[cam_id] = (k, s)
 
     def views(self, trackers: Sequence[Tracker]) -> list[dict[int, np.ndarray]]:
         """Each tracker in this node's own image(s): for every camera that measured it within
