@@ -638,12 +638,12 @@ class CameraNode:
                 for t, x, M_i, b in zip(shown, x_hat, M, boxes)]
 
     def _saw(self, tr: Tracker, cam_id: int, k: int, obs: Observation) -> None:
-        if obs.raw is not None:
-            tr.saw(cam_id, k, obs.raw.size, self.cfg.view_rate)
+        self._saw_many([tr], cam_id, k, [obs])
 
     def _saw_many(self, trs: list[Tracker], cam_id: int, k: int, obs: list[Observation]) -> None:
-        """``_saw`` of a camera's associated pairs at once: ``Tracker.saw``'s smoothing of the
-        box sizes, batched."""
+        """Camera ``cam_id`` measured each of ``trs`` at frame ``k`` (its ``obs``): the box size
+        it draws the tracker at is smoothed towards the measured one at ``view_rate``, all pairs
+        at once (``Tracker.views``)."""
         pairs = [(tr, o.raw.size) for tr, o in zip(trs, obs) if o.raw is not None]
         if not pairs:
             return

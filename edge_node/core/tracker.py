@@ -69,12 +69,6 @@ class Tracker:
     # along the image axes, smoothed): what that camera's own view draws
     views: dict[int, tuple[int, np.ndarray]] = field(default_factory=dict)
 
-    def saw(self, camera: int, k: int, size: np.ndarray, rate: float) -> None:
-        """Camera ``camera`` measured the target at frame ``k`` with box size ``size``."""
-        old = self.views.get(camera)
-        size = np.asarray(size, float)
-        self.views[camera] = (k, size if old is None else old[1] + rate * (size - old[1]))
-
     def certainty(self) -> float:
         return float(np.trace(self.P))
 
