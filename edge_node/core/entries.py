@@ -85,9 +85,6 @@ class Inbox:
             self._ell, self._u = np.zeros(0, np.int64), np.zeros((0, 6))
             self._U, self._x_bar = np.zeros((0, 6, 6)), np.zeros((0, 6))
 
-    def __contains__(self, tid: TrackerId) -> bool:
-        return tid in self.by_id
-
     def ids(self) -> list[TrackerId]:
         """The surviving ids the messages name, sorted."""
         return sorted(self.by_id)
