@@ -136,7 +136,8 @@ class ScenarioStream:
     #: one-line notes of the loader on what it found or assumed (another tool's layout)
     notes: tuple[str, ...] = ()
     #: optional: ``focus(cameras)`` -> a chunk maker that makes the detections and image ground
-    #: truth of these cameras only (the others' are empty), the same as ``chunk``'s
+    #: truth of these cameras only (the others' are empty), the same as ``chunk``'s; its world
+    #: truth (``Frame.ids``, ``xy``) may cover only the people these cameras see
     focus: Callable[[list[int]], ChunkMaker] | None = field(default=None, repr=False)
     _held: tuple[int, list[Frame]] | None = field(default=None, repr=False)
 

@@ -325,7 +325,8 @@ def regional_chunk(config: WorldConfig, bounds: list[tuple[float, float, float, 
                    only: list[int] | None = None) -> list[Frame]:
     """Frames ``k0 .. k0 + F - 1`` (chunk ``j``) of a world whose camera ``c`` can only see
     people inside ``bounds[c]``: ``world._chunk``'s frames (same rules, same random streams),
-    projecting each camera's candidates only. No calibration errors (exact cameras)."""
+    projecting each camera's candidates only. No calibration errors (exact cameras). With
+    ``only``, as ``world._chunk``: the world truth is the people those cameras see."""
     seed = int(config.seed)
     F, N = traj.xy.shape[:2]
     cams = config.cameras
@@ -336,6 +337,9 @@ def regional_chunk(config: WorldConfig, bounds: list[tuple[float, float, float, 
     truth_mask = np.zeros((F, N), bool)
     seen = []  # per camera: (frame, person, box, in-image fraction, depth) of its candidates
     for c, cam in enumerate(cams):
+        if only is not None and c not in only:
+            seen.append(None)  # a focused chunk: the other cameras' views are not projected
+            continue
         x0, x1, y0, y1 = bounds[c]
         sel = (xy[:, 0] >= x0) & (xy[:, 0] <= x1) & (xy[:, 1] >= y0) & (xy[:, 1] <= y1)
         fk, fi = kk[sel], ii[sel]

@@ -518,7 +518,9 @@ def generate(config: WorldConfig) -> ScenarioData:
 def _chunk(config: WorldConfig, appearance: AppearanceModel, k0: int, j: int,
            traj: Trajectories, only: list[int] | None = None) -> list[Frame]:
     """Frames ``k0 .. k0 + F - 1`` (chunk ``j``) of the world, the people's paths ``traj``;
-    detections and image ground truth of cameras ``only`` (default all)."""
+    detections and image ground truth of cameras ``only`` (default all). The frames' world
+    truth (``ids``, ``xy``) is the people these cameras see: a camera process projects no other
+    camera's view (its detections do not depend on them)."""
     seed = int(config.seed)
     F, N = traj.xy.shape[:2]
     present = traj.present
@@ -534,6 +536,8 @@ def _chunk(config: WorldConfig, appearance: AppearanceModel, k0: int, j: int,
     depth = np.full((C, F, N), np.inf)
     bump = config.calibration.bump if config.calibration is not None else None
     for c, cam in enumerate(cams):
+        if only is not None and c not in only:
+            continue  # a focused chunk: nothing of the other cameras (world truth: these see)
         views = [(cam, None)]
         if bump is not None and bump.camera == c and bump.frame < k0 + F:
             moved = moved_camera(cam, config.calibration.bump_map(cams))
