@@ -33,6 +33,29 @@ def test_lda_appearance_fixes_a_geometric_swap():
     assert with_appearance == [(0, 0), (1, 1)]
 
 
+def test_appearance_matrix_scores_only_the_pairs_asked_for():
+    """Eq. 7 per pair, checked against cosine distances computed here one by one: the minimum
+    of ``1 - cos`` over a tracker's gallery where ``where`` allows the pair, ``unknown`` where
+    it does not, where the tracker has no gallery or the measurement no descriptor."""
+    from edge_node.core.association import appearance_matrix
+    rng = np.random.default_rng(3)
+    galleries = [Gallery(20, 20, list(rng.normal(size=(k, 16)))) if k else None for k in (3, 0, 1, 5)]
+    trackers = [Candidate(np.zeros(6), np.eye(6), g) for g in galleries]
+    descs = [rng.normal(size=16), None, rng.normal(size=16), rng.normal(size=16)]
+    obs = [Observation(np.zeros(4), np.eye(4), d) for d in descs]
+    where = np.array([[1, 1, 0, 1], [1, 1, 1, 1], [0, 0, 1, 0], [1, 0, 1, 1]], bool)
+    A = appearance_matrix(trackers, obs, 7.0, where=where)
+    for i, g in enumerate(galleries):
+        for j, d in enumerate(descs):
+            if g is None or d is None or not where[i, j]:
+                assert A[i, j] == 7.0
+            else:
+                rows = g.matrix()
+                cos = rows @ d / (np.linalg.norm(rows, axis=1) * np.linalg.norm(d))
+                assert A[i, j] == pytest.approx(1.0 - cos.max(), abs=1e-12)
+    assert np.isclose(A, appearance_matrix(trackers, obs, 7.0), atol=0)[where].all()
+
+
 def test_lda_gate_rejects_far_pairs():
     P = np.eye(6) * 0.01
     R = np.eye(4) * 0.01

@@ -79,12 +79,18 @@ def appearance_matrix(trackers: Sequence[Candidate], obs: Sequence[Observation],
     Q = np.zeros((len(obs), len(next(o.descriptor for o in obs if o.descriptor is not None))))
     Q[has] = np.array([o.descriptor for o in obs if o.descriptor is not None])
     Q /= np.maximum(np.linalg.norm(Q, axis=1, keepdims=True), 1e-12)
-    for i, t in enumerate(trackers):
-        if t.gallery is None or not len(t.gallery):
+    pairs = np.broadcast_to(has, A.shape) if where is None else where & has
+    rows, cols = np.nonzero(pairs)  # row-major: each tracker's columns together, in order
+    if not len(rows):
+        return A
+    starts = np.flatnonzero(np.diff(rows, prepend=-1)).tolist()
+    rows, cols = rows.tolist(), cols.tolist()
+    for a, b in zip(starts, starts[1:] + [len(rows)]):
+        g = trackers[rows[a]].gallery
+        if g is None or not len(g):
             continue
-        cols = has if where is None else has & where[i]
-        if cols.any():
-            A[i, cols] = t.gallery.unit_distances(Q[cols])
+        # one product per tracker over its gated queries (a view when there is one)
+        A[rows[a], cols[a:b]] = g.unit_distances(Q[cols[a]:cols[a] + 1] if b - a == 1 else Q[cols[a:b]])
     return A
 
 
