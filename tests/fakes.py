@@ -24,6 +24,24 @@ def box_at(x: float, y: float, w: float = 0.5, h: float = 1.7) -> np.ndarray:
     return np.array([fx - bw / 2, fy - bh, bw, bh])
 
 
+def homography_scene(G: np.ndarray, frames: int, people: int, extra: str = "") -> str:
+    """A synthetic scenario's TOML with one 360x288 camera given by its image-to-ground
+    homography ``G`` alone (no pose), over a 10 m x 10 m area; ``extra`` appends tables."""
+    rows = ", ".join("[" + ", ".join(repr(float(v)) for v in r) + "]" for r in G)
+    return f"""frames = {frames}
+[area]
+xmin = 0.0
+xmax = 10.0
+ymin = 0.0
+ymax = 10.0
+[[cameras]]
+image_size = [360, 288]
+homography = [{rows}]
+[people]
+concurrent = {people}
+""" + extra
+
+
 def identity(pid: int, dim: int = 64) -> np.ndarray:
     v = np.random.default_rng(1000 + pid).normal(size=dim)
     return v / np.linalg.norm(v)
@@ -47,23 +65,6 @@ def graph(kind: str, n: int) -> dict[int, tuple[int, ...]]:
     if kind == "disconnected":
         return {i: () for i in range(n)}
     raise ValueError(kind)
-
-
-def diameter(adj: dict[int, tuple[int, ...]]) -> int:
-    """Longest shortest path (breadth-first search from every node)."""
-    worst = 0
-    for s in adj:
-        dist, frontier = {s: 0}, [s]
-        while frontier:
-            nxt = []
-            for i in frontier:
-                for j in adj[i]:
-                    if j not in dist:
-                        dist[j] = dist[i] + 1
-                        nxt.append(j)
-            frontier = nxt
-        worst = max(worst, max(dist.values()))
-    return worst
 
 
 def make_nodes(adj: dict[int, tuple[int, ...]], cfg: TrackerConfig | None = None,

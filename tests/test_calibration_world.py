@@ -28,6 +28,7 @@ import numpy as np
 import pytest
 
 from edge_node.core.config import TrackerConfig
+from fakes import homography_scene
 from sim_cluster.network.inprocess import run_network
 from sim_cluster.network.topology import build
 from sim_cluster.scenarios.files import (ScenarioError, list_presets, read_scenario_toml,
@@ -289,19 +290,7 @@ def test_calibration_error_validation_names_file_and_field(tmp_path: Path, table
 def test_a_bump_on_a_homography_only_camera(tmp_path: Path):
     """A camera given by its homography alone is bumped through its homography."""
     cam = load_scenario("terrace-sim", frames=1).cameras[0]
-    rows = ", ".join("[" + ", ".join(repr(float(v)) for v in r) + "]" for r in cam.G)
-    text = f"""frames = 30
-[area]
-xmin = 0.0
-xmax = 10.0
-ymin = 0.0
-ymax = 10.0
-[[cameras]]
-image_size = [360, 288]
-homography = [{rows}]
-[people]
-concurrent = 4
-[detector]
+    text = homography_scene(cam.G, frames=30, people=4, extra="""[detector]
 miss_rate = 0.0
 false_positives_per_frame = 0.0
 box_noise_px = 0.0
@@ -313,7 +302,7 @@ camera = 0
 frame = 10
 shift_m = [0.3, 0.4]
 rotation_deg = -1.0
-"""
+""")
     path = tmp_path / "flat.toml"
     path.write_text(text)
     data = load_scenario(path)

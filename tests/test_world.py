@@ -8,6 +8,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from fakes import homography_scene
 from sim_cluster.scenarios.data import ScenarioData
 from sim_cluster.scenarios.files import (ScenarioError, list_presets, read_scenario_toml,
                                          resolve_scenario_path)
@@ -161,20 +162,7 @@ def test_seed_and_frames_arguments_are_validated():
 
 def test_a_homography_only_camera_works(tmp_path: Path):
     cam = _config("terrace-sim").cameras[0]
-    rows = ", ".join("[" + ", ".join(repr(float(v)) for v in r) + "]" for r in cam.G)
-    text = f"""
-frames = 40
-[area]
-xmin = 0.0
-xmax = 10.0
-ymin = 0.0
-ymax = 10.0
-[[cameras]]
-image_size = [360, 288]
-homography = [{rows}]
-[people]
-concurrent = 5
-"""
+    text = homography_scene(cam.G, frames=40, people=5)
     path = tmp_path / "flat.toml"
     path.write_text(text)
     s = load_scenario(str(path))
