@@ -49,7 +49,6 @@ import math
 
 import numpy as np
 
-from edge_node.core.types import Detection
 from edge_node.geometry import Camera
 from sim_cluster.scenarios.data import CHUNK_FRAMES, Frame, ScenarioData, ScenarioStream
 from sim_cluster.scenarios.synthetic.appearance import AppearanceModel, AppearanceParams
