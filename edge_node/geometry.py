@@ -92,6 +92,20 @@ class Camera:
         """:meth:`ground_jacobian` at each of ``(n, 2)`` pixels: ``(n, 2, 2)``."""
         return homography_jacobians(self.G, np.asarray(uv, float) * self.pixel_scale) * self.pixel_scale
 
+    def image_and_jacobians(self, xy: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """``to_image(xy)`` and ``ground_jacobians`` at those pixels, from the ground points
+        ``(n, 2)`` directly (a third of the arithmetic of mapping there and back): with
+        ``h = G^-1 (g, 1)`` the pixel is ``h_12 / h_3`` (over the pixel scale ``s``), ``G`` maps
+        it to ``q = (g, 1) / h_3``, and the Jacobian ``(G_12,12 q_3 - q_12 G_3,12) / q_3^2``
+        (:func:`homography_jacobians`, times ``s``) is ``s h_3 (G_12,12 - g G_3,12)``. Equal to
+        the round trip up to rounding."""
+        g = np.asarray(xy, float).reshape(-1, 2)
+        h = g @ self.G_inv[:, :2].T + self.G_inv[:, 2]
+        uv = h[:, :2] / h[:, 2:3] / self.pixel_scale
+        J = (self.G[None, :2, :2] - g[:, :, None] * self.G[None, None, 2, :2]) \
+            * (h[:, 2, None, None] * self.pixel_scale)
+        return uv, J
+
     def in_front(self, xy: np.ndarray) -> np.ndarray:
         """Whether ground points project in front of the camera (positive depth)."""
         xy = np.atleast_2d(xy)

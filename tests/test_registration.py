@@ -180,3 +180,27 @@ def test_a_person_back_after_an_occlusion_gets_the_old_id_without_appearance():
         x = 3.0 if k < 30 else 7.0
         out = step(nodes, k, {0: [] if hidden else [undetected(x, 3.0)]})
     assert {t.id for t in out[0]} == {(0, 1)}
+
+
+@pytest.mark.parametrize("pixel_scale", [1.0, 0.25])
+def test_image_and_jacobians_from_the_ground_match_the_image_to_ground_map(pixel_scale):
+    """``Camera.image_and_jacobians`` (what the views and R1's inverse use): the pixel is
+    ``to_image``'s, and the Jacobian is the image-to-ground map's, checked by central finite
+    differences of ``to_ground`` around that pixel, for a tilted camera (terrace-sim's first)
+    with and without a pixel scale."""
+    from dataclasses import replace
+
+    from sim_cluster.scenarios.loader import load_scenario
+    cam = load_scenario("terrace-sim", frames=1).cameras[0]
+    cam = replace(cam, G=cam.G @ np.diag([1 / pixel_scale, 1 / pixel_scale, 1.0]),
+                  pixel_scale=pixel_scale)  # the same camera with scaled pixel coordinates
+    W, H = cam.image_size
+    px = np.random.default_rng(5).uniform([20, H / 2], [W - 20, H - 5], size=(30, 2))
+    g = cam.to_ground(px)
+    uv, J = cam.image_and_jacobians(g)
+    np.testing.assert_allclose(uv, cam.to_image(g), rtol=0, atol=1e-9)
+    np.testing.assert_allclose(uv, px, atol=1e-6)
+    eps = 1e-3  # pixels
+    for j, e in enumerate(np.eye(2) * eps):
+        numeric = (cam.to_ground(uv + e) - cam.to_ground(uv - e)) / (2 * eps)
+        np.testing.assert_allclose(J[:, :, j], numeric, rtol=1e-5, atol=1e-9)

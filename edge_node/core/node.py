@@ -678,8 +678,8 @@ class CameraNode:
             reg = self.registrations.get(cam.id)
             g = xy if reg is None else reg.to_camera_many(xy)
             with np.errstate(invalid="ignore", divide="ignore", over="ignore"):
-                foot = cam.to_image(g)
-                wh = np.array(sizes) * pixels_per_unit(cam.ground_jacobians(foot))[:, None]
+                foot, J = cam.image_and_jacobians(g)
+                wh = np.array(sizes) * pixels_per_unit(J)[:, None]
             box = np.concatenate([foot[:, :1] - wh[:, :1] / 2.0, foot[:, 1:] - wh[:, 1:], wh], axis=1)
             for i, b, ok in zip(rows, box, np.all(np.isfinite(foot), axis=1)):
                 if ok:

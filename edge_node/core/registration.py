@@ -157,9 +157,9 @@ class Registration:
         live = np.ones(len(g), bool)
         with np.errstate(invalid="ignore", divide="ignore", over="ignore"):
             for _ in range(3):
-                foot = self.camera.to_image(g)
+                foot, J = self.camera.image_and_jacobians(g)
                 live &= np.all(np.isfinite(foot), axis=1)
-                a = away_direction(self.camera.ground_jacobians(foot))
+                a = away_direction(J)
                 step = xy - self.bases(g, a) @ self.theta
                 g = np.where(live[:, None], step, g)
         return g
