@@ -171,6 +171,23 @@ def test_gamma_keeps_the_paper_where_the_bound_holds():
     assert dkf.consensus_gamma(M, 3, C) == 1.0 / (1.0 + np.linalg.norm(M))
 
 
+def test_gamma_of_a_stack_is_each_matrix_s_own():
+    """A stack mixing matrices inside and beyond the bound (the eigenvalues are computed only
+    for the second kind) gives each matrix the gamma the paper's formula and the bound give it
+    alone, computed here with the largest eigenvalue of every matrix."""
+    rng = np.random.default_rng(2)
+    L = rng.normal(size=(300, 6, 6)) * 10 ** rng.uniform(-2, 2, size=(300, 1, 1))
+    M = L @ L.transpose(0, 2, 1)
+    d = rng.integers(1, 6, size=300)
+    g = dkf.consensus_gamma(M, d, C)
+    paper = 1.0 / (1.0 + np.linalg.norm(M, axis=(1, 2)))
+    lam = np.linalg.eigvalsh(M)[:, -1]
+    expected = np.where(d * paper * lam > C, C / (d * lam), paper)
+    np.testing.assert_allclose(g, expected, rtol=1e-12)
+    inside = d * paper * lam <= C
+    assert 50 < inside.sum() < 250  # both kinds in the stack
+
+
 def test_batched_correction_bounds_each_tracker_by_its_own_degree():
     P = coasting_P(300)
     x = np.zeros((3, 6))

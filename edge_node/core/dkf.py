@@ -117,10 +117,18 @@ def consensus_gamma(M: np.ndarray, degree: int | np.ndarray = 1,
     symmetric positive semi-definite, ``||M||_2`` its largest eigenvalue). One matrix or a stack
     ``(n, 6, 6)`` with one ``degree`` each (then one ``gamma`` per matrix)."""
     M = np.asarray(M, float)
-    g = 1.0 / (1.0 + np.linalg.norm(M, axis=(-2, -1)))
-    step = np.asarray(degree, float) * g * np.linalg.eigvalsh(symmetric(M))[..., -1]
-    g = np.where(step > bound, g * bound / np.where(step > bound, step, 1.0), g)
-    return float(g) if np.ndim(g) == 0 else g
+    one = M.ndim == 2
+    Ms = M[None] if one else M
+    d = np.broadcast_to(np.asarray(degree, float), Ms.shape[:1])
+    frobenius = np.linalg.norm(Ms, axis=(-2, -1))
+    g = 1.0 / (1.0 + frobenius)
+    # ||M||_2 <= ||M||_F: where the Frobenius norm keeps the step within the bound the largest
+    # eigenvalue does too, so the eigenvalues are computed only where they may not
+    check = np.flatnonzero(d * g * frobenius > bound)
+    if len(check):
+        step = d[check] * g[check] * np.linalg.eigvalsh(symmetric(Ms[check]))[:, -1]
+        g[check] = np.where(step > bound, g[check] * bound / step, g[check])
+    return float(g[0]) if one else g
 
 
 def correct(x_bar: np.ndarray, P: np.ndarray, y: np.ndarray, S: np.ndarray,
