@@ -7,7 +7,7 @@ Each call works on ``n`` stacked 4x4 information matrices (a frame's neighbour e
 ``Screen.informations`` checks). Prints, per call, the median wall time over ``calls`` calls
 made back to back ("warm") and over as many calls each made right after ``time.sleep``
 ("after sleep"), and the difference: the cost of a wake-up that lands on whatever runs first.
-On the 2-core virtual machines of the README's tables the difference is 100-150 us for every
+On the 2-core virtual machines of the README's tables the difference is 50-120 us for every
 call alike, so it is not the call's own work (README, "A real cluster").
 """
 import argparse

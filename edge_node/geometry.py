@@ -94,7 +94,7 @@ class Camera:
 
     def image_and_jacobians(self, xy: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """``to_image(xy)`` and ``ground_jacobians`` at those pixels, from the ground points
-        ``(n, 2)`` directly (a third of the arithmetic of mapping there and back): with
+        ``(n, 2)`` directly, without mapping the pixels back to the ground: with
         ``h = G^-1 (g, 1)`` the pixel is ``h_12 / h_3`` (over the pixel scale ``s``), ``G`` maps
         it to ``q = (g, 1) / h_3``, and the Jacobian ``(G_12,12 q_3 - q_12 G_3,12) / q_3^2``
         (:func:`homography_jacobians`, times ``s``) is ``s h_3 (G_12,12 - g G_3,12)``. Equal to

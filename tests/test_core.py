@@ -7,8 +7,8 @@ from edge_node.core.association import Candidate, LocalDataAssociation, Observat
 from edge_node.core.gallery import Gallery
 from edge_node.core.manager import MergeView, find_merges
 from fakes import det, graph as build, identity, make_nodes, step
-from sim_cluster.network.topology import diameter
 from protocol import codec
+from sim_cluster.network.topology import diameter
 
 
 def associate(trackers, obs, cfg):
