@@ -17,7 +17,10 @@ from __future__ import annotations
 
 import statistics
 import time
+from collections.abc import Callable
 from dataclasses import replace
+from functools import partial
+from typing import TypeVar
 
 import numpy as np
 
@@ -31,6 +34,7 @@ from sim_cluster.experiments.run import tracker_config
 
 AREA = 20.0
 CODEC_REPEATS = 20
+T = TypeVar("T")
 
 
 def _camera(cid: int, n: int) -> Camera:
@@ -97,7 +101,21 @@ def codec_costs(msgs: list[FrameMessage], neighbours: int) -> dict:
     return med
 
 
-def bench_targets(targets: int, neighbours: int = 4, frames: int = 60, seed: int = 0) -> dict:
+def warm_frames(frames: int) -> int:
+    """Frames the core benchmark leaves out at the start (births, merges)."""
+    return frames // 3
+
+
+def _direct(k: int, call: Callable[[], T]) -> T:
+    return call()
+
+
+def bench_targets(targets: int, neighbours: int = 4, frames: int = 60, seed: int = 0,
+                  wrap: Callable[[int, Callable[[], T]], T] = _direct, codec_line: bool = True) -> dict:
+    """The core benchmark of ``targets`` targets. ``wrap(k, call)`` runs each node's
+    ``prepare`` and ``update`` of frame ``k`` (``call()``); ``bench/core_instructions.py`` passes
+    one that lets valgrind count the instructions of the measured frames (``k >= frames // 3``)
+    alone. ``codec_line=False`` skips the codec's separate timing (``codec_costs``)."""
     n = neighbours + 1
     cams = [_camera(i, n) for i in range(n)]
     nodes = [CameraNode(c, [j for j in range(n) if j != c.id], TrackerConfig(), "bench")
@@ -106,7 +124,7 @@ def bench_targets(targets: int, neighbours: int = 4, frames: int = 60, seed: int
     rng = np.random.default_rng(seed + 1)
     core_ms, codec_ms, per_tracker, trackers_seen = [], [], [], []
     app_bytes = []
-    warm = frames // 3  # skip start-up (births, merges)
+    warm = warm_frames(frames)
     measured: list[FrameMessage] = []
     for k in range(frames):
         dets = [_detections(c, world[k], app, rng) for c in cams]
@@ -114,7 +132,7 @@ def bench_targets(targets: int, neighbours: int = 4, frames: int = 60, seed: int
         msgs, payloads = [], []
         for node, d in zip(nodes, dets):
             t0 = time.process_time()
-            msgs.append(node.prepare(k, d))
+            msgs.append(wrap(k, partial(node.prepare, k, d)))
             t_core += time.process_time() - t0
         t0 = time.process_time()
         for m in msgs:
@@ -123,7 +141,7 @@ def bench_targets(targets: int, neighbours: int = 4, frames: int = 60, seed: int
         t_codec = time.process_time() - t0
         for node, box in zip(nodes, inbox):
             t0 = time.process_time()
-            node.update(box)
+            wrap(k, partial(node.update, box))
             t_core += time.process_time() - t0
         if k >= warm:
             measured += msgs
@@ -138,7 +156,7 @@ def bench_targets(targets: int, neighbours: int = 4, frames: int = 60, seed: int
                 bare = replace(m, trackers=tuple(replace(t, appearance=None) for t in m.trackers))
                 app_bytes.append((len(p) - len(codec.encode(bare))) / len(with_app))
         trackers_seen.append(statistics.mean(len(nd.trackers) for nd in nodes))
-    codec_cost = codec_costs(measured, neighbours)
+    codec_cost = codec_costs(measured, neighbours) if codec_line else {}
     return {
         "targets": targets,
         "neighbours": neighbours,

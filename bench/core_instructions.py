@@ -1,0 +1,112 @@
+"""Instructions the tracker core executes per node-frame: ``sim_cluster bench``'s workload,
+counted by valgrind instead of timed, so that two versions of the core compare exactly.
+
+    .venv/bin/python bench/core_instructions.py [--targets 20] [--frames 30] [--neighbours 4]
+                                                [--only edge_node.core.screen:Screen.messages]
+
+CPU time on the shared 2-core machines of the README moves by 30 % and more from one run to
+the next (other machines' load), which hides a change of a few per cent however many runs are
+alternated. The number of instructions does not move: the core is deterministic. The script
+runs itself under ``valgrind --tool=callgrind`` (Debian package ``valgrind``; not installed by
+the project, about 90 s for the defaults) with collection switched on only inside
+``functools.reduce``, through which it calls every node's ``prepare`` and ``update`` of the
+measured frames (``bench_targets``' ``wrap``; the same frames its core figure uses). Imports,
+the simulated world, the codec and the frames before the measured ones are not counted.
+
+``--only module:qualname`` counts one function of the core instead (each call inside the
+measured frames, with everything it calls): where the instructions go.
+
+Prints the instructions per node-frame (millions). Instructions are not time (a cache miss
+costs more than an add), but the core's time is spread over hundreds of small numpy calls
+whose cost is their instructions: on this machine 15 M instructions per node-frame at 20
+targets were 3 ms of CPU time.
+"""
+import argparse
+import functools
+import os
+import shutil
+import subprocess
+import sys
+import tempfile
+
+_CHILD = "DMTT_CORE_INSTRUCTIONS_CHILD"
+
+
+def _counted(call):
+    """``call()`` inside ``functools.reduce``: what valgrind counts."""
+    return functools.reduce(lambda _, f: f(), [call], None)
+
+
+def _through_reduce(k: int, call, warm: int):
+    """Run ``call`` counted from frame ``warm`` on."""
+    return call() if k < warm else _counted(call)
+
+
+def _only(target: str, warm: int):
+    """Count calls of ``target`` (``module:qualname``) in the measured frames alone; returns
+    the benchmark's ``wrap``, which tells which frames those are."""
+    import importlib
+    module, _, qualname = target.partition(":")
+    owner = importlib.import_module(module)
+    *path, name = qualname.split(".")
+    for part in path:
+        owner = getattr(owner, part)
+    fn = getattr(owner, name)
+    measuring = [False]
+
+    @functools.wraps(fn)
+    def counted(*a, **kw):
+        return _counted(functools.partial(fn, *a, **kw)) if measuring[0] else fn(*a, **kw)
+
+    setattr(owner, name, counted)
+
+    def wrap(k, call):
+        measuring[0] = k >= warm
+        return call()
+    return wrap
+
+
+def child(args) -> None:
+    """The benchmark's run, under valgrind."""
+    from sim_cluster.experiments.bench import bench_targets, warm_frames
+    warm = warm_frames(args.frames)
+    wrap = _only(args.only, warm) if args.only else functools.partial(_through_reduce, warm=warm)
+    bench_targets(args.targets, args.neighbours, args.frames, codec_line=False, wrap=wrap)
+    print(f"node-frames {(args.frames - warm) * (args.neighbours + 1)}")
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--targets", type=int, default=20)
+    ap.add_argument("--frames", type=int, default=30, help="frames of the run (a third are not counted)")
+    ap.add_argument("--neighbours", type=int, default=4)
+    ap.add_argument("--only", metavar="MODULE:QUALNAME",
+                    help="count this function of the core alone, e.g. edge_node.core.screen:Screen.messages")
+    args = ap.parse_args()
+    if os.environ.get(_CHILD):
+        child(args)
+        return 0
+    valgrind = shutil.which("valgrind")
+    if valgrind is None:
+        print("core_instructions: valgrind not found (Debian: apt-get install valgrind)", file=sys.stderr)
+        return 2
+    with tempfile.TemporaryDirectory() as tmp:
+        env = dict(os.environ, **{_CHILD: "1", "PYTHONHASHSEED": "0", "OPENBLAS_NUM_THREADS": "1"})
+        out = subprocess.run(
+            [valgrind, "--tool=callgrind", "--collect-atstart=no", "--toggle-collect=functools_reduce",
+             f"--callgrind-out-file={tmp}/callgrind.out", sys.executable, __file__, *sys.argv[1:]],
+            env=env, capture_output=True, text=True)
+    if out.returncode != 0:
+        print(out.stdout + out.stderr[-3000:], file=sys.stderr)
+        return 1
+    frames = next(int(line.split()[1]) for line in out.stdout.splitlines() if line.startswith("node-frames"))
+    collected = next(int(line.split()[-1].replace(",", "")) for line in out.stderr.splitlines()
+                     if "Collected" in line)
+    print(f"{args.targets} targets, {args.neighbours} neighbours: "
+          f"{collected / frames / 1e6:.3f} M instructions per node-frame "
+          f"({args.only or 'prepare + update'}, {frames} node-frames)")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,76 @@
+"""``sim_cluster bench``'s hook for counting the core's instructions (``bench_targets``' ``wrap``)
+and ``bench/core_instructions.py``'s wrappers: what valgrind counts is every node's ``prepare``
+and ``update`` of the measured frames, and nothing in the tracking changes for being counted."""
+from __future__ import annotations
+
+import functools
+import importlib.util
+from pathlib import Path
+
+import pytest
+
+from sim_cluster.experiments.bench import bench_targets, warm_frames
+
+SCRIPT = Path(__file__).resolve().parents[1] / "bench" / "core_instructions.py"
+
+
+@pytest.fixture(scope="module")
+def tool():
+    spec = importlib.util.spec_from_file_location("core_instructions", SCRIPT)
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+def _reduce_calls(monkeypatch) -> list[int]:
+    """Count ``functools.reduce`` calls (the region valgrind counts) from here on."""
+    calls = []
+    real = functools.reduce
+
+    def reduce(*a):
+        calls.append(1)
+        return real(*a)
+    monkeypatch.setattr(functools, "reduce", reduce)
+    return calls
+
+
+def test_wrap_runs_every_prepare_and_update_of_every_frame():
+    seen = []
+
+    def wrap(k, call):
+        seen.append((k, call.func.__name__))
+        return call()
+
+    plain = bench_targets(3, neighbours=1, frames=9, codec_line=False)
+    wrapped = bench_targets(3, neighbours=1, frames=9, codec_line=False, wrap=wrap)
+    # two nodes: per frame two prepares, then two updates
+    assert seen == [(k, name) for k in range(9) for name in ("prepare",) * 2 + ("update",) * 2]
+    assert wrapped["trackers_per_node"] == plain["trackers_per_node"] == 3
+    assert not any(key.startswith("codec_") and key != "codec_ms_median" for key in wrapped)
+    assert warm_frames(9) == 3
+
+
+def test_the_tool_counts_the_measured_frames_only(tool, monkeypatch):
+    calls = _reduce_calls(monkeypatch)
+    wrap = functools.partial(tool._through_reduce, warm=warm_frames(9))
+    bench_targets(3, neighbours=1, frames=9, codec_line=False, wrap=wrap)
+    assert len(calls) == (9 - 3) * 2 * 2  # frames 3..8, two nodes, prepare and update
+
+
+def test_only_counts_one_function_in_the_measured_frames(tool, monkeypatch):
+    from edge_node.core.screen import Screen
+    real = Screen.messages
+    runs = []
+
+    def messages(self, msgs, book):
+        runs.append(1)
+        return real(self, msgs, book)
+    monkeypatch.setattr(Screen, "messages", messages)
+    calls = _reduce_calls(monkeypatch)
+    wrap = tool._only("edge_node.core.screen:Screen.messages", warm=warm_frames(9))
+    try:
+        bench_targets(3, neighbours=1, frames=9, codec_line=False, wrap=wrap)
+    finally:
+        monkeypatch.undo()
+    assert len(runs) == 9 * 2  # every update screens its messages once
+    assert len(calls) == (9 - 3) * 2  # counted in the measured frames alone
