@@ -42,6 +42,31 @@ def test_two_cameras_learn_their_relative_offset_and_keep_the_mean_at_zero():
     np.testing.assert_allclose(xs, truth, atol=0.15)
 
 
+def test_the_two_cameras_of_one_node_learn_their_relative_offset():
+    """One node owning two cameras, no neighbours: each camera's residuals are against the
+    node's other camera (its ``u, U`` of the same targets, this frame). Camera 0 believes
+    everything is 0.5 m further along x than camera 1 does; as between two nodes, each ends up
+    corrected by half of it, in opposite directions, and the node holds one tracker per person
+    at the cameras' mean."""
+    from edge_node.core import CameraNode
+
+    offset = 0.5
+    node = CameraNode([topdown_camera(0, (offset, 0.0)), topdown_camera(1)], (), TrackerConfig(), "t")
+    rng = np.random.default_rng(0)
+    for k in range(300):
+        truth = [walk(k, lane) for lane in range(3)]
+        node.prepare(k, {c: [det(x, y, pid=lane, rng=rng) for lane, (x, y) in enumerate(truth)]
+                         for c in (0, 1)})
+        tracks = node.update([])
+    p = np.array([3.0, 3.5])
+    c0, c1 = (node.registrations[c].correction_at(p) for c in (0, 1))
+    np.testing.assert_allclose(c0 - c1, [-offset, 0.0], atol=0.05)
+    np.testing.assert_allclose(c0 + c1, [0.0, 0.0], atol=0.05)
+    assert len(tracks) == 3
+    for t, (x, y) in zip(sorted(tracks, key=lambda t: t.x[1]), sorted(truth, key=lambda p: p[1])):
+        np.testing.assert_allclose(t.x[:2], [x + offset / 2, y], atol=0.1)
+
+
 def test_without_registration_the_offset_stays_between_the_cameras():
     nodes = make_nodes({0: (1,), 1: (0,)}, TrackerConfig(registration=False), offsets={1: (0.8, 0.0)})
     rng = np.random.default_rng(0)

@@ -55,10 +55,10 @@ def mahalanobis_matrix(trackers: Sequence[Candidate], obs: Sequence[Observation]
 
     Vectorised with the closed-form inverse of the 2x2 ``V``.
     """
-    Pxy = np.array([t.P[:2, :2] for t in trackers])[:, None]  # (n, 1, 2, 2)
-    Rxy = np.array([o.R[:2, :2] for o in obs])[None]  # (1, m, 2, 2)
+    Pxy = np.array([t.P for t in trackers])[:, None, :2, :2]  # (n, 1, 2, 2)
+    Rxy = np.array([o.R for o in obs])[None, :, :2, :2]  # (1, m, 2, 2)
     V = Pxy + Rxy
-    e = np.array([o.z[:2] for o in obs])[None] - np.array([t.x_bar[:2] for t in trackers])[:, None]
+    e = np.array([o.z for o in obs])[None, :, :2] - np.array([t.x_bar for t in trackers])[:, None, :2]
     a, b, c, d = V[..., 0, 0], V[..., 0, 1], V[..., 1, 0], V[..., 1, 1]
     det = a * d - b * c
     ex, ey = e[..., 0], e[..., 1]
@@ -139,8 +139,8 @@ def recover(trackers: Sequence[Candidate], obs: Sequence[Observation],
         return []
     sub_t = [trackers[i] for i in rows]
     sub_o = [obs[j] for j in cols]
-    d = np.linalg.norm(np.array([o.z[:2] for o in sub_o])[None]
-                       - np.array([t.x_bar[:2] for t in sub_t])[:, None], axis=2)
+    d = np.linalg.norm(np.array([o.z for o in sub_o])[None, :, :2]
+                       - np.array([t.x_bar for t in sub_t])[:, None, :2], axis=2)
     s_a = appearance_matrix(sub_t, sub_o, np.nan)
     known = ~np.isnan(s_a)
     # appearance known: the GDA's gate and threshold; unknown: the co-motion gate, tighter

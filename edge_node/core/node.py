@@ -475,6 +475,8 @@ class CameraNode:
             np.add.at(u_o, entries.rows[seen], entries.u[seen, :2])
             np.add.at(U_o, entries.rows[seen], entries.U[seen, :2, :2])
             np.add.at(count, entries.rows[seen], 1)
+        # per camera: its raw measurements, the trackers' rows, and this node's other cameras'
+        # information on them (None: the neighbours' alone)
         rows: dict[int, tuple[list, list, list]] = {c: ([], [], []) for c in self.registrations}
         for i, tid in enumerate(entries.ids):
             mine = self.trackers[tid].local.per_camera
@@ -483,23 +485,28 @@ class CameraNode:
                 own = [(u, U) for c, (u, U, _) in sorted(mine.items()) if c != cam_id]
                 if raw is None or not (count[i] or own):
                     continue
-                raws, us, Us = rows[cam_id]
+                raws, idx, others = rows[cam_id]
                 raws.append(raw)
-                us.append(u_o[i] + sum(u[:2] for u, _ in own) if own else u_o[i])
-                Us.append(U_o[i] + sum(U[:2, :2] for _, U in own) if own else U_o[i])
+                idx.append(i)
+                others.append((sum(u[:2] for u, _ in own), sum(U[:2, :2] for _, U in own))
+                              if own else None)
         for cam_id in sorted(self.registrations):
-            raws, us, Us = rows[cam_id]
+            raws, idx, others = rows[cam_id]
             if raws:
-                U_o = np.array(Us)
+                us, Us = u_o[idx], U_o[idx]  # copies: the other cameras' part is added in place
+                for j, other in enumerate(others):
+                    if other is not None:
+                        us[j] += other[0]
+                        Us[j] += other[1]
                 # only where the others measured the ground position in both directions: a
                 # neighbour's U may honestly be PSD with a singular position block (one
                 # direction only), and z_o needs U_o^-1 (a wire-valid entry like that crashed
                 # update before)
-                det = U_o[:, 0, 0] * U_o[:, 1, 1] - U_o[:, 0, 1] * U_o[:, 1, 0]
-                ok = np.flatnonzero(det > 1e-9 * (U_o[:, 0, 0] + U_o[:, 1, 1]) ** 2)
+                det = Us[:, 0, 0] * Us[:, 1, 1] - Us[:, 0, 1] * Us[:, 1, 0]
+                ok = np.flatnonzero(det > 1e-9 * (Us[:, 0, 0] + Us[:, 1, 1]) ** 2)
                 if len(ok):
-                    V_o = np.linalg.inv(U_o[ok])
-                    z_o = (V_o @ np.array(us)[ok][..., None])[..., 0]
+                    V_o = np.linalg.inv(Us[ok])
+                    z_o = (V_o @ us[ok][..., None])[..., 0]
                     self.registrations[cam_id].observe_many([raws[i] for i in ok], z_o, V_o)
             self.registrations[cam_id].end_frame()
 
@@ -674,7 +681,7 @@ class CameraNode:
                 sizes.append(seen[1])
             if not rows:
                 continue
-            xy = np.array([trackers[i].x_hat[:2] for i in rows])
+            xy = np.array([trackers[i].x_hat for i in rows])[:, :2]
             reg = self.registrations.get(cam.id)
             g = xy if reg is None else reg.to_camera_many(xy)
             with np.errstate(invalid="ignore", divide="ignore", over="ignore"):

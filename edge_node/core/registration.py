@@ -178,9 +178,9 @@ class Registration:
         if not used.any():
             return used
         idx = np.flatnonzero(used)
-        z = np.array([ms[i].z[:2] for i in idx])
+        z = np.array([ms[i].z for i in idx])[:, :2]
         A = self.bases(z, np.array([ms[i].away for i in idx]))
-        V = np.array([ms[i].R[:2, :2] for i in idx]) + np.eye(2) * self.noise_var + V_other[idx]
+        V = np.array([ms[i].R for i in idx])[:, :2, :2] + np.eye(2) * self.noise_var + V_other[idx]
         r = z_other[idx] - (z + A @ self.theta)
         S = V + A @ self.Sigma @ A.transpose(0, 2, 1)
         nis = np.einsum("ni,ni->n", r, np.linalg.solve(S, r[..., None])[..., 0])

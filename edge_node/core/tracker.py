@@ -41,7 +41,10 @@ class LocalInfo:
 
     def add(self, camera: int, u: np.ndarray, U: np.ndarray, raw: object = None) -> None:
         """Several cameras of one node add up (eq. 3)."""
-        self.u, self.U = self.u + u, self.U + U
+        if self.u is _NO_u and self.U is _NO_U:  # the first camera: nothing to add it to
+            self.u, self.U = u, U
+        else:
+            self.u, self.U = self.u + u, self.U + U
         self.seen_by.add(camera)
         self.per_camera[camera] = (u, U, raw)
 
