@@ -57,6 +57,27 @@ def test_appearance_matrix_scores_only_the_pairs_asked_for():
     assert np.isclose(A, appearance_matrix(trackers, obs, 7.0), atol=0)[where].all()
 
 
+def test_mahalanobis_matrix_is_each_pairs_distance():
+    """Eq. 5 per pair, checked against ``sqrt(e^T V^-1 e)`` solved here pair by pair, with
+    ``V = P_xy + R_xy`` and ``e`` the ground innovation, on rectangular tables both ways."""
+    from edge_node.core.association import mahalanobis_matrix
+    rng = np.random.default_rng(5)
+
+    def spd(k):
+        A = rng.normal(size=(k, k))
+        return A @ A.T + 0.1 * np.eye(k)
+    for n, m in ((4, 3), (2, 6), (1, 1)):
+        trackers = [Candidate(rng.normal(size=6), spd(6), None) for _ in range(n)]
+        obs = [Observation(rng.normal(size=4), spd(4), None) for _ in range(m)]
+        d = mahalanobis_matrix(trackers, obs)
+        assert d.shape == (n, m)
+        for i, t in enumerate(trackers):
+            for j, o in enumerate(obs):
+                e = o.z[:2] - t.x_bar[:2]
+                V = t.P[:2, :2] + o.R[:2, :2]
+                assert d[i, j] == pytest.approx(np.sqrt(e @ np.linalg.solve(V, e)), rel=1e-12)
+
+
 def test_lda_gate_rejects_far_pairs():
     P = np.eye(6) * 0.01
     R = np.eye(4) * 0.01

@@ -53,15 +53,17 @@ class Observation:
 def mahalanobis_matrix(trackers: Sequence[Candidate], obs: Sequence[Observation]) -> np.ndarray:
     """Eq. 5 for every pair: ``d_ij`` with ``V = P_xy + R_xy``; shape ``(n_trackers, n_obs)``.
 
-    Vectorised with the closed-form inverse of the 2x2 ``V``.
+    Vectorised with the closed-form inverse of the 2x2 ``V``, each of its four entries (and of
+    the innovation's two) an ``(n_trackers, n_obs)`` table from a column of trackers plus a row
+    of measurements (contiguous: a tenth of the work of broadcasting ``(n, m, 2, 2)`` stacks).
     """
-    Pxy = np.array([t.P for t in trackers])[:, None, :2, :2]  # (n, 1, 2, 2)
-    Rxy = np.array([o.R for o in obs])[None, :, :2, :2]  # (1, m, 2, 2)
-    V = Pxy + Rxy
-    e = np.array([o.z for o in obs])[None, :, :2] - np.array([t.x_bar for t in trackers])[:, None, :2]
-    a, b, c, d = V[..., 0, 0], V[..., 0, 1], V[..., 1, 0], V[..., 1, 1]
+    P = np.array([t.P for t in trackers])[:, :2, :2].reshape(-1, 4).T[:, :, None]  # 4 x (n, 1)
+    R = np.array([o.R for o in obs])[:, :2, :2].reshape(-1, 4).T[:, None, :]  # 4 x (1, m)
+    x = np.array([t.x_bar for t in trackers])[:, :2].T[:, :, None]  # 2 x (n, 1)
+    z = np.array([o.z for o in obs])[:, :2].T[:, None, :]  # 2 x (1, m)
+    a, b, c, d = P[0] + R[0], P[1] + R[1], P[2] + R[2], P[3] + R[3]  # V = P_xy + R_xy
     det = a * d - b * c
-    ex, ey = e[..., 0], e[..., 1]
+    ex, ey = z[0] - x[0], z[1] - x[1]
     q = (d * ex * ex - (b + c) * ex * ey + a * ey * ey) / det  # e^T V^-1 e
     return np.sqrt(np.maximum(q, 0.0))
 

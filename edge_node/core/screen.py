@@ -71,6 +71,8 @@ FLOAT_TOL = 1e-6  # float32 rounding on the wire: negative eigenvalues of U and 
 # in unmeasured directions up to this fraction are rounding, not a fault
 INFO_GATE = 1e4  # squared standard deviations a measurement may lie off the plausible world
 MIN_SIGMA_M = 0.01  # m: no camera measures a foot point better than 1 cm
+# the flat places of U's rows and columns 4-5 (velocity): a measurement has nothing there
+_VELOCITY = np.flatnonzero((np.arange(6)[:, None] >= 4) | (np.arange(6)[None, :] >= 4))
 
 BIRTH_REASONS = ("future_birth", "born_moved", "implausible_birth")
 REASONS = ("bad_information", "implausible_information", "implausible_state", "implausible_ell",
@@ -199,9 +201,13 @@ class Screen:
         n = len(u)
         if not n:
             return []
-        asym = np.any(np.abs(U - U.transpose(0, 2, 1)) > 1e-6 * np.abs(U), axis=(1, 2))
-        vel = np.any(U[:, 4:], axis=(1, 2)) | np.any(U[:, :, 4:], axis=(1, 2)) | np.any(u[:, 4:], axis=1)
-        zero = ~np.any(U, axis=(1, 2))
+        flat = U.reshape(n, 36)
+        vel = flat[:, _VELOCITY].any(axis=1) | u[:, 4:].any(axis=1)
+        # symmetry of the measured block: outside it an entry without ``vel`` is zero (and
+        # symmetric), and one with ``vel`` is bad anyway
+        B = U[:, :4, :4]
+        asym = (np.abs(B - B.transpose(0, 2, 1)) > 1e-6 * np.abs(B)).reshape(n, 16).any(axis=1)
+        zero = ~flat.any(axis=1)
         bad = asym | vel | (zero & np.any(u, axis=1))
         implausible = np.zeros(n, bool)
         todo = np.flatnonzero(~(asym | vel | zero))
