@@ -583,3 +583,16 @@ def test_simultaneous_means_before_news_of_the_other():
     cfg = TrackerConfig()
     assert find_merges([late, MergeView((0, 0), np.array([0.8, 0.0]), g, False, frozenset(),
                                         since=8)], {}, cfg) == [((1, 0), (0, 0))]
+
+
+def test_a_track_built_by_the_core_is_a_track():
+    """``Track._built`` (what ``update`` returns) sets every field a ``Track`` has, as the
+    dataclass does, and stays frozen."""
+    import dataclasses
+    from edge_node.core.types import Track
+    args = ((1, 2), 7, np.arange(6.0), np.eye(6), True, 3, {1: np.ones(4)})
+    built, made = Track._built(*args), Track(*args)
+    assert [f.name for f in dataclasses.fields(Track)] == list(vars(built))
+    assert all(getattr(built, f.name) is getattr(made, f.name) for f in dataclasses.fields(Track))
+    with pytest.raises(dataclasses.FrozenInstanceError):
+        built.ell = 4

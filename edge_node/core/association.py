@@ -30,19 +30,22 @@ def _hungarian(cost: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     from scipy.optimize import linear_sum_assignment
     return linear_sum_assignment(cost)
 
-@dataclass(frozen=True)
+@dataclass(eq=False, slots=True)
 class Candidate:
-    """What the associator needs of one tracker: prediction, prior covariance, gallery."""
+    """What the associator needs of one tracker: prediction, prior covariance, gallery (a
+    per-frame value, read only; not a frozen dataclass, whose checked ``__setattr__`` doubles
+    the cost of building one per tracker and frame)."""
 
     x_bar: np.ndarray
     P: np.ndarray
     gallery: Gallery | None
 
 
-@dataclass(frozen=True)
+@dataclass(eq=False, slots=True)
 class Observation:
     """What the associator needs of one measurement: ``z``, ``R`` and the descriptor; ``raw``
-    is the camera's own measurement before any registration correction."""
+    is the camera's own measurement before any registration correction (read only, not frozen:
+    see ``Candidate``)."""
 
     z: np.ndarray
     R: np.ndarray

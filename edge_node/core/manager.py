@@ -42,9 +42,10 @@ def ell_consensus(own: int, received: Iterable[int]) -> int:
     return min([own, *received])
 
 
-@dataclass(frozen=True)
+@dataclass(eq=False, slots=True)
 class MergeView:
-    """What the global association needs of one tracker on this node."""
+    """What the global association needs of one tracker on this node (read only, not frozen:
+    see ``association.Candidate``)."""
 
     id: TrackerId
     xy: np.ndarray

@@ -18,9 +18,10 @@ from edge_node.core.config import TrackerConfig
 from edge_node.geometry import Camera
 
 
-@dataclass(frozen=True, eq=False)
+@dataclass(eq=False, slots=True)
 class BoxMeasurement:
-    """One box as its camera measures it, before any registration correction.
+    """One box as its camera measures it, before any registration correction (read only, not
+    frozen: see ``association.Candidate``).
 
     ``z`` the cylinder ``(x, y, w, h)`` through the camera's homography; ``R`` its covariance from
     the pixel noise alone; ``foot`` the box's bottom centre (px); ``away`` the unit ground

@@ -641,7 +641,7 @@ class CameraNode:
         boxes = self.views(shown)
         x_hat = np.array([t.x_hat for t in shown])  # copies, stacked once
         M = np.array([t.M for t in shown])
-        return [Track(t.id, self._frame, x, M_i, bool(t.local.seen_by), t.ell, b)
+        return [Track._built(t.id, self._frame, x, M_i, bool(t.local.seen_by), t.ell, b)
                 for t, x, M_i, b in zip(shown, x_hat, M, boxes)]
 
     def _saw(self, tr: Tracker, cam_id: int, k: int, obs: Observation) -> None:

@@ -40,3 +40,12 @@ class Track:
     observed: bool
     ell: int
     boxes: dict[int, np.ndarray] | None = None
+
+    @classmethod
+    def _built(cls, id: TrackerId, frame: int, x: np.ndarray, P: np.ndarray, observed: bool,
+               ell: int, boxes: dict[int, np.ndarray] | None) -> "Track":
+        """``Track(...)`` with every field given, without the frozen dataclass's checked
+        ``__setattr__`` per field (the core builds one per tracker a frame; half the cost)."""
+        t = object.__new__(cls)
+        t.__dict__.update(id=id, frame=frame, x=x, P=P, observed=observed, ell=ell, boxes=boxes)
+        return t
