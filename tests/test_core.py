@@ -596,3 +596,18 @@ def test_a_track_built_by_the_core_is_a_track():
     assert all(getattr(built, f.name) is getattr(made, f.name) for f in dataclasses.fields(Track))
     with pytest.raises(dataclasses.FrozenInstanceError):
         built.ell = 4
+
+
+def test_norms_are_numpys_norms_bit_for_bit():
+    """``geometry.norms`` (the core's norms, without ``numpy.linalg.norm``'s dispatch) gives
+    the same bits as ``numpy.linalg.norm`` on vectors, stacks, pairs of axes and strided views."""
+    from edge_node.geometry import norms
+    rng = np.random.default_rng(11)
+    J = rng.normal(size=(9, 2, 2))
+    for x, axis, keep in ((rng.normal(size=(20, 2)) * 1e3, -1, False),
+                          (rng.normal(size=(30, 512)), 1, True),
+                          (rng.normal(size=(5, 4, 2)) * 1e-3, 2, False),
+                          (rng.normal(size=(7, 6, 6)), (-2, -1), False),
+                          (J[..., :, 0], -1, False)):
+        assert np.array_equal(norms(x, axis=axis, keepdims=keep),
+                              np.linalg.norm(x, axis=axis, keepdims=keep))

@@ -18,6 +18,7 @@ import numpy as np
 
 from edge_node.core.config import TrackerConfig
 from edge_node.core.gallery import Gallery
+from edge_node.geometry import norms
 
 FORBIDDEN = 1e9
 
@@ -83,7 +84,7 @@ def appearance_matrix(trackers: Sequence[Candidate], obs: Sequence[Observation],
         return A
     Q = np.zeros((len(obs), len(next(o.descriptor for o in obs if o.descriptor is not None))))
     Q[has] = np.array([o.descriptor for o in obs if o.descriptor is not None])
-    Q /= np.maximum(np.linalg.norm(Q, axis=1, keepdims=True), 1e-12)
+    Q /= np.maximum(norms(Q, axis=1, keepdims=True), 1e-12)
     pairs = np.broadcast_to(has, A.shape) if where is None else where & has
     rows, cols = np.nonzero(pairs)  # row-major: each tracker's columns together, in order
     if not len(rows):
@@ -144,7 +145,7 @@ def recover(trackers: Sequence[Candidate], obs: Sequence[Observation],
         return []
     sub_t = [trackers[i] for i in rows]
     sub_o = [obs[j] for j in cols]
-    d = np.linalg.norm(np.array([o.z for o in sub_o])[None, :, :2]
+    d = norms(np.array([o.z for o in sub_o])[None, :, :2]
                        - np.array([t.x_bar for t in sub_t])[:, None, :2], axis=2)
     s_a = appearance_matrix(sub_t, sub_o, np.nan)
     known = ~np.isnan(s_a)

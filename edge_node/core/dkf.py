@@ -49,6 +49,7 @@ from collections.abc import Iterable
 import numpy as np
 
 from edge_node.core.model import MEAS_DIM, STATE_DIM
+from edge_node.geometry import norms
 
 # c of the stability condition ``degree ||gamma M||_2 <= c`` (module docstring); the default of
 # ``TrackerConfig.consensus_bound``
@@ -120,7 +121,7 @@ def consensus_gamma(M: np.ndarray, degree: int | np.ndarray = 1,
     one = M.ndim == 2
     Ms = M[None] if one else M
     d = np.broadcast_to(np.asarray(degree, float), Ms.shape[:1])
-    frobenius = np.linalg.norm(Ms, axis=(-2, -1))
+    frobenius = norms(Ms, axis=(-2, -1))
     g = 1.0 / (1.0 + frobenius)
     # ||M||_2 <= ||M||_F: where the Frobenius norm keeps the step within the bound the largest
     # eigenvalue does too, so the eigenvalues are computed only where they may not

@@ -23,6 +23,7 @@ import numpy as np
 from edge_node.core.config import TrackerConfig
 from edge_node.core.gallery import Gallery
 from edge_node.core.identity import rank
+from edge_node.geometry import norms
 from protocol.messages import TrackerId
 
 
@@ -157,7 +158,7 @@ def find_merges(views: Sequence[MergeView], streaks: dict[tuple[TrackerId, Track
     ordered = sorted(views, key=lambda v: v.id)
     if len(ordered) > 1:
         xy = np.array([v.xy for v in ordered])
-        near = np.linalg.norm(xy[:, None] - xy[None], axis=2) < merge_reach(cfg)
+        near = norms(xy[:, None] - xy[None], axis=2) < merge_reach(cfg)
         rows, cols = np.nonzero(np.triu(near, 1))  # only nearby pairs are scored in full
         for i, j in zip(rows.tolist(), cols.tolist()):
             a, b = ordered[i], ordered[j]

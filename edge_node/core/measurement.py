@@ -15,7 +15,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from edge_node.core.config import TrackerConfig
-from edge_node.geometry import Camera
+from edge_node.geometry import Camera, norms
 
 
 @dataclass(eq=False, slots=True)
@@ -40,7 +40,7 @@ class BoxMeasurement:
 def pixels_per_unit(J: np.ndarray) -> np.ndarray | float:
     """Pixels per ground unit along the image's horizontal axis (``J``: ground per pixel, one
     ``(2, 2)`` or a stack ``(n, 2, 2)``)."""
-    out = 1.0 / np.maximum(np.linalg.norm(J[..., :, 0], axis=-1), 1e-12)
+    out = 1.0 / np.maximum(norms(J[..., :, 0]), 1e-12)
     return float(out) if np.ndim(out) == 0 else out
 
 
@@ -48,7 +48,7 @@ def away_direction(J: np.ndarray) -> np.ndarray:
     """Unit ground direction of moving up the image at a point with ground Jacobian ``J``
     (one ``(2, 2)`` or a stack ``(n, 2, 2)``)."""
     d = -J[..., :, 1]
-    return d / np.maximum(np.linalg.norm(d, axis=-1), 1e-12)[..., None]
+    return d / np.maximum(norms(d), 1e-12)[..., None]
 
 
 def box_measurement(camera: Camera, box: np.ndarray, cfg: TrackerConfig) -> BoxMeasurement:

@@ -63,7 +63,7 @@ import numpy as np
 
 from edge_node.core.config import TrackerConfig
 from edge_node.core.identity import IdentityBook
-from edge_node.geometry import Camera
+from edge_node.geometry import Camera, norms
 from protocol.messages import FrameMessage, Merge, TrackerId
 
 RANK_TOL = 1e-9  # eigenvalues of U below this fraction of the largest count as unmeasured
@@ -219,7 +219,7 @@ class Screen:
             not_psd = ev[:, 0] < -FLOAT_TOL * top[:, 0]
             huge = top[:, 0] > self.max_info
             seen = ev > RANK_TOL * top  # the directions U measures
-            norm_w = np.linalg.norm(w, axis=1, keepdims=True)
+            norm_w = norms(w, axis=1, keepdims=True)
             off_range = np.any(~seen & (np.abs(w) > FLOAT_TOL * norm_w), axis=1)  # u = U z for no z
             with np.errstate(all="ignore"):
                 z = np.einsum("nij,nj->ni", V, np.where(seen, w / np.where(seen, ev, 1.0), 0.0))
@@ -293,7 +293,7 @@ class Screen:
         c = np.array(z, float)
         c[:, 2:4] = np.clip(c[:, 2:4], 0.0, self.max_size)
         if len(self.anchors):
-            d = np.linalg.norm(c[:, None, :2] - self.anchors[None], axis=2)  # (n, anchors)
+            d = norms(c[:, None, :2] - self.anchors[None], axis=2)  # (n, anchors)
             i = np.argmin(d, axis=1)
             a, di = self.anchors[i], d[np.arange(len(c)), i]
             out = di > self.radius
@@ -304,7 +304,7 @@ class Screen:
         """Whether each ground point of ``xy (n, 2)`` lies within ``world_radius`` of a camera."""
         if not len(self.anchors):
             return np.ones(len(xy), bool)
-        d = np.linalg.norm(xy[:, None] - self.anchors[None], axis=2)
+        d = norms(xy[:, None] - self.anchors[None], axis=2)
         return np.min(d, axis=1) <= self.radius
 
     @staticmethod
