@@ -146,7 +146,7 @@ def recover(trackers: Sequence[Candidate], obs: Sequence[Observation],
     sub_t = [trackers[i] for i in rows]
     sub_o = [obs[j] for j in cols]
     d = norms(np.array([o.z for o in sub_o])[None, :, :2]
-                       - np.array([t.x_bar for t in sub_t])[:, None, :2], axis=2)
+              - np.array([t.x_bar for t in sub_t])[:, None, :2], axis=2)
     s_a = appearance_matrix(sub_t, sub_o, np.nan)
     known = ~np.isnan(s_a)
     # appearance known: the GDA's gate and threshold; unknown: the co-motion gate, tighter
