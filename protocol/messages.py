@@ -134,7 +134,8 @@ class TrackerBlock:
     def _trusted(cls, camera: np.ndarray, counter: np.ndarray, born: np.ndarray, ell: np.ndarray,
                  x_bar: np.ndarray, u: np.ndarray, U: np.ndarray,
                  appearance: tuple[tuple[int, np.ndarray], ...]) -> TrackerBlock:
-        """A block of arrays that already hold every invariant (the codec's decoder): no checks."""
+        """A block of arrays that already hold every invariant (the codec's decoder, the core's
+        own message): no checks."""
         b = object.__new__(cls)
         b.__dict__.update(camera=camera, counter=counter, born=born, ell=ell, x_bar=x_bar, u=u, U=U,
                           appearance=appearance)

@@ -611,3 +611,30 @@ def test_norms_are_numpys_norms_bit_for_bit():
                           (J[..., :, 0], -1, False)):
         assert np.array_equal(norms(x, axis=axis, keepdims=keep),
                               np.linalg.norm(x, axis=axis, keepdims=keep))
+
+
+def test_the_core_s_own_message_block_is_what_the_checked_constructor_makes():
+    """``prepare`` builds its message's block without the checked constructor: the same
+    columns, dtypes and read-only arrays as ``TrackerBlock(...)`` would make of them, the new
+    trackers' appearance included, and no array shared with a tracker's state."""
+    from protocol.messages import TrackerBlock
+    nodes = make_nodes(build("chain", 2))
+    with_appearance, sizes = 0, []
+    for k in range(6):
+        dets = [det(2.0 + k * 0.04, 3.0, 1), det(6.0, 5.0 - k * 0.04, 2)]
+        msgs = {i: n.prepare(k, dets) for i, n in nodes.items()}
+        b = msgs[0].block
+        sizes.append(len(b))
+        checked = TrackerBlock(b.camera, b.counter, b.born, b.ell, b.x_bar, b.u, b.U, b.appearance)
+        for name in ("camera", "counter", "born", "ell", "x_bar", "u", "U"):
+            got, want = getattr(b, name), getattr(checked, name)
+            assert got.dtype == want.dtype and got.shape == want.shape and np.array_equal(got, want)
+            assert not got.flags.writeable
+        assert [r for r, _ in b.appearance] == [r for r, _ in checked.appearance]
+        assert all(not a.flags.writeable and a.dtype == np.float64 for _, a in b.appearance)
+        with_appearance += bool(b.appearance)
+        assert not any(np.shares_memory(b.x_bar, t.local.x_bar_sent) or np.shares_memory(b.U, t.local.U)
+                       for t in nodes[0]._message_rows)
+        for n in nodes.values():
+            n.update([codec.decode(codec.encode(msgs[j])) for j in n.neighbours])
+    assert sizes[-1] == 2 and with_appearance == 1  # two trackers, announced once, at birth
