@@ -290,11 +290,13 @@ class CameraNode:
         if trs:
             # fresh arrays of the block's dtypes and shapes, made read-only: what the checked
             # constructor would copy them into (``encode`` checks the wire's value rules)
-            cols = (np.array([tr.id[0] for tr in trs], np.int64), np.array([tr.id[1] for tr in trs], np.int64),
+            cols = (np.array([tr.id[0] for tr in trs], np.int64),
+                    np.array([tr.id[1] for tr in trs], np.int64),
                     np.array([tr.born for tr in trs], np.int64),
                     np.array([tr.local.ell_sent for tr in trs], np.int64),
                     np.array([tr.local.x_bar_sent for tr in trs], float),
-                    np.array([tr.local.u for tr in trs], float), np.array([tr.local.U for tr in trs], float))
+                    np.array([tr.local.u for tr in trs], float),
+                    np.array([tr.local.U for tr in trs], float))
             for a in (*cols, *(d for _, d in apps)):
                 a.setflags(write=False)
             block = TrackerBlock._trusted(*cols, tuple(apps))
