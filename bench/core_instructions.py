@@ -8,7 +8,7 @@ CPU time on the shared 2-core machines of the README moves by 30 % and more from
 the next (other machines' load), which hides a change of a few per cent however many runs are
 alternated. The number of instructions does not move: the core is deterministic. The script
 runs itself under ``valgrind --tool=callgrind`` (Debian package ``valgrind``; not installed by
-the project, about 90 s for the defaults) with collection switched on only inside
+the project; about two minutes for the defaults) with collection switched on only inside
 ``functools.reduce``, through which it calls every node's ``prepare`` and ``update`` of the
 measured frames (``bench_targets``' ``wrap``; the same frames its core figure uses). Imports,
 the simulated world, the codec and the frames before the measured ones are not counted.
@@ -23,6 +23,7 @@ targets were 3 ms of CPU time.
 """
 import argparse
 import functools
+import importlib
 import os
 import shutil
 import subprocess
@@ -45,7 +46,6 @@ def _through_reduce(k: int, call, warm: int):
 def _only(target: str, warm: int):
     """Count calls of ``target`` (``module:qualname``) in the measured frames alone; returns
     the benchmark's ``wrap``, which tells which frames those are."""
-    import importlib
     module, _, qualname = target.partition(":")
     owner = importlib.import_module(module)
     *path, name = qualname.split(".")
