@@ -14,7 +14,10 @@ measured frames (``bench_targets``' ``wrap``; the same frames its core figure us
 the simulated world, the codec and the frames before the measured ones are not counted.
 
 ``--only module:qualname`` counts one function of the core instead (each call inside the
-measured frames, with everything it calls): where the instructions go.
+measured frames, with everything it calls): where the instructions go. ``--codec`` counts the
+codec instead: every node's message of the measured frames encoded once (from its block, as a
+node sends it) and decoded once per neighbour, the node-frame of ``sim_cluster bench``'s codec
+line (1 encode + 4 decodes).
 
 Prints the instructions per node-frame (millions). Instructions are not time (a cache miss
 costs more than an add), but the core's time is spread over hundreds of small numpy calls
@@ -66,12 +69,34 @@ def _only(target: str, warm: int):
     return wrap
 
 
+def _codec(args, warm: int) -> None:
+    """The benchmark's run uncounted, then its measured frames' messages through the codec,
+    counted: one encode per message and one decode per neighbour."""
+    from protocol import FrameMessage, codec
+    from sim_cluster.experiments.bench import bench_targets
+    sent: list[FrameMessage] = []
+
+    def keep(k, call):
+        out = call()
+        if k >= warm and isinstance(out, FrameMessage):
+            sent.append(out)
+        return out
+    bench_targets(args.targets, args.neighbours, args.frames, codec_line=False, wrap=keep)
+    for m in sent:
+        payload = _counted(functools.partial(codec.encode, m))
+        for _ in range(args.neighbours):
+            _counted(functools.partial(codec.decode, payload))
+
+
 def child(args) -> None:
     """The benchmark's run, under valgrind."""
     from sim_cluster.experiments.bench import bench_targets, warm_frames
     warm = warm_frames(args.frames)
-    wrap = _only(args.only, warm) if args.only else functools.partial(_through_reduce, warm=warm)
-    bench_targets(args.targets, args.neighbours, args.frames, codec_line=False, wrap=wrap)
+    if args.codec:
+        _codec(args, warm)
+    else:
+        wrap = _only(args.only, warm) if args.only else functools.partial(_through_reduce, warm=warm)
+        bench_targets(args.targets, args.neighbours, args.frames, codec_line=False, wrap=wrap)
     print(f"node-frames {(args.frames - warm) * (args.neighbours + 1)}")
 
 
@@ -82,7 +107,11 @@ def main() -> int:
     ap.add_argument("--neighbours", type=int, default=4)
     ap.add_argument("--only", metavar="MODULE:QUALNAME",
                     help="count this function of the core alone, e.g. edge_node.core.screen:Screen.messages")
+    ap.add_argument("--codec", action="store_true",
+                    help="count the codec instead: 1 encode + one decode per neighbour per node-frame")
     args = ap.parse_args()
+    if args.codec and args.only:
+        ap.error("--codec counts the codec; --only counts one function of the core")
     if os.environ.get(_CHILD):
         child(args)
         return 0
@@ -104,7 +133,8 @@ def main() -> int:
                      if "Collected" in line)
     print(f"{args.targets} targets, {args.neighbours} neighbours: "
           f"{collected / frames / 1e6:.3f} M instructions per node-frame "
-          f"({args.only or 'prepare + update'}, {frames} node-frames)")
+          f"({'codec: 1 encode + ' + str(args.neighbours) + ' decodes' if args.codec else args.only or 'prepare + update'}, "
+          f"{frames} node-frames)")
     return 0
 
 

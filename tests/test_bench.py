@@ -1,8 +1,10 @@
 """``sim_cluster bench``'s hook for counting the core's instructions (``bench_targets``' ``wrap``)
 and ``bench/core_instructions.py``'s wrappers: what valgrind counts is every node's ``prepare``
-and ``update`` of the measured frames, and nothing in the tracking changes for being counted."""
+and ``update`` of the measured frames (or, with ``--codec``, their messages' encodes and
+decodes), and nothing in the tracking changes for being counted."""
 from __future__ import annotations
 
+import argparse
 import functools
 import importlib.util
 from pathlib import Path
@@ -74,3 +76,41 @@ def test_only_counts_one_function_in_the_measured_frames(tool, monkeypatch):
         monkeypatch.undo()
     assert len(runs) == 9 * 2  # every update screens its messages once
     assert len(calls) == (9 - 3) * 2  # counted in the measured frames alone
+
+
+def test_codec_counts_one_encode_and_a_decode_per_neighbour(tool, monkeypatch):
+    """``--codec``: every node's message of the measured frames is encoded once and decoded
+    once per neighbour inside the counted region, and nothing else is counted."""
+    from protocol import codec
+    real_encode, real_decode = codec.encode, codec.decode
+    counted: list[str] = []
+    inside = [False]
+    real_reduce = functools.reduce
+
+    def reduce(*a):
+        inside[0] = True
+        try:
+            return real_reduce(*a)
+        finally:
+            inside[0] = False
+    monkeypatch.setattr(functools, "reduce", reduce)
+
+    def encode(m, **kw):
+        counted.append("encode" if inside[0] else "uncounted encode")
+        return real_encode(m, **kw)
+
+    def decode(b, **kw):
+        counted.append("decode" if inside[0] else "uncounted decode")
+        return real_decode(b, **kw)
+    monkeypatch.setattr(codec, "encode", encode)
+    monkeypatch.setattr(codec, "decode", decode)
+    args = argparse.Namespace(targets=3, neighbours=2, frames=9, codec=True, only=None)
+    try:
+        tool._codec(args, warm=warm_frames(9))
+    finally:
+        monkeypatch.undo()
+    measured = (9 - warm_frames(9)) * 3  # node-frames of the measured frames
+    assert counted.count("encode") == measured
+    assert counted.count("decode") == 2 * measured
+    # the benchmark's own run before it counts nothing
+    assert counted.count("uncounted encode") > 0 and "uncounted decode" in counted
