@@ -99,7 +99,10 @@ _N = STATE_DIM
 _Z = 4  # the measured part of the state, (x, y, w, h): rows and columns of U that can be non-zero
 _TRIL = np.tril_indices(_Z)  # a Cholesky factor's lower triangle, row-major: 10 numbers
 _N_TRIL = len(_TRIL[0])
+_TRIL_FLAT = _TRIL[0] * _Z + _TRIL[1]  # its places in the flattened 4 x 4 factor
 _DIAG = np.array([i * (i + 1) // 2 + i for i in range(_Z)])  # the diagonal's places in it
+# each element of a 4 x 4 factor, row-major: its place in the triangle, or _N_TRIL (a zero)
+_SQUARE = np.array([i * (i + 1) // 2 + k if k <= i else _N_TRIL for i in range(_Z) for k in range(_Z)])
 _N_INFO = _N_TRIL + _Z  # float16 numbers of a measured row: tril(L / s), then w
 _F32 = np.dtype("<f4")
 _F16 = np.dtype("<f2")
@@ -191,33 +194,36 @@ class _Wire:
 
 
 def _factor(scale: np.ndarray, tril: np.ndarray) -> np.ndarray:
-    """``L = s * tril`` as (m, 4, 4) float64 lower-triangular matrices (products exact)."""
-    L = np.zeros((len(scale), _Z, _Z))
-    L[:, _TRIL[0], _TRIL[1]] = tril * scale.astype(np.float64)[:, None]
-    return L
+    """``L = s * tril`` as (m, 4, 4) float64 lower-triangular matrices (products exact: 11 by
+    24 significant bits), ``tril`` given as float64: the products in a row with a zero after
+    them, read out in the matrix's order."""
+    t = np.zeros((len(scale), _N_TRIL + 1))
+    np.multiply(tril, scale.astype(np.float64)[:, None], out=t[:, :_N_TRIL])
+    return t.take(_SQUARE, axis=1).reshape(-1, _Z, _Z)
 
 
-def _information(w: _Wire) -> tuple[np.ndarray, np.ndarray]:
-    """Eq. 2's ``u, U`` (n, 6) and (n, 6, 6) from the wire: ``U = L L^T`` and
-    ``u = U z = L (L^T H x_bar + w)`` (from ``z = H x_bar + L^-T w``); zero for unmeasured rows.
-    ``einsum`` sums in a fixed order (``U`` exactly symmetric; the same bytes give the same
-    numbers)."""
+def _information(w: _Wire, x_bar: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Eq. 2's ``u, U`` (n, 6) and (n, 6, 6) from the wire (``x_bar`` its float64 values):
+    ``U = L L^T`` and ``u = U z = L (L^T H x_bar + w)`` (from ``z = H x_bar + L^-T w``); zero
+    for unmeasured rows. ``L @ L^T`` of one array with its own transpose is BLAS's ``syrk`` in
+    NumPy's matmul, which computes one triangle and copies it: ``U`` is exactly symmetric."""
     n, m = len(w.measured), len(w.scale)
     u, U = np.zeros((n, _N)), np.zeros((n, _N, _N))
     if m:
-        L = _factor(w.scale, w.info[:, :_N_TRIL])
-        U4 = np.einsum("nik,njk->nij", L, L)
+        info = w.info.astype(np.float64)
+        L = _factor(w.scale, info[:, :_N_TRIL])
         rows = slice(None) if m == n else np.flatnonzero(w.measured)
-        x = w.x_bar[rows, :_Z].astype(np.float64)
-        U[rows, :_Z, :_Z] = U4
-        u[rows, :_Z] = np.einsum("nij,nj->ni", L, np.einsum("nji,nj->ni", L, x) + w.info[:, _N_TRIL:])
+        U[rows, :_Z, :_Z] = L @ L.transpose(0, 2, 1)
+        v = (x_bar[rows, None, :_Z] @ L)[:, 0]  # (L^T H x_bar)^T
+        v += info[:, _N_TRIL:]
+        u[rows, :_Z] = (L @ v[:, :, None])[:, :, 0]
     return u, U
 
 
 def _assemble(w: _Wire) -> TrackerBlock:
     """The block a peer reads from wire values ``w`` (read-only float64), keeping ``w``."""
-    u, U = _information(w)
     x_bar = w.x_bar.astype(np.float64)
+    u, U = _information(w, x_bar)
     for a in (w.ints, x_bar, u, U):
         a.setflags(write=False)
     apps = tuple((row, _readonly(q.astype(np.float64) * s.astype(np.float64)[:, None]))
@@ -353,18 +359,19 @@ def _measurement_wire(u: np.ndarray, U: np.ndarray, x_bar: np.ndarray, ids: np.n
     except np.linalg.LinAlgError:
         bad = next(i for i in range(m) if not _positive_definite(U4[i]))
         raise err("malformed", f"U of {_row_id(ids, bad)} is not positive definite on (x, y, w, h)") from None
-    peak = np.diagonal(L, axis1=1, axis2=2).max(axis=1)
+    flat = L.reshape(m, _Z * _Z)
+    peak = flat[:, :: _Z + 1].max(axis=1)  # the diagonal
     if not peak.max() <= _F32_MAX:
         raise err("non_finite", f"U of {_row_id(ids, _first(~(peak <= _F32_MAX)))} overflows float32")
     scale = peak.astype(_F32)
     if not scale.min() > 0:
         raise err("malformed", f"U of {_row_id(ids, _first(~(scale > 0)))} is below float32's range")
-    tril = (L / scale.astype(np.float64)[:, None, None])[:, _TRIL[0], _TRIL[1]].astype(_F16)  # <= 1
-    if not tril[:, _DIAG].min() > 0:
+    tril = (flat.take(_TRIL_FLAT, axis=1) / scale.astype(np.float64)[:, None]).astype(_F16)  # <= 1
+    if not tril.take(_DIAG, axis=1).min() > 0:
         bad = _first(~(tril[:, _DIAG] > 0))
         raise err("malformed", f"U of {_row_id(ids, bad)} is too ill-conditioned for float16 factors")
     z = np.linalg.solve(U4, u[:, :_Z, None])[..., 0]
-    w = np.einsum("nji,nj->ni", _factor(scale, tril), z - x_bar[:, :_Z])
+    w = ((z - x_bar[:, :_Z])[:, None, :] @ _factor(scale, tril.astype(np.float64)))[:, 0]  # L~^T (z - H x_bar)
     if not np.abs(w).max() < _F16_LIMIT:  # beyond it float16 rounds to inf (NaN fails too)
         raise err("non_finite", f"the innovation of {_row_id(ids, _first(~(np.abs(w) < _F16_LIMIT)))} is "
                                 "beyond float16 (65504 standard deviations)")
@@ -556,25 +563,21 @@ def _decode_block(blob: Any, n: int, widths: Any, apps: list[tuple[int, int, int
     maxes = ints.max(axis=1).tolist()
     if sum(_width_code(v) << (2 * k) for k, v in enumerate(maxes)) != widths:
         raise err("malformed", f"widths {widths:#04x} are not the narrowest for {maxes}")
-    x_bar = np.frombuffer(blob, _F32, _N * n, at).reshape(n, _N)
-    at += 4 * _N * n
-    scale = np.frombuffer(blob, _F32, m, at)
-    at += 4 * m
+    floats = np.frombuffer(blob, _F32, _N * n + m, at)  # x_bar, then the scales
+    x_bar, scale = floats[: _N * n].reshape(n, _N), floats[_N * n :]
+    at += 4 * (_N * n + m)
     info = np.frombuffer(blob, _F16, _N_INFO * m, at).reshape(m, _N_INFO)
     at += 2 * _N_INFO * m
     measured = np.ones(n, bool) if m == n else _bits(mask, n)
-    with np.errstate(invalid="ignore"):  # a signalling NaN warns when cast; it is caught here
-        # float64 sums of float32 and float16 values cannot overflow: NaN or inf make them so
-        finite = math.isfinite(x_bar.sum(dtype=np.float64)) and math.isfinite(
-            scale.sum(dtype=np.float64) + info.sum(dtype=np.float64))
-        if not finite:
-            bad_x = ~np.isfinite(x_bar).all(axis=1)
-            bad_info = ~(np.isfinite(info).all(axis=1) & np.isfinite(scale))
-            row = _first(bad_x) if bad_x.any() else int(np.flatnonzero(measured)[_first(bad_info)])
-            raise err("non_finite", f"x_bar or measurement of {_row_id(ints, row)} has NaN or inf")
+    # isfinite reads NaN (signalling ones too) without casting them, so without a warning
+    if np.count_nonzero(np.isfinite(floats)) != len(floats) or np.count_nonzero(np.isfinite(info)) != info.size:
+        bad_x = ~np.isfinite(x_bar).all(axis=1)
+        bad_info = ~(np.isfinite(info).all(axis=1) & np.isfinite(scale))
+        row = _first(bad_x) if bad_x.any() else int(np.flatnonzero(measured)[_first(bad_info)])
+        raise err("non_finite", f"x_bar or measurement of {_row_id(ints, row)} has NaN or inf")
     if len(set(zip(ints[0].tolist(), ints[1].tolist()))) != n:
         raise err("malformed", "duplicate tracker ids")
-    if m and not (scale.min() > 0 and info[:, _DIAG].min() > 0):
+    if m and not (scale.min() > 0 and info.take(_DIAG, axis=1).min() > 0):
         row = int(np.flatnonzero(measured)[_first(~((scale > 0) & (info[:, _DIAG] > 0).all(axis=1)))])
         raise err("malformed", f"measurement of {_row_id(ints, row)} has a factor that is not positive")
     appearance = []

@@ -232,6 +232,28 @@ def test_measurement_error_is_below_the_stated_bound() -> None:
     assert worst > 2**-14  # the rounding is there: a bound that is not trivially met
 
 
+def test_a_block_decodes_row_by_row_into_exactly_symmetric_information() -> None:
+    """The decoder rebuilds every row's ``u, U`` in one batch: each ``U`` is exactly symmetric
+    (the screen refuses any other), unmeasured rows stay zero, and every row equals what the
+    same tracker decodes to alone, bit for bit."""
+    rng = np.random.default_rng(11)
+    infos = []
+    for i in range(40):
+        x_bar = rng.normal(size=6) * 30
+        if i % 3 == 2:
+            u, U = np.zeros(6), np.zeros((6, 6))
+        else:
+            u, U = random_measurement(rng, x_bar, sigma=10.0 ** rng.uniform(-2, 1))
+        infos.append(TrackerInfo((i % 4, i), x_bar, u, U, i))
+    block = decode(encode(FrameMessage("n", 0, 0, tuple(infos)))).block
+    assert np.array_equal(block.U, block.U.transpose(0, 2, 1))
+    assert not block.U[2::3].any() and not block.u[2::3].any()
+    assert (np.linalg.eigvalsh(block.U[0::3, :4, :4]) > 0).all()
+    for i, t in enumerate(infos):
+        alone = decode(encode(FrameMessage("n", 0, 0, (t,)))).block
+        assert np.array_equal(block.U[i], alone.U[0]) and np.array_equal(block.u[i], alone.u[0]), i
+
+
 @pytest.mark.parametrize("distances", [(0.10, 0.22, 0.80), (0.10, 0.50, 0.60)])
 def test_int8_descriptors_keep_the_re_identification_ranks(distances) -> None:
     """Method: 300 people of the synthetic appearance model (the presets' default, and one with
