@@ -100,6 +100,8 @@ _Z = 4  # the measured part of the state, (x, y, w, h): rows and columns of U th
 _TRIL = np.tril_indices(_Z)  # a Cholesky factor's lower triangle, row-major: 10 numbers
 _N_TRIL = len(_TRIL[0])
 _TRIL_FLAT = _TRIL[0] * _Z + _TRIL[1]  # its places in the flattened 4 x 4 factor
+# the places of U's rows and columns 4-5 (velocity) in its flattened 6 x 6: zero in a measurement
+_VELOCITY = np.flatnonzero((np.arange(_N)[:, None] >= _Z) | (np.arange(_N)[None, :] >= _Z))
 _DIAG = np.array([i * (i + 1) // 2 + i for i in range(_Z)])  # the diagonal's places in it
 # each element of a 4 x 4 factor, row-major: its place in the triangle, or _N_TRIL (a zero)
 _SQUARE = np.array([i * (i + 1) // 2 + k if k <= i else _N_TRIL for i in range(_Z) for k in range(_Z)])
@@ -330,7 +332,11 @@ def _checked_block(msg: FrameMessage, limits: Limits) -> _Wire:
         raise err("malformed", "duplicate tracker ids")
     measured = b.U.reshape(n, -1).any(axis=1) | b.u.any(axis=1)
     rows = np.flatnonzero(measured)
-    scale, info = _measurement_wire(b.u[rows], b.U[rows], x_bar[rows], ints[:2, rows])
+    if len(rows) == n:  # every row measured: no gathering
+        scale, info = _measurement_wire(b.u, b.U, x_bar, ints[:2])
+    else:
+        scale, info = _measurement_wire(b.u.take(rows, axis=0), b.U.take(rows, axis=0),
+                                        x_bar.take(rows, axis=0), ints[:2].take(rows, axis=1))
     apps = []
     for row, a in b.appearance:
         if a.shape[0] > limits.max_descriptors or a.shape[1] > limits.max_descriptor_dim:
@@ -348,7 +354,7 @@ def _measurement_wire(u: np.ndarray, U: np.ndarray, x_bar: np.ndarray, ids: np.n
     m = len(u)
     if not m:
         return np.zeros(0, _F32), np.zeros((0, _N_INFO), _F16)
-    if U[:, _Z:].any() or U[:, :_Z, _Z:].any() or u[:, _Z:].any():
+    if U.reshape(m, _N * _N).take(_VELOCITY, axis=1).any() or u[:, _Z:].any():
         beyond = U[:, _Z:].reshape(m, -1).any(axis=1) | U[:, :_Z, _Z:].reshape(m, -1).any(axis=1) \
             | u[:, _Z:].any(axis=1)
         raise err("malformed", f"u, U of {_row_id(ids, _first(beyond))} carry velocity information: a "
