@@ -155,9 +155,13 @@ DEFAULT_LIMITS = Limits()
 # Shared helpers: the same quantisation serves encode, decode and quantize.
 
 
-def _width_code(v: int) -> int:
-    """The narrowest integer width (as a 2-bit code) that holds ``v >= 0``."""
-    return 0 if v <= 0xFF else 1 if v <= 0xFFFF else 2 if v <= 0xFFFF_FFFF else 3
+def _width_codes(maxes: list[int]) -> int:
+    """The ``widths`` byte of four columns whose largest values (``>= 0``) are ``maxes``: for
+    each, the narrowest width that holds it, as a 2-bit code."""
+    code = 0
+    for shift, v in zip((0, 2, 4, 6), maxes):
+        code |= (0 if v <= 0xFF else 1 if v <= 0xFFFF else 2 if v <= 0xFFFF_FFFF else 3) << shift
+    return code
 
 
 @lru_cache(maxsize=256)
@@ -327,7 +331,7 @@ def _checked_block(msg: FrameMessage, limits: Limits) -> _Wire:
         where = f"row {_row_id(ints, _first(bad))}" if bad.any() else "the block (sums beyond float64)"
         raise err("non_finite", f"x_bar, u or U of {where} has NaN or inf (or overflows float32)")
     maxes = ints.max(axis=1).tolist()
-    widths = sum(_width_code(v) << (2 * k) for k, v in enumerate(maxes))
+    widths = _width_codes(maxes)
     if len(set(zip(ints[0].tolist(), ints[1].tolist()))) != n:
         raise err("malformed", "duplicate tracker ids")
     measured = b.U.reshape(n, -1).any(axis=1) | b.u.any(axis=1)
@@ -455,8 +459,7 @@ def encoded_size(msg: FrameMessage, *, limits: Limits = DEFAULT_LIMITS) -> int:
     n = len(b)
     widths, m = 0, 0
     if n:
-        widths = sum(_width_code(int(getattr(b, name).max())) << (2 * k)
-                     for k, name in enumerate(_COLUMNS))
+        widths = _width_codes([int(getattr(b, name).max()) for name in _COLUMNS])
         m = int(np.count_nonzero(b.U.reshape(n, -1).any(axis=1) | b.u.any(axis=1)))
     apps = [[row, a.shape[0], a.shape[1]] for row, a in b.appearance]
     blob = (n * _widths(widths)[1] + ((n + 7) >> 3) + 4 * _N * n + (4 + 2 * _N_INFO) * m
@@ -567,7 +570,7 @@ def _decode_block(blob: Any, n: int, widths: Any, apps: list[tuple[int, int, int
         if ints.min() < 0:
             raise err("malformed", f"id, born or ell of row {_first((ints < 0).T)} exceeds 2**63 - 1")
     maxes = ints.max(axis=1).tolist()
-    if sum(_width_code(v) << (2 * k) for k, v in enumerate(maxes)) != widths:
+    if _width_codes(maxes) != widths:
         raise err("malformed", f"widths {widths:#04x} are not the narrowest for {maxes}")
     floats = np.frombuffer(blob, _F32, _N * n + m, at)  # x_bar, then the scales
     x_bar, scale = floats[: _N * n].reshape(n, _N), floats[_N * n :]
