@@ -91,12 +91,21 @@ def appearance_matrix(trackers: Sequence[Candidate], obs: Sequence[Observation],
         return A
     starts = np.flatnonzero(np.diff(rows, prepend=-1)).tolist()
     rows, cols = rows.tolist(), cols.tolist()
+    sims, seg, scored = [], [], []  # cosines, where each pair's begin in them, the pairs
+    at = 0
     for a, b in zip(starts, starts[1:] + [len(rows)]):
         g = trackers[rows[a]].gallery
         if g is None or not len(g):
             continue
-        # one product per tracker over its gated queries (a view when there is one)
-        A[rows[a], cols[a:b]] = g.unit_distances(Q[cols[a]:cols[a] + 1] if b - a == 1 else Q[cols[a:b]])
+        # one product per tracker over its gated queries (a view when there is one): a row of
+        # cosines against its gallery per query; the maxima of all pairs in one call below
+        sims.append(g.similarities(Q[cols[a]:cols[a] + 1] if b - a == 1 else Q[cols[a:b]]).ravel())
+        seg.extend(range(at, at + (b - a) * len(g), len(g)))
+        scored.extend(range(a, b))
+        at += (b - a) * len(g)
+    if scored:
+        pick = np.array(scored)
+        A[np.array(rows)[pick], np.array(cols)[pick]] = 1.0 - np.maximum.reduceat(np.concatenate(sims), seg)
     return A
 
 

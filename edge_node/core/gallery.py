@@ -112,7 +112,12 @@ class Gallery:
 
     def unit_distances(self, units: np.ndarray) -> np.ndarray:
         """:meth:`distances` of queries already scaled to unit length ``(n, D)``."""
-        return 1.0 - (units @ self.matrix().T).max(axis=1)
+        return 1.0 - self.similarities(units).max(axis=1)
+
+    def similarities(self, units: np.ndarray) -> np.ndarray:
+        """The cosines ``(n, len(self))`` of unit-length queries ``(n, D)`` with every stored
+        descriptor (eq. 7 is one minus the largest of a row)."""
+        return units @ self.matrix().T
 
     def distance_to(self, other: "Gallery") -> float:
         """Minimum cosine distance between any two descriptors of two galleries (re-id score)."""
