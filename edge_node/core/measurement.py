@@ -84,8 +84,7 @@ def box_measurements(camera: Camera, boxes: np.ndarray, cfg: TrackerConfig) -> l
     size = boxes[:, 2:] / pixels_per_unit(J)[:, None]
     away = away_direction(J)
     cuts = (var_u > s2) | (var_v > s2)
-    return [BoxMeasurement(z[i], R[i], foot[i], away[i], size[i], bool(cuts[i]))
-            for i in range(len(boxes))]
+    return [BoxMeasurement(*row) for row in zip(z, R, foot, away, size, cuts.tolist())]
 
 
 def fixed_R(cfg: TrackerConfig) -> np.ndarray:
