@@ -86,11 +86,11 @@ def appearance_matrix(trackers: Sequence[Candidate], obs: Sequence[Observation],
     Q[has] = np.array([o.descriptor for o in obs if o.descriptor is not None])
     Q /= np.maximum(norms(Q, axis=1, keepdims=True), 1e-12)
     pairs = np.broadcast_to(has, A.shape) if where is None else where & has
-    rows, cols = np.nonzero(pairs)  # row-major: each tracker's columns together, in order
-    if not len(rows):
+    pair_rows, pair_cols = np.nonzero(pairs)  # row-major: each tracker's columns together, in order
+    if not len(pair_rows):
         return A
-    starts = np.flatnonzero(np.diff(rows, prepend=-1)).tolist()
-    rows, cols = rows.tolist(), cols.tolist()
+    starts = np.flatnonzero(np.diff(pair_rows, prepend=-1)).tolist()
+    rows, cols = pair_rows.tolist(), pair_cols.tolist()
     sims, seg, scored = [], [], []  # cosines, where each pair's begin in them, the pairs
     at = 0
     for a, b in zip(starts, starts[1:] + [len(rows)]):
@@ -105,7 +105,7 @@ def appearance_matrix(trackers: Sequence[Candidate], obs: Sequence[Observation],
         at += (b - a) * len(g)
     if scored:
         pick = np.array(scored)
-        A[np.array(rows)[pick], np.array(cols)[pick]] = 1.0 - np.maximum.reduceat(np.concatenate(sims), seg)
+        A[pair_rows[pick], pair_cols[pick]] = 1.0 - np.maximum.reduceat(np.concatenate(sims), seg)
     return A
 
 
