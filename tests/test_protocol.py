@@ -248,7 +248,8 @@ def test_a_block_decodes_row_by_row_into_exactly_symmetric_information() -> None
     block = decode(encode(FrameMessage("n", 0, 0, tuple(infos)))).block
     assert np.array_equal(block.U, block.U.transpose(0, 2, 1))
     assert not block.U[2::3].any() and not block.u[2::3].any()
-    assert (np.linalg.eigvalsh(block.U[0::3, :4, :4]) > 0).all()
+    measured = np.arange(40) % 3 != 2
+    assert (np.linalg.eigvalsh(block.U[measured, :4, :4]) > 0).all()
     for i, t in enumerate(infos):
         alone = decode(encode(FrameMessage("n", 0, 0, (t,)))).block
         assert np.array_equal(block.U[i], alone.U[0]) and np.array_equal(block.u[i], alone.u[0]), i
