@@ -131,10 +131,11 @@ def main() -> int:
     frames = next(int(line.split()[1]) for line in out.stdout.splitlines() if line.startswith("node-frames"))
     collected = next(int(line.split()[-1].replace(",", "")) for line in out.stderr.splitlines()
                      if "Collected" in line)
+    what = (f"codec: 1 encode + {args.neighbours} decodes" if args.codec
+            else args.only or "prepare + update")
     print(f"{args.targets} targets, {args.neighbours} neighbours: "
           f"{collected / frames / 1e6:.3f} M instructions per node-frame "
-          f"({'codec: 1 encode + ' + str(args.neighbours) + ' decodes' if args.codec else args.only or 'prepare + update'}, "
-          f"{frames} node-frames)")
+          f"({what}, {frames} node-frames)")
     return 0
 
 

@@ -381,7 +381,8 @@ def _measurement_wire(u: np.ndarray, U: np.ndarray, x_bar: np.ndarray, ids: np.n
         bad = _first(~(tril[:, _DIAG] > 0))
         raise err("malformed", f"U of {_row_id(ids, bad)} is too ill-conditioned for float16 factors")
     z = np.linalg.solve(U4, u[:, :_Z, None])[..., 0]
-    w = ((z - x_bar[:, :_Z])[:, None, :] @ _factor(scale, tril.astype(np.float64)))[:, 0]  # L~^T (z - H x_bar)
+    L_sent = _factor(scale, tril.astype(np.float64))  # the factor the receiver rebuilds
+    w = ((z - x_bar[:, :_Z])[:, None, :] @ L_sent)[:, 0]  # L~^T (z - H x_bar)
     if not np.abs(w).max() < _F16_LIMIT:  # beyond it float16 rounds to inf (NaN fails too)
         raise err("non_finite", f"the innovation of {_row_id(ids, _first(~(np.abs(w) < _F16_LIMIT)))} is "
                                 "beyond float16 (65504 standard deviations)")
@@ -579,7 +580,8 @@ def _decode_block(blob: Any, n: int, widths: Any, apps: list[tuple[int, int, int
     at += 2 * _N_INFO * m
     measured = np.ones(n, bool) if m == n else _bits(mask, n)
     # isfinite reads NaN (signalling ones too) without casting them, so without a warning
-    if np.count_nonzero(np.isfinite(floats)) != len(floats) or np.count_nonzero(np.isfinite(info)) != info.size:
+    if (np.count_nonzero(np.isfinite(floats)) != floats.size
+            or np.count_nonzero(np.isfinite(info)) != info.size):
         bad_x = ~np.isfinite(x_bar).all(axis=1)
         bad_info = ~(np.isfinite(info).all(axis=1) & np.isfinite(scale))
         row = _first(bad_x) if bad_x.any() else int(np.flatnonzero(measured)[_first(bad_info)])

@@ -115,7 +115,8 @@ def bench_targets(targets: int, neighbours: int = 4, frames: int = 60, seed: int
     """The core benchmark of ``targets`` targets. ``wrap(k, call)`` runs each node's
     ``prepare`` and ``update`` of frame ``k`` (``call()``); ``bench/core_instructions.py`` passes
     one that lets valgrind count the instructions of the measured frames
-    (``k >= warm_frames(frames)``) alone. ``codec_line=False`` skips the codec's separate timing (``codec_costs``)."""
+    (``k >= warm_frames(frames)``) alone. ``codec_line=False`` skips the codec's separate
+    timing (``codec_costs``)."""
     n = neighbours + 1
     cams = [_camera(i, n) for i in range(n)]
     nodes = [CameraNode(c, [j for j in range(n) if j != c.id], TrackerConfig(), "bench")
