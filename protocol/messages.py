@@ -141,6 +141,14 @@ class TrackerBlock:
                           appearance=appearance)
         return b
 
+    @property
+    def factored(self) -> bool:
+        """Whether ``u, U`` are the decoder's (``protocol.codec``), built from a factor it
+        checked: ``U = L L^T`` with ``L`` lower-triangular with a positive diagonal, exactly
+        symmetric, zero outside ``(x, y, w, h)``; ``u = 0`` where ``U = 0``. A block taken from
+        it, or made any other way, is not."""
+        return "_wire" in self.__dict__
+
     @classmethod
     def empty(cls) -> TrackerBlock:
         return _EMPTY
