@@ -510,6 +510,41 @@ def test_the_inbox_takes_one_entry_per_sender_and_surviving_id():
     assert [t.x_bar[0] for t in inbox.infos((0, 2))] == [4.0, 2.0]
 
 
+def test_entries_are_summed_per_tracker_in_sender_order_as_add_at_does():
+    """Eq. 3's sums over a frame's entries: each tracker's start plus its entries one after
+    another in sender order, the numbers ``np.add.at`` gives (which the core used before), bit
+    for bit; for trackers with 0 to 4 entries, rows of 6 and of 6 x 6, and entries that make
+    the order matter (large and small terms)."""
+    from edge_node.core.entries import Inbox
+    from protocol.messages import FrameMessage, TrackerInfo
+
+    rng = np.random.default_rng(4)
+    ids = [(0, k) for k in range(12)]
+    msgs = []
+    for sender in range(1, 5):  # each names a random subset of the trackers
+        named = [t for t in ids if rng.random() < 0.6]
+        infos = []
+        for t in named:
+            scale = 10.0 ** rng.integers(-8, 9)
+            U = rng.normal(size=(6, 6)) * scale
+            infos.append(TrackerInfo(t, rng.normal(size=6) * scale, rng.normal(size=6) * scale,
+                                     U + U.T, 1))
+        msgs.append(FrameMessage("t", sender, 3, tuple(infos)))
+    e = Inbox(msgs, lambda t: t).entries(ids)
+    counts = np.bincount(e.rows, minlength=len(ids))
+    assert len(set(counts.tolist())) >= 3 and counts.min() <= 1 and counts.max() == 4, counts
+    for values, shape in ((e.u, (6,)), (e.U, (6, 6)), (e.x_bar, (6,))):
+        start = rng.normal(size=(len(ids),) + shape) * 1e-3
+        want = start.copy()
+        np.add.at(want, e.rows, values)
+        got = e.summed(start, values)
+        np.testing.assert_array_equal(got, want)
+        # and the order matters for these numbers: summed the other way round they differ
+        other = start.copy()
+        np.add.at(other, e.rows[::-1], values[::-1])
+        assert not np.array_equal(other, want)
+
+
 def test_a_neighbour_that_saw_a_target_counts_as_seeing_it_without_u_U():
     """The merge exclusion's "a neighbour saw them as two" reads what the neighbour's camera
     saw: an entry with ``ell`` 0 whose measurement the trigger withheld counts, and so does,

@@ -23,7 +23,7 @@ from protocol.messages import FrameMessage, TrackerId, TrackerInfo
 class Entries:
     """The neighbours' entries of a frame against trackers ``ids``: all of them stacked,
     grouped by tracker in ``ids`` order and in sender order within a tracker, ``rows`` the
-    tracker index of each."""
+    tracker index of each, ``slot`` its place among its tracker's entries (0, 1, ...)."""
 
     ids: list[TrackerId]
     rows: np.ndarray  # (m,)
@@ -31,6 +31,24 @@ class Entries:
     u: np.ndarray  # (m, 6)
     U: np.ndarray  # (m, 6, 6)
     x_bar: np.ndarray  # (m, 6)
+    slot: np.ndarray  # (m,)
+
+    def summed(self, start: np.ndarray, values: np.ndarray) -> np.ndarray:
+        """``start`` (a row per tracker) plus each tracker's entries' ``values`` (a row per
+        entry), added one after another in sender order (eq. 3's sums): the numbers of
+        ``np.add.at(start.copy(), rows, values)``, bit for bit but for the sign of a zero
+        (``-0.0`` plus the table's ``0.0`` is ``0.0``). ``add.at`` adds element by
+        element (a frame's 80 6 x 6 ``U`` cost 0.4 M instructions, 0.1 M here); here the
+        entries are laid out in a table of (slot, tracker), zero where a tracker has fewer
+        entries, and the slots are added one after the other, each one contiguous array. (For
+        rows of two numbers ``add.at`` is the cheaper.)"""
+        out = np.array(start, float)
+        if len(self.rows):
+            table = np.zeros((int(self.slot.max()) + 1,) + out.shape)
+            table[self.slot, self.rows] = values
+            for t in table:
+                out += t
+        return out
 
     def ells(self) -> list[list[int]]:
         """Per tracker, the ``ell`` of its entries (eq. 8's received counters)."""
@@ -97,4 +115,5 @@ class Inbox:
         """The entries of trackers ``ids``, stacked (see ``Entries``)."""
         sel = [g for tid in ids for g in self.by_id.get(tid, ())]
         rows = np.array([i for i, tid in enumerate(ids) for _ in self.by_id.get(tid, ())], np.intp)
-        return Entries(ids, rows, self._ell[sel], self._u[sel], self._U[sel], self._x_bar[sel])
+        slot = np.arange(len(rows)) - np.searchsorted(rows, rows)  # rows ascend: first of each
+        return Entries(ids, rows, self._ell[sel], self._u[sel], self._U[sel], self._x_bar[sel], slot)

@@ -427,15 +427,11 @@ class CameraNode:
         trs = [self.trackers[t] for t in ids]
         x_bar = np.array([tr.x_bar for tr in trs])
         P = np.array([tr.P for tr in trs])
-        y = np.array([tr.local.u for tr in trs])
-        S = np.array([tr.local.U for tr in trs])
         ref = np.array([tr.x_bar if tr.local.x_bar_sent is None else tr.local.x_bar_sent
                         for tr in trs])
-        diff = np.zeros_like(x_bar)
-        if len(rows):
-            np.add.at(y, rows, entries.u)
-            np.add.at(S, rows, entries.U)
-            np.add.at(diff, rows, entries.x_bar - ref[rows])
+        y = entries.summed(np.array([tr.local.u for tr in trs]), entries.u)
+        S = entries.summed(np.array([tr.local.U for tr in trs]), entries.U)
+        diff = entries.summed(np.zeros_like(x_bar), entries.x_bar - ref[rows])
         upm = self.cfg.units_per_metre
         deg = np.bincount(rows, minlength=len(ids))  # terms of each consensus sum (eq. 4)
         bound = self.cfg.consensus_bound
@@ -476,7 +472,7 @@ class CameraNode:
         n = len(entries.ids)
         u_o, U_o = np.zeros((n, 2)), np.zeros((n, 2, 2))  # the neighbours' measured entries
         count = np.zeros(n, np.intp)
-        if len(entries.rows):
+        if len(entries.rows):  # (rows of 2: np.add.at costs less than Entries.summed)
             seen = entries.U[:, 0, 0] > 0
             np.add.at(u_o, entries.rows[seen], entries.u[seen, :2])
             np.add.at(U_o, entries.rows[seen], entries.U[seen, :2, :2])
