@@ -52,12 +52,16 @@ def _distance2(screen, ev, V, w, seen):
 
 
 def batch(rng, n):
-    """``n`` entries of every kind: positive definite of condition numbers up to 10^16,
-    semi-definite of lower rank, indefinite, too precise; measurements on and far off the
-    world; some ``u`` outside ``U``'s range; a few with velocity information."""
+    """``n`` entries of every kind: positive definite of condition numbers up to 10^16 (half of
+    them below 10^3, as honest measurements are), semi-definite of lower rank, indefinite, too
+    precise; measurements on and far off the world; some ``u`` outside ``U``'s range; a few
+    with velocity information."""
     Q, _ = np.linalg.qr(rng.normal(size=(n, 4, 4)))
     kind = rng.choice([1.0, 1.0, 1.0, 1.0, 0.0, -1e-3, -1.0], (n, 4))
     ev = 10 ** rng.uniform(-12, 4.5, (n, 4)) * kind
+    honest = rng.random(n) < 0.5
+    k = int(honest.sum())
+    ev[honest] = 10 ** (rng.uniform(-2, 4.5, (k, 1)) + rng.uniform(-3, 0, (k, 4)))
     U4 = Q @ (ev[:, :, None] * Q.transpose(0, 2, 1))
     U = np.zeros((n, 6, 6))
     U[:, :4, :4] = 0.5 * (U4 + U4.transpose(0, 2, 1))
@@ -71,14 +75,10 @@ def batch(rng, n):
 
 
 def near_a_threshold(screen, u, U):
-    """Entries whose Mahalanobis distance lies within 1e-6 of the gate: a verdict there is
-    rounding, either way."""
-    return False if verdict(screen, u, U) == "bad_information" else _near(screen, u, U)
-
-
-def _near(screen, u, U):
+    """A well-formed entry whose Mahalanobis distance or largest eigenvalue lies within 1e-6 of
+    its gate: a verdict there is rounding, either way."""
     U4 = U[:4, :4]
-    if not np.any(U4):
+    if verdict(screen, u, U) == "bad_information" or not np.any(U4):
         return False
     ev, V = np.linalg.eigh(U4)
     d2 = _distance2(screen, ev, V, V.T @ u[:4], ev > 1e-9 * ev[-1])
@@ -87,7 +87,7 @@ def _near(screen, u, U):
 
 def test_batched_verdicts_equal_the_rules_applied_entry_by_entry(screen):
     rng = np.random.default_rng(11)
-    seen = {}
+    seen, paths = {}, np.zeros(2, int)  # paths: entries decided without / with eigenvalues
     for _ in range(300):
         u, U = batch(rng, int(rng.integers(1, 40)))
         got = screen.informations(u, U)
@@ -97,8 +97,11 @@ def test_batched_verdicts_equal_the_rules_applied_entry_by_entry(screen):
             want = verdict(screen, u[i], U[i])
             assert g == want, (u[i], U[i])
             seen[want] = seen.get(want, 0) + 1
-    # every verdict occurs often enough to mean something
+        sure, _ = screen._measured(u[:, :4], U[:, :4, :4])
+        paths += [sure.sum(), (~sure).sum()]
+    # every verdict occurs often enough to mean something, and both paths decide many
     assert min(seen.get(v, 0) for v in (None, "bad_information", "implausible_information")) > 300
+    assert paths.min() > 1000, paths
 
 
 def test_honest_measurements_are_decided_without_eigenvalues(screen):
