@@ -88,6 +88,7 @@ from protocol.messages import (
     MAX_DESCRIPTORS,
     SCHEMA_VERSION,
     STATE_DIM,
+    VELOCITY_PLACES,
     FrameMessage,
     Merge,
     TrackerBlock,
@@ -100,8 +101,6 @@ _Z = 4  # the measured part of the state, (x, y, w, h): rows and columns of U th
 _TRIL = np.tril_indices(_Z)  # a Cholesky factor's lower triangle, row-major: 10 numbers
 _N_TRIL = len(_TRIL[0])
 _TRIL_FLAT = _TRIL[0] * _Z + _TRIL[1]  # its places in the flattened 4 x 4 factor
-# the places of U's rows and columns 4-5 (velocity) in its flattened 6 x 6: zero in a measurement
-_VELOCITY = np.flatnonzero((np.arange(_N)[:, None] >= _Z) | (np.arange(_N)[None, :] >= _Z))
 _DIAG = np.array([i * (i + 1) // 2 + i for i in range(_Z)])  # the diagonal's places in it
 # each element of a 4 x 4 factor, row-major: its place in the triangle, or _N_TRIL (a zero)
 _SQUARE = np.array([i * (i + 1) // 2 + k if k <= i else _N_TRIL for i in range(_Z) for k in range(_Z)])
@@ -358,7 +357,7 @@ def _measurement_wire(u: np.ndarray, U: np.ndarray, x_bar: np.ndarray, ids: np.n
     m = len(u)
     if not m:
         return np.zeros(0, _F32), np.zeros((0, _N_INFO), _F16)
-    if U.reshape(m, _N * _N).take(_VELOCITY, axis=1).any() or u[:, _Z:].any():
+    if U.reshape(m, _N * _N).take(VELOCITY_PLACES, axis=1).any() or u[:, _Z:].any():
         beyond = U[:, _Z:].reshape(m, -1).any(axis=1) | U[:, :_Z, _Z:].reshape(m, -1).any(axis=1) \
             | u[:, _Z:].any(axis=1)
         raise err("malformed", f"u, U of {_row_id(ids, _first(beyond))} carry velocity information: a "

@@ -23,9 +23,13 @@ from protocol.checks import MAX_WIRE_INT, TrackerId, as_appearance, as_float_arr
 SCHEMA_VERSION = 3
 STATE_DIM = 6  # x = (x, y, w, h, vx, vy)
 MAX_DESCRIPTORS = 2
+# the places of U's rows and columns 4-5 (velocity) in its flattened 6 x 6: eq. 2's H observes
+# (x, y, w, h) only, so a camera's measurement information has nothing there
+VELOCITY_PLACES = np.flatnonzero((np.arange(STATE_DIM)[:, None] >= 4)
+                                 | (np.arange(STATE_DIM)[None, :] >= 4))
 
-__all__ = ["MAX_DESCRIPTORS", "SCHEMA_VERSION", "STATE_DIM", "FrameMessage", "Merge", "TrackerBlock",
-           "TrackerId", "TrackerInfo"]
+__all__ = ["MAX_DESCRIPTORS", "SCHEMA_VERSION", "STATE_DIM", "VELOCITY_PLACES", "FrameMessage", "Merge",
+           "TrackerBlock", "TrackerId", "TrackerInfo"]
 
 _N = STATE_DIM
 

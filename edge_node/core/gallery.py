@@ -107,11 +107,7 @@ class Gallery:
         queries = np.atleast_2d(queries)
         if not self._n or queries.size == 0:
             return np.full(len(queries), np.nan)
-        return self.unit_distances(
-            queries / np.maximum(np.linalg.norm(queries, axis=1, keepdims=True), 1e-12))
-
-    def unit_distances(self, units: np.ndarray) -> np.ndarray:
-        """:meth:`distances` of queries already scaled to unit length ``(n, D)``."""
+        units = queries / np.maximum(np.linalg.norm(queries, axis=1, keepdims=True), 1e-12)
         return 1.0 - self.similarities(units).max(axis=1)
 
     def similarities(self, units: np.ndarray) -> np.ndarray:

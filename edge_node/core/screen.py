@@ -64,15 +64,13 @@ import numpy as np
 from edge_node.core.config import TrackerConfig
 from edge_node.core.identity import IdentityBook
 from edge_node.geometry import Camera, norms
-from protocol.messages import FrameMessage, Merge, TrackerId
+from protocol.messages import VELOCITY_PLACES, FrameMessage, Merge, TrackerId
 
 RANK_TOL = 1e-9  # eigenvalues of U below this fraction of the largest count as unmeasured
 FLOAT_TOL = 1e-6  # float32 rounding on the wire: negative eigenvalues of U and components of u
 # in unmeasured directions up to this fraction are rounding, not a fault
 INFO_GATE = 1e4  # squared standard deviations a measurement may lie off the plausible world
 MIN_SIGMA_M = 0.01  # m: no camera measures a foot point better than 1 cm
-# the flat places of U's rows and columns 4-5 (velocity): a measurement has nothing there
-_VELOCITY = np.flatnonzero((np.arange(6)[:, None] >= 4) | (np.arange(6)[None, :] >= 4))
 
 BIRTH_REASONS = ("future_birth", "born_moved", "implausible_birth")
 REASONS = ("bad_information", "implausible_information", "implausible_state", "implausible_ell",
@@ -210,7 +208,7 @@ class Screen:
             bad = np.zeros(n, bool)
             todo = np.flatnonzero(flat.any(axis=1))
         else:
-            vel = flat[:, _VELOCITY].any(axis=1) | u[:, 4:].any(axis=1)
+            vel = flat[:, VELOCITY_PLACES].any(axis=1) | u[:, 4:].any(axis=1)
             # symmetry of the measured block: outside it an entry without ``vel`` is zero (and
             # symmetric), and one with ``vel`` is bad anyway
             B = U[:, :4, :4]
