@@ -28,7 +28,10 @@ def norms(x: np.ndarray, axis: int | tuple[int, int] = -1, keepdims: bool = Fals
 
 
 def _h(pts: np.ndarray) -> np.ndarray:
-    return np.hstack([pts, np.ones((pts.shape[0], 1))])
+    """Points ``(n, 2)`` in homogeneous coordinates ``(n, 3)``."""
+    out = np.ones((pts.shape[0], 3))
+    out[:, :2] = pts
+    return out
 
 
 def apply_homography(Hm: np.ndarray, pts: np.ndarray) -> np.ndarray:
@@ -148,15 +151,19 @@ class Camera:
         n = len(boxes)
         bottom = by + bh
         # foot (bottom centre), bottom-left and bottom-right corners, through G in one pass
-        pts = np.concatenate([np.stack([bx + bw / 2.0, bottom], axis=1),
-                              np.stack([bx, bottom], axis=1), np.stack([bx + bw, bottom], axis=1)])
-        g = self.to_ground(pts)
+        pts = np.empty((3, n, 2))
+        pts[:, :, 0] = bx + bw / 2.0, bx, bx + bw
+        pts[:, :, 1] = bottom
+        g = self.to_ground(pts.reshape(-1, 2))
         c, left, right = g[:n], g[n:2 * n], g[2 * n:]
         w = norms(right - left, axis=1)
         aspect = w * bh / np.maximum(bw, 1e-9)
         h = aspect if self.P is None else self._heights(c, by)
-        h = np.where(np.isfinite(h) & (h > 0), h, aspect)
-        return np.stack([c[:, 0], c[:, 1], w, h], axis=1)
+        out = np.empty((n, 4))  # (filled column by column: np.stack costs more than the rest)
+        out[:, :2] = c
+        out[:, 2] = w
+        out[:, 3] = np.where(np.isfinite(h) & (h > 0), h, aspect)
+        return out
 
     def _heights(self, c: np.ndarray, v_top: np.ndarray) -> np.ndarray:
         """Heights whose top projects on the image rows ``v_top`` above ground points ``c``

@@ -89,7 +89,9 @@ def appearance_matrix(trackers: Sequence[Candidate], obs: Sequence[Observation],
     pair_rows, pair_cols = np.nonzero(pairs)  # row-major: each tracker's columns together, in order
     if not len(pair_rows):
         return A
-    starts = np.flatnonzero(np.diff(pair_rows, prepend=-1)).tolist()
+    first = np.ones(len(pair_rows), bool)  # where a tracker's pairs begin
+    np.not_equal(pair_rows[1:], pair_rows[:-1], out=first[1:])
+    starts = first.nonzero()[0].tolist()
     rows, cols = pair_rows.tolist(), pair_cols.tolist()
     sims, seg, scored = [], [], []  # cosines, where each pair's begin in them, the pairs
     at = 0

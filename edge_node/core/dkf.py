@@ -55,10 +55,13 @@ from edge_node.geometry import norms
 # ``TrackerConfig.consensus_bound``
 CONSENSUS_BOUND = 0.9
 
+_I = np.eye(STATE_DIM)
+_I.setflags(write=False)
+
 
 def symmetric(M: np.ndarray) -> np.ndarray:
     """``(M + M^T) / 2`` of one matrix or of a stack ``(n, d, d)``."""
-    return 0.5 * (M + np.swapaxes(M, -1, -2))
+    return 0.5 * (M + M.swapaxes(-1, -2))
 
 
 def information(z: np.ndarray, R: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -70,13 +73,14 @@ def information(z: np.ndarray, R: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 def informations(z: np.ndarray, R: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Eq. 2 for a stack of measurements ``z`` ``(n, 4)``, ``R`` ``(n, 4, 4)``: ``u`` ``(n, 6)``,
     ``U`` ``(n, 6, 6)``. ``H`` only picks the first four state components, so ``H^T R^-1 H`` is
-    ``R^-1`` padded with zeros and ``H^T R^-1 z`` is ``R^-1 z`` padded (solves, no inverse)."""
+    ``R^-1`` padded with zeros and ``H^T R^-1 z`` is ``R^-1 z`` padded. (``numpy.linalg.inv``
+    is LAPACK's ``gesv`` against the identity: the numbers of ``solve(R, I)``.)"""
     n = len(z)
-    Rinv = np.linalg.solve(R, np.broadcast_to(np.eye(MEAS_DIM), (n, MEAS_DIM, MEAS_DIM)))
+    Rinv = np.linalg.inv(R)
     U = np.zeros((n, STATE_DIM, STATE_DIM))
     U[:, :MEAS_DIM, :MEAS_DIM] = symmetric(Rinv)
     u = np.zeros((n, STATE_DIM))
-    u[:, :MEAS_DIM] = (np.swapaxes(Rinv, -1, -2) @ z[..., None])[..., 0]  # R^-T z = R^-1 z
+    u[:, :MEAS_DIM] = (Rinv.swapaxes(-1, -2) @ z[..., None])[..., 0]  # R^-T z = R^-1 z
     return u, U
 
 
@@ -105,7 +109,7 @@ def fuse(contributions: Iterable[tuple[np.ndarray, np.ndarray]]) -> tuple[np.nda
 def gain(P: np.ndarray, S: np.ndarray) -> np.ndarray:
     """``M = (P^-1 + S)^-1`` computed as ``(I + P S)^-1 P`` (no inverse of ``P``); one matrix
     or a stack ``(n, 6, 6)``."""
-    M = np.linalg.solve(np.eye(STATE_DIM) + P @ S, P)
+    M = np.linalg.solve(_I + P @ S, P)
     return symmetric(M)
 
 
@@ -120,12 +124,14 @@ def consensus_gamma(M: np.ndarray, degree: int | np.ndarray = 1,
     M = np.asarray(M, float)
     one = M.ndim == 2
     Ms = M[None] if one else M
-    d = np.broadcast_to(np.asarray(degree, float), Ms.shape[:1])
+    d = np.asarray(degree, float)
+    if d.ndim == 0:
+        d = np.full(len(Ms), float(d))
     frobenius = norms(Ms, axis=(-2, -1))
     g = 1.0 / (1.0 + frobenius)
     # ||M||_2 <= ||M||_F: where the Frobenius norm keeps the step within the bound the largest
     # eigenvalue does too, so the eigenvalues are computed only where they may not
-    check = np.flatnonzero(d * g * frobenius > bound)
+    check = (d * g * frobenius > bound).nonzero()[0]
     if len(check):
         step = d[check] * g[check] * np.linalg.eigvalsh(symmetric(Ms[check]))[:, -1]
         g[check] = np.where(step > bound, g[check] * bound / step, g[check])
@@ -170,7 +176,7 @@ def corrects(x_bar: np.ndarray, P: np.ndarray, y: np.ndarray, S: np.ndarray, dif
     """
     M = gain(P, S)
     x_hat = x_bar + (M @ (y - (S @ x_bar[..., None])[..., 0])[..., None])[..., 0]
-    pull = np.any(diff != 0, axis=1)
+    pull = (diff != 0).any(axis=1)
     if pull.any():
         M_m = M[pull] / units_per_metre**2
         gamma = consensus_gamma(M_m, np.maximum(np.asarray(degree)[pull], 1), bound)

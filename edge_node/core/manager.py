@@ -159,7 +159,8 @@ def find_merges(views: Sequence[MergeView], streaks: dict[tuple[TrackerId, Track
     if len(ordered) > 1:
         xy = np.array([v.xy for v in ordered])
         near = norms(xy[:, None] - xy[None], axis=2) < merge_reach(cfg)
-        rows, cols = np.nonzero(np.triu(near, 1))  # only nearby pairs are scored in full
+        idx = np.arange(len(ordered))
+        rows, cols = (near & (idx[:, None] < idx)).nonzero()  # nearby pairs i < j alone are scored
         for i, j in zip(rows.tolist(), cols.tolist()):
             a, b = ordered[i], ordered[j]
             scored_pair = pair_score(a, b, cfg)

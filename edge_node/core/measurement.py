@@ -63,7 +63,9 @@ def box_measurements(camera: Camera, boxes: np.ndarray, cfg: TrackerConfig) -> l
         return []
     z = camera.boxes_to_cylinders(boxes)
     bx, by, bw, bh = boxes.T
-    foot = np.stack([bx + bw / 2.0, by + bh], axis=1)
+    foot = np.empty((len(boxes), 2))  # the boxes' bottom centres
+    foot[:, 0] = bx + bw / 2.0
+    foot[:, 1] = by + bh
     J = camera.ground_jacobians(foot)
     s2 = cfg.pixel_sigma**2
     # Foot point (u, v): u is the mean of two noisy edges (var s2/2), v one edge (var s2).
@@ -73,8 +75,10 @@ def box_measurements(camera: Camera, boxes: np.ndarray, cfg: TrackerConfig) -> l
     cut = cfg.border_px
     var_u = s2 / 2.0 + np.where((bx <= cut) | (bx + bw >= W - cut), bw**2 / 3.0, 0.0)
     var_v = s2 + np.where(by + bh >= H - cut, (0.5 * bh) ** 2 / 3.0, 0.0)
+    var = np.empty((len(boxes), 1, 2))
+    var[:, 0, 0], var[:, 0, 1] = var_u, var_v
     R = np.zeros((len(boxes), 4, 4))
-    R[:, :2, :2] = (J * np.stack([var_u, var_v], axis=1)[:, None, :]) @ J.transpose(0, 2, 1)
+    R[:, :2, :2] = (J * var) @ J.transpose(0, 2, 1)
     floor = cfg.m(cfg.size_meas_floor)
     # Width and height are differences of two noisy edges: var 2 s2 in pixels, scaled to ground.
     sw = z[:, 2] / np.maximum(bw, 1e-9) * cfg.pixel_sigma * np.sqrt(2.0)

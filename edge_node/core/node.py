@@ -191,7 +191,7 @@ class CameraNode:
         boxes = [np.asarray(d.box, float) for d in dets]
         B = np.array([b if b.shape == (4,) else np.full(4, np.nan) for b in boxes])
         with np.errstate(invalid="ignore"):
-            good = np.all(np.isfinite(B), axis=1) & (B[:, 2] > 0) & (B[:, 3] > 0)
+            good = np.isfinite(B).all(axis=1) & (B[:, 2] > 0) & (B[:, 3] > 0)
         self.stats.bad_detections += int(len(B) - good.sum())
         return [d for d, g in zip(dets, good) if g], B[good]
 
@@ -446,7 +446,7 @@ class CameraNode:
                                                               degree=deg[i:i + 1], bound=bound)
                 except (np.linalg.LinAlgError, ValueError, FloatingPointError):
                     pass
-        bad = ~(np.all(np.isfinite(x_hat), axis=1) & np.all(np.isfinite(M), axis=(1, 2)))
+        bad = ~(np.isfinite(x_hat).all(axis=1) & np.isfinite(M).all(axis=(1, 2)))
         if bad.any():
             self.stats.numerical += int(bad.sum())
             x_hat[bad], M[bad] = x_bar[bad], P[bad]
@@ -505,7 +505,7 @@ class CameraNode:
                 # direction only), and z_o needs U_o^-1 (a wire-valid entry like that crashed
                 # update before)
                 det = Us[:, 0, 0] * Us[:, 1, 1] - Us[:, 0, 1] * Us[:, 1, 0]
-                ok = np.flatnonzero(det > 1e-9 * (Us[:, 0, 0] + Us[:, 1, 1]) ** 2)
+                ok = (det > 1e-9 * (Us[:, 0, 0] + Us[:, 1, 1]) ** 2).nonzero()[0]
                 if len(ok):
                     V_o = np.linalg.inv(Us[ok])
                     z_o = (V_o @ us[ok][..., None])[..., 0]
@@ -690,7 +690,7 @@ class CameraNode:
                 foot, J = cam.image_and_jacobians(g)
                 wh = np.array(sizes) * pixels_per_unit(J)[:, None]
             box = np.concatenate([foot[:, :1] - wh[:, :1] / 2.0, foot[:, 1:] - wh[:, 1:], wh], axis=1)
-            for i, b, ok in zip(rows, box, np.all(np.isfinite(foot), axis=1)):
+            for i, b, ok in zip(rows, box, np.isfinite(foot).all(axis=1)):
                 if ok:
                     out[i][cam.id] = b
         return out

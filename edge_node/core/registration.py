@@ -84,6 +84,7 @@ from edge_node.geometry import Camera
 
 N_PARAMS = 5
 _ROT90 = np.array([[0.0, -1.0], [1.0, 0.0]])
+_I2 = np.eye(2)
 
 
 def reference_point(camera: Camera) -> np.ndarray:
@@ -146,7 +147,7 @@ class Registration:
         room = max(self.cap - self.noise_var, 0.0)
         # an unconverged correction counts at most as calib_sigma
         C = np.where((top > room)[:, None, None], C * (room / np.maximum(top, 1e-300))[:, None, None], C)
-        R[:, :2, :2] += np.eye(2) * self.noise_var + C
+        R[:, :2, :2] += _I2 * self.noise_var + C
         return z, R
 
     def to_camera_many(self, xy: np.ndarray) -> np.ndarray:
@@ -158,7 +159,7 @@ class Registration:
         with np.errstate(invalid="ignore", divide="ignore", over="ignore"):
             for _ in range(3):
                 foot, J = self.camera.image_and_jacobians(g)
-                live &= np.all(np.isfinite(foot), axis=1)
+                live &= np.isfinite(foot).all(axis=1)
                 a = away_direction(J)
                 step = xy - self.bases(g, a) @ self.theta
                 g = np.where(live[:, None], step, g)
@@ -177,10 +178,10 @@ class Registration:
         used = np.array([not m.cut for m in ms], bool)
         if not used.any():
             return used
-        idx = np.flatnonzero(used)
+        idx = used.nonzero()[0]
         z = np.array([ms[i].z for i in idx])[:, :2]
         A = self.bases(z, np.array([ms[i].away for i in idx]))
-        V = np.array([ms[i].R for i in idx])[:, :2, :2] + np.eye(2) * self.noise_var + V_other[idx]
+        V = np.array([ms[i].R for i in idx])[:, :2, :2] + _I2 * self.noise_var + V_other[idx]
         r = z_other[idx] - (z + A @ self.theta)
         S = V + A @ self.Sigma @ A.transpose(0, 2, 1)
         nis = np.einsum("ni,ni->n", r, np.linalg.solve(S, r[..., None])[..., 0])
@@ -198,7 +199,7 @@ class Registration:
     def end_frame(self) -> None:
         """R3: fold this frame's residuals into ``theta``, then step to the next frame (R6's
         pull, and the random walk)."""
-        if np.any(self._info):
+        if self._info.any():
             info = np.linalg.inv(self.Sigma) + self._info
             Sigma = np.linalg.inv(info)
             self.theta = self.theta + Sigma @ self._vec

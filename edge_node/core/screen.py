@@ -206,7 +206,7 @@ class Screen:
         flat = U.reshape(n, 36)
         if factored:
             bad = np.zeros(n, bool)
-            todo = np.flatnonzero(flat.any(axis=1))
+            todo = flat.any(axis=1).nonzero()[0]
         else:
             vel = flat[:, VELOCITY_PLACES].any(axis=1) | u[:, 4:].any(axis=1)
             # symmetry of the measured block: outside it an entry without ``vel`` is zero (and
@@ -214,14 +214,14 @@ class Screen:
             B = U[:, :4, :4]
             asym = (np.abs(B - B.transpose(0, 2, 1)) > 1e-6 * np.abs(B)).reshape(n, 16).any(axis=1)
             zero = ~flat.any(axis=1)
-            bad = asym | vel | (zero & np.any(u, axis=1))
-            todo = np.flatnonzero(~(asym | vel | zero))
+            bad = asym | vel | (zero & u.any(axis=1))
+            todo = (~(asym | vel | zero)).nonzero()[0]
         implausible = np.zeros(n, bool)
         if len(todo):
             u4, U4 = u[todo, :4], U[todo, :4, :4]
             sure, far = self._measured(u4, U4)
             implausible[todo[sure]] = far[sure]
-            unsure = np.flatnonzero(~sure)
+            unsure = (~sure).nonzero()[0]
             if len(unsure):
                 b, i = self._eigen(u4[unsure], U4[unsure])
                 bad[todo[unsure]] |= b
@@ -271,7 +271,8 @@ class Screen:
             z2 = (y2 - l32 * z3) / l22
             z1 = (y1 - l21 * z2 - l31 * z3) / l11
             z0 = (y0 - l10 * z1 - l20 * z2 - l30 * z3) / l00
-            z = np.stack([z0, z1, z2, z3], axis=1)
+            z = np.empty((len(z0), 4))
+            z[:, 0], z[:, 1], z[:, 2], z[:, 3] = z0, z1, z2, z3
             e = z - self._plausible(z)
             d2 = ((e[:, None, :] @ U4) @ e[:, :, None])[:, 0, 0]
         return sure, ~(d2 <= INFO_GATE)
@@ -300,7 +301,7 @@ class Screen:
         """Whether each ``x_bar`` of ``x (n, 6)`` is implausible: off the world, a size above
         ``max_size`` or a speed above ``max_speed``."""
         with np.errstate(all="ignore"):
-            return (~self._on_world(x[:, :2]) | np.any(~(np.abs(x[:, 2:4]) <= self.max_size), axis=1)
+            return (~self._on_world(x[:, :2]) | (~(np.abs(x[:, 2:4]) <= self.max_size)).any(axis=1)
                     | ~(np.hypot(x[:, 4], x[:, 5]) <= self.max_speed))
 
     def birth(self, tid: TrackerId, born: int, frame: int, sender: int, book: IdentityBook,
@@ -356,10 +357,10 @@ class Screen:
         """The plausible measurements nearest ``z (n, 4)``: on the world, sizes in
         ``[0, max_size]``."""
         c = np.array(z, float)
-        c[:, 2:4] = np.clip(c[:, 2:4], 0.0, self.max_size)
+        np.clip(c[:, 2:4], 0.0, self.max_size, out=c[:, 2:4])
         if len(self.anchors):
             d = norms(c[:, None, :2] - self.anchors[None], axis=2)  # (n, anchors)
-            out = np.flatnonzero(d.min(axis=1) > self.radius)
+            out = (d.min(axis=1) > self.radius).nonzero()[0]
             if len(out):  # onto the circle of the nearest anchor
                 d = d[out]
                 i = np.argmin(d, axis=1)
@@ -372,7 +373,7 @@ class Screen:
         if not len(self.anchors):
             return np.ones(len(xy), bool)
         d = norms(xy[:, None] - self.anchors[None], axis=2)
-        return np.min(d, axis=1) <= self.radius
+        return d.min(axis=1) <= self.radius
 
     @staticmethod
     def _in_counter_order(tid: TrackerId, born: int, book: IdentityBook) -> bool:
