@@ -101,6 +101,7 @@ class Screen:
         self.claimed: OrderedDict[TrackerId, int] = OrderedDict()
         self.relayed: OrderedDict[TrackerId, int] = OrderedDict()  # unknown merge losers -> frame
         self.heard: dict[int, dict[TrackerId, int]] = {}  # sender -> id -> last frame mentioned
+        self._heard_low: dict[int, int] = {}  # sender -> at most the oldest frame in heard[sender]
         # sender -> (first, last) frame of its messages without a gap longer than kappa
         self.stretch: dict[int, tuple[int, int]] = {}
 
@@ -131,8 +132,14 @@ class Screen:
             since = m.frame
         self.stretch[s] = (min(since, m.frame), max(last, m.frame))
         heard = self.heard.setdefault(s, {})
-        for tid in [t for t, f in heard.items() if m.frame - f > self.window]:
-            del heard[tid]
+        low = self._heard_low.get(s, m.frame)
+        if m.frame - low > self.window:  # an id may be older than the window: forget those
+            for tid in [t for t, f in heard.items() if m.frame - f > self.window]:
+                del heard[tid]
+            low = min(heard.values(), default=m.frame)
+        # (the frames in heard only grow, and new ones are m.frame: low stays a lower bound, and
+        # the ids are scanned only when one may be forgotten, not for every message)
+        self._heard_low[s] = min(low, m.frame)
         b = m.block
         if verdicts is None:
             verdicts = (self.informations(b.u, b.U, b.factored), self.states(b.x_bar).tolist())

@@ -27,17 +27,22 @@ _NO_u.setflags(write=False)
 _NO_U.setflags(write=False)
 
 
-@dataclass
 class LocalInfo:
-    """One tracker's part of this node's frame: filled by ``prepare``, used by ``update``."""
+    """One tracker's part of this node's frame: filled by ``prepare``, used by ``update``. (A
+    plain slotted class: one is built per tracker and frame, and a dataclass's default
+    factories cost more than the fields.)"""
 
-    u: np.ndarray = field(default_factory=lambda: _NO_u)  # eq. 2, sum over this node's cameras
-    U: np.ndarray = field(default_factory=lambda: _NO_U)
-    seen_by: set[int] = field(default_factory=set)  # this node's cameras that associated it
-    ell_sent: int = 0  # eq. 8 as this node reports it
-    x_bar_sent: np.ndarray | None = None  # x_bar as the neighbours receive it (wire precision)
-    # per camera of this node: its (u, U) and the uncorrected measurement (registration)
-    per_camera: dict[int, tuple[np.ndarray, np.ndarray, object]] = field(default_factory=dict)
+    __slots__ = ("u", "U", "seen_by", "ell_sent", "x_bar_sent", "per_camera")
+
+    def __init__(self, u: np.ndarray = _NO_u, U: np.ndarray = _NO_U, seen_by: set[int] | None = None,
+                 ell_sent: int = 0, x_bar_sent: np.ndarray | None = None,
+                 per_camera: dict[int, tuple[np.ndarray, np.ndarray, object]] | None = None):
+        self.u, self.U = u, U  # eq. 2, summed over this node's cameras
+        self.seen_by = set() if seen_by is None else seen_by  # its cameras that associated it
+        self.ell_sent = ell_sent  # eq. 8 as this node reports it
+        self.x_bar_sent = x_bar_sent  # x_bar as the neighbours receive it (wire precision)
+        # per camera of this node: its (u, U) and the uncorrected measurement (registration)
+        self.per_camera = {} if per_camera is None else per_camera
 
     def add(self, camera: int, u: np.ndarray, U: np.ndarray, raw: object = None) -> None:
         """Several cameras of one node add up (eq. 3)."""
