@@ -497,7 +497,7 @@ def test_the_inbox_takes_one_entry_per_sender_and_surviving_id():
 
     m1 = FrameMessage("t", 1, 7, (info((1, 4), 1.0, 0), info((0, 2), 2.0, 3), info((3, 1), 9.0, 1)))
     m0 = FrameMessage("t", 0, 7, (info((1, 4), 4.0, 2),))
-    inbox = Inbox([m0, m1], lambda t: aliases.get(t, t))
+    inbox = Inbox([m0, m1], aliases)
     assert inbox.ids() == [(0, 2), (3, 1)]
     e = inbox.entries([(0, 2), (3, 1), (5, 5)])
     assert e.rows.tolist() == [0, 0, 1]
@@ -506,7 +506,7 @@ def test_the_inbox_takes_one_entry_per_sender_and_surviving_id():
     # sender 1's ell-0 entry was under the alias, not the one taken: nobody is said to see it
     assert inbox.measured == {}
     m1_own_seen = FrameMessage("t", 1, 7, (info((0, 2), 2.0, 0),))
-    assert Inbox([m0, m1_own_seen], lambda t: aliases.get(t, t)).measured == {(0, 2): frozenset({1})}
+    assert Inbox([m0, m1_own_seen], aliases).measured == {(0, 2): frozenset({1})}
     assert [t.x_bar[0] for t in inbox.infos((0, 2))] == [4.0, 2.0]
 
 
@@ -530,7 +530,7 @@ def test_entries_are_summed_per_tracker_in_sender_order_as_add_at_does():
             infos.append(TrackerInfo(t, rng.normal(size=6) * scale, rng.normal(size=6) * scale,
                                      U + U.T, 1))
         msgs.append(FrameMessage("t", sender, 3, tuple(infos)))
-    e = Inbox(msgs, lambda t: t).entries(ids)
+    e = Inbox(msgs).entries(ids)
     counts = np.bincount(e.rows, minlength=len(ids))
     assert len(set(counts.tolist())) >= 3 and counts.min() <= 1 and counts.max() == 4, counts
     for values, shape in ((e.u, (6,)), (e.U, (6, 6)), (e.x_bar, (6,))):
@@ -565,7 +565,7 @@ def test_a_neighbour_that_saw_a_target_counts_as_seeing_it_without_u_U():
         return FrameMessage("t", 0, frame, (t,))
 
     for t, seen in ((entry(0, True), True), (entry(0, False), True), (entry(2, False), False)):
-        measured = Inbox([heard(t)], node.book.resolve).measured
+        measured = Inbox([heard(t)], node.book.aliases).measured
         assert (0 in measured.get((0, 0), frozenset())) == seen, t.ell
     # event-triggered: node 0's frame-3 entry said ell 0; at frame 5 it is held, at 9 too old
     node.memory.remember([heard(entry(0, False), frame=3)])

@@ -11,11 +11,13 @@ a tracker this node adopts.
 """
 from __future__ import annotations
 
-from collections.abc import Callable, Collection
+from bisect import bisect_right
+from collections.abc import Collection, Mapping
 from dataclasses import dataclass
 
 import numpy as np
 
+from edge_node.core.identity import resolve
 from protocol.messages import FrameMessage, TrackerId, TrackerInfo
 
 
@@ -61,7 +63,8 @@ class Entries:
 class Inbox:
     """A frame's (screened) messages, in the order given (sender, frame), gathered per id.
 
-    ``resolve`` maps an id to the one that survives its merges here. One entry per sender and
+    ``aliases`` are this node's merges (loser -> winner, ``IdentityBook.aliases``): an id is
+    counted under the one that survives its merges here. One entry per sender and
     surviving id: the one under the surviving id itself when a sender still names both.
     ``measured[id]``: the senders whose camera saw the target this frame, as far as their
     entries tell (measurement information, or ``ell`` 0), or, event-triggered, as their
@@ -71,27 +74,32 @@ class Inbox:
     (ring8-sim async, gain 1: ground MOTA 0.891, with this 0.952).
     """
 
-    def __init__(self, msgs: list[FrameMessage], resolve: Callable[[TrackerId], TrackerId],
+    def __init__(self, msgs: list[FrameMessage], aliases: Mapping[TrackerId, TrackerId] | None = None,
                  observed: Collection[tuple[int, TrackerId]] = frozenset()):
+        aliases = aliases or {}
         self.blocks = [m.block for m in msgs]
         self.by_id: dict[TrackerId, list[int]] = {}  # surviving id -> stacked rows naming it
         measured: dict[TrackerId, list[int]] = {}
-        self._where: list[tuple[int, int]] = []  # stacked row -> (message, row)
-        for mi, (m, b) in enumerate(zip(msgs, self.blocks)):
+        self._starts: list[int] = []  # each message's first stacked row
+        offset = 0
+        for m, b in zip(msgs, self.blocks):
             ids = b.ids()
-            ells = b.ell.tolist()
-            informs = (b.U[:, 0, 0] > 0).tolist()
-            offset = len(self._where)
-            self._where.extend(zip([mi] * len(ids), range(len(ids))))
-            mine: dict[TrackerId, int] = {}
-            for r, tid in enumerate(ids):
-                rid = resolve(tid)
-                if rid not in mine or tid == rid:
-                    mine[rid] = r
+            self._starts.append(offset)
+            tells = ((b.U[:, 0, 0] > 0) | (b.ell == 0)).tolist()  # measured, or ell 0
+            if aliases and not aliases.keys().isdisjoint(ids):
+                mine: dict[TrackerId, int] = {}
+                for r, tid in enumerate(ids):
+                    rid = resolve(tid, aliases)
+                    if rid not in mine or tid == rid:
+                        mine[rid] = r
+            else:  # no merged id (the common case): each id is its own, in row order
+                mine = dict(zip(ids, range(len(ids))))
+            s = m.sender
             for rid, r in mine.items():
                 self.by_id.setdefault(rid, []).append(offset + r)
-                if informs[r] or ells[r] == 0 or (m.sender, ids[r]) in observed:
-                    measured.setdefault(rid, []).append(m.sender)
+                if tells[r] or (observed and (s, ids[r]) in observed):
+                    measured.setdefault(rid, []).append(s)
+            offset += len(ids)
         self.measured: dict[TrackerId, frozenset[int]] = {
             rid: frozenset(senders) for rid, senders in measured.items()}
         if self.blocks:
@@ -109,7 +117,11 @@ class Inbox:
 
     def infos(self, tid: TrackerId) -> list[TrackerInfo]:
         """The entries naming ``tid``, in sender order, as ``TrackerInfo`` (for adoption)."""
-        return [self.blocks[m].info(r) for m, r in (self._where[g] for g in self.by_id.get(tid, ()))]
+        out = []
+        for g in self.by_id.get(tid, ()):
+            m = bisect_right(self._starts, g) - 1
+            out.append(self.blocks[m].info(g - self._starts[m]))
+        return out
 
     def entries(self, ids: list[TrackerId]) -> Entries:
         """The entries of trackers ``ids``, stacked (see ``Entries``)."""

@@ -350,7 +350,7 @@ class CameraNode:
         if stale_ok:
             self.memory.remember(msgs)
             msgs = self.memory.at(k)
-        inbox = Inbox(msgs, self.book.resolve, self.memory.observed if stale_ok else frozenset())
+        inbox = Inbox(msgs, self.book.aliases, self.memory.observed if stale_ok else frozenset())
         for tid in inbox.ids():
             if tid not in self.trackers:
                 self._adopt(k, tid, inbox.infos(tid), self.memory.told.get(tid, k) if stale_ok else k)
