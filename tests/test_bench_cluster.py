@@ -68,6 +68,16 @@ def test_two_node_cluster_monitor_equals_counters(tmp_path):
     # the process's CPU per frame includes the tracker's own (wall) time only when it ran on
     # a core; it cannot exceed the whole frame period's share of two cores by much
     assert fig["cpu_ms_per_frame"] < 2 * 1e3 / fig["fps"] + 5
+    # where the CPU goes: every node's parts come from its own clocks (the loop thread's by
+    # step, the process's in all), so the loop's steps fit in its thread and its thread in the
+    # process; the medians over nodes then add up to about the process's median
+    for i in range(2):
+        cpu = json.loads((tmp_path / "c" / "nodes" / f"counters_node{i}.json").read_text())["cpu_s"]
+        assert min(cpu["core"], cpu["source"], cpu["send"]) > 0, cpu
+        assert cpu["core"] + cpu["source"] + cpu["send"] <= cpu["loop"] <= cpu["frames"], cpu
+    split = fig["cpu_split_ms_per_frame"]
+    assert all(_positive(split[p]) for p in ("core", "source", "send", "other_threads")), split
+    assert sum(split.values()) == pytest.approx(fig["cpu_ms_per_frame"], rel=0.3)
     state = json.loads((tmp_path / "c" / "cluster.json").read_text())
     assert not any(alive(p["pid"]) for p in state["nodes"].values())
 

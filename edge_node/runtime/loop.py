@@ -131,6 +131,13 @@ class LoopStats:
     frames_skipped_behind: int = 0  # frames skipped to catch up with the network
     catch_ups: int = 0  # times it skipped ahead
     cpu_at_first_frame: float | None = None  # time.process_time() when the first frame began
+    thread_at_first_frame: float | None = None  # time.thread_time() then (the loop's thread)
+    # CPU time of the frame loop's own thread, by step (time.thread_time): the detector or
+    # scenario source, the core (prepare + update), sending (encode + publish); the rest of
+    # the process's CPU is Zenoh's threads, decoding in its callbacks, writing tracks
+    cpu_source_s: float = 0.0
+    cpu_core_s: float = 0.0
+    cpu_send_s: float = 0.0
 
     @property
     def frames_sent(self) -> int:  # frames whose message was published
@@ -244,6 +251,7 @@ class FrameLoop:
         """Delayed (fault-injected) messages now due; neighbours that came back get a resync."""
         if self.stats.cpu_at_first_frame is None:
             self.stats.cpu_at_first_frame = time.process_time()
+            self.stats.thread_at_first_frame = time.thread_time()
         self._publish(self.outbox.due(k))
         alive_now = getattr(self.transport, "alive_neighbours", None)
         if alive_now is None:
@@ -266,38 +274,52 @@ class FrameLoop:
             os.kill(os.getpid(), signal.SIGKILL)
 
     def step_sync(self, k: int, first: bool) -> list:
-        t0 = time.perf_counter()
+        t0, c0 = time.perf_counter(), time.thread_time()
         self._dets = self.source(k)
+        c1 = time.thread_time()
         msg = self.node.prepare(k, self._dets)
-        t1 = time.perf_counter()
+        t1, c2 = time.perf_counter(), time.thread_time()
+        c3 = c2
         inbox: dict = {}
         if self.transport.neighbours:
             self._send(msg)
+            c3 = time.thread_time()
             timeout = self.rt.startup_timeout_s if first else self.rt.sync_timeout_s
             inbox = self.transport.collect(k, timeout, self.stop)
-        t2 = time.perf_counter()
+        t2, c4 = time.perf_counter(), time.thread_time()
         tracks = self.node.update(list(inbox.values()))
-        t3 = time.perf_counter()
-        self.stats.prepare_s += t1 - t0
-        self.stats.wait_s += t2 - t1
-        self.stats.update_s += t3 - t2
+        t3, c5 = time.perf_counter(), time.thread_time()
+        self._tally(t0, t1, t2, t3, (c0, c1, c2, c3, c4, c5))
         return tracks
 
+    def _tally(self, t0: float, t1: float, t2: float, t3: float, c: tuple[float, ...]) -> None:
+        """A frame's wall times (source + prepare, waiting, update) and its loop thread's CPU
+        (source, core, sending; ``c``: ``time.thread_time`` before the source, after it, after
+        prepare, after sending, before and after update)."""
+        st = self.stats
+        st.prepare_s += t1 - t0
+        st.wait_s += t2 - t1
+        st.update_s += t3 - t2
+        st.cpu_source_s += c[1] - c[0]
+        st.cpu_core_s += (c[2] - c[1]) + (c[5] - c[4])
+        st.cpu_send_s += c[3] - c[2]
+
     def step_async(self, k: int) -> list:
-        t0 = time.perf_counter()
+        t0, c0 = time.perf_counter(), time.thread_time()
         self._dets = self.source(k)
+        c1 = time.thread_time()
         msg = self.node.prepare(k, self._dets)
-        t1 = time.perf_counter()
+        t1, c2 = time.perf_counter(), time.thread_time()
+        c3 = c2
         inbox: list = []
         if self.transport.neighbours:
             self._send(msg)
+            c3 = time.thread_time()
             inbox = self.transport.drain(k)
-        t2 = time.perf_counter()
+        t2, c4 = time.perf_counter(), time.thread_time()
         tracks = self.node.update(inbox, stale_ok=True)
-        t3 = time.perf_counter()
-        self.stats.prepare_s += t1 - t0
-        self.stats.wait_s += t2 - t1
-        self.stats.update_s += t3 - t2
+        t3, c5 = time.perf_counter(), time.thread_time()
+        self._tally(t0, t1, t2, t3, (c0, c1, c2, c3, c4, c5))
         return tracks
 
     # -- the loop ----------------------------------------------------------------------------------
@@ -613,7 +635,11 @@ def write_counters(cfg: NodeConfig, loop: FrameLoop, node: CameraNode, transport
         # CPU of the whole process (all its threads: Zenoh's too), and since its first frame
         "cpu_s": {"process": time.process_time(),
                   "frames": None if st.cpu_at_first_frame is None
-                  else time.process_time() - st.cpu_at_first_frame},
+                  else time.process_time() - st.cpu_at_first_frame,
+                  # the frame loop's thread since its first frame, and by step (LoopStats)
+                  "loop": None if st.thread_at_first_frame is None
+                  else time.thread_time() - st.thread_at_first_frame,
+                  "source": st.cpu_source_s, "core": st.cpu_core_s, "send": st.cpu_send_s},
         "rotations": loop.writer.rotations,
         "heap": heap(),  # glibc's in-use and free heap, MB (null elsewhere)
         "node_stats": dict(vars(node.stats)),

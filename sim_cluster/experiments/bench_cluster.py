@@ -23,7 +23,11 @@ frames per second
     start-up skew. ``busy_ms_per_frame`` (median over nodes of ``(prepare + update) / frames``
     from ``timing_s``, wall time) says how much of a frame period is the tracker's own work;
     ``cpu_ms_per_frame`` (median over nodes of the process's CPU time from its first frame to its
-    exit, all threads, Zenoh's included, / frames) what a frame costs the box.
+    exit, all threads, Zenoh's included, / frames) what a frame costs the box;
+    ``cpu_split_ms_per_frame`` where it goes (``CPU_PARTS``, medians over nodes, so they need
+    not add up exactly): the frame loop thread's core (``prepare`` + ``update``), source
+    (detections; here the simulated world) and sending (encode + publish), the rest of that
+    thread, and the process's other threads (Zenoh's; decoding runs in its callbacks).
 timeouts
     the frames a node stopped waiting for a neighbour's message (summed over nodes).
 bytes per link per frame
@@ -209,6 +213,9 @@ def _figures(state: ClusterState, n: int, frames: int, spawned: dict[int, float]
     wait = [(c.get("timing_s") or {}).get("wait", 0) / frames * 1e3 for c in counters.values()]
     cpu = [None if (c.get("cpu_s") or {}).get("frames") is None
            else c["cpu_s"]["frames"] / frames * 1e3 for c in counters.values()]
+    parts = [{p: _cpu_part(c.get("cpu_s") or {}, p) for p in CPU_PARTS} for c in counters.values()]
+    split = {p: _median([None if x[p] is None else x[p] / frames * 1e3 for x in parts])
+             for p in CPU_PARTS}
     # -- start-up
     def since_spawn(ts: dict[int, float | None]) -> list[float | None]:
         return [None if ts.get(i) is None else ts[i] - spawned[i] for i in range(n)]
@@ -233,8 +240,26 @@ def _figures(state: ClusterState, n: int, frames: int, spawned: dict[int, float]
     return {"nodes": n, "frames": frames, "topology": state.topology, "scenario": state.scenario,
             "fps": fps, "fps_wall": fps_wall,
             "busy_ms_per_frame": _median(busy), "wait_ms_per_frame": _median(wait),
-            "cpu_ms_per_frame": _median(cpu), "timeouts": problems["timeouts"],
+            "cpu_ms_per_frame": _median(cpu), "cpu_split_ms_per_frame": split,
+            "timeouts": problems["timeouts"],
             "latency": latency, "bandwidth": bandwidth, "startup": startup, "problems": problems}
+
+
+CPU_PARTS = ("core", "source", "send", "loop_rest", "other_threads")
+
+
+def _cpu_part(cpu: dict, part: str) -> float | None:
+    """One part of a node's CPU since its first frame (``cpu_s`` of its counters file): the
+    loop thread's ``core`` (prepare + update), ``source`` (detections) and ``send`` (encode
+    and publish), the rest of that thread (``loop_rest``: track writer, status, waiting), and
+    the process's other threads (``other_threads``: Zenoh's, decoding in its callbacks)."""
+    if cpu.get("loop") is None or cpu.get("frames") is None:
+        return None
+    if part == "loop_rest":
+        return cpu["loop"] - cpu["core"] - cpu["source"] - cpu["send"]
+    if part == "other_threads":
+        return cpu["frames"] - cpu["loop"]
+    return cpu[part]
 
 
 # -- the command -----------------------------------------------------------------------------
@@ -243,6 +268,7 @@ HEADLINE = {  # name in the summary -> path in one run's figures
     "fps_wall": ("fps_wall",),
     "busy_ms_per_frame": ("busy_ms_per_frame",),
     "cpu_ms_per_frame": ("cpu_ms_per_frame",),
+    **{f"cpu_{part}_ms_per_frame": ("cpu_split_ms_per_frame", part) for part in CPU_PARTS},
     "timeouts": ("timeouts",),
     "latency_median_ms": ("latency", "median_of_node_medians_ms"),
     "latency_p99_ms": ("latency", "max_of_node_p99_ms"),
@@ -355,7 +381,10 @@ def table(result: dict) -> str:
     for key, s in result["summary"].items():
         extra = [f"monitor pooled latency {_fmt(s['monitor_latency_median_ms'], '.2f')} / "
                  f"{_fmt(s['monitor_latency_p99_ms'], '.2f')} ms",
-                 f"frames/s incl. start-up skew {_fmt(s['fps_wall'], '.1f')}"]
+                 f"frames/s incl. start-up skew {_fmt(s['fps_wall'], '.1f')}",
+                 "cpu ms by part: " + ", ".join(
+                     f"{part.replace('_', ' ')} {_fmt(s.get(f'cpu_{part}_ms_per_frame'), '.2f')}"
+                     for part in CPU_PARTS)]
         if not s["monitor_agrees_in_every_run"]:
             extra.append("MONITOR AND COUNTERS DISAGREE (see per_link in the JSON)")
         bad = {k: v for k, v in s["problems"].items() if v}
