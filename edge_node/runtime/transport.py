@@ -175,6 +175,7 @@ class ZenohTransport:
         self.bytes_sent: dict[int, int] = defaultdict(int)
         self.messages_sent: dict[int, int] = defaultdict(int)
         self.publish_calls = 0
+        self.receive_cpu_s = 0.0  # Zenoh callback threads: time.thread_time spent in _on_sample
         self.bytes_received: dict[int, int] = defaultdict(int)
         self.messages_received: dict[int, int] = defaultdict(int)
         self.rejected: dict[str, int] = defaultdict(int)
@@ -281,6 +282,15 @@ class ZenohTransport:
                            f"({reason}): {detail[:200]}")
 
     def _on_sample(self, sample) -> None:
+        c0 = time.thread_time()
+        try:
+            self._receive(sample)
+        finally:
+            spent = time.thread_time() - c0  # this callback thread's CPU for the message
+            with self._cond:
+                self.receive_cpu_s += spent
+
+    def _receive(self, sample) -> None:
         try:
             now = time.time()
             key = str(sample.key_expr)
@@ -547,6 +557,8 @@ class ZenohTransport:
                 "messages_sent": sum(self.messages_sent.values()),
                 "messages_per_link": links_out(self.messages_sent),
                 "frames_published": self.publish_calls,
+                # CPU of Zenoh's callback threads in this node's code (checks and decoding)
+                "receive_cpu_s": self.receive_cpu_s,
                 "bytes_received": sum(self.bytes_received.values()),
                 "bytes_received_per_link": links_in(self.bytes_received),
                 "messages_received": sum(self.messages_received.values()),

@@ -27,7 +27,8 @@ frames per second
     ``cpu_split_ms_per_frame`` where it goes (``CPU_PARTS``, medians over nodes, so they need
     not add up exactly): the frame loop thread's core (``prepare`` + ``update``), source
     (detections; here the simulated world) and sending (encode + publish), the rest of that
-    thread, and the process's other threads (Zenoh's; decoding runs in its callbacks).
+    thread, the Zenoh callbacks' receiving (checks and decoding), and the rest of the
+    process's other threads (Zenoh's runtime).
 timeouts
     the frames a node stopped waiting for a neighbour's message (summed over nodes).
 bytes per link per frame
@@ -213,7 +214,7 @@ def _figures(state: ClusterState, n: int, frames: int, spawned: dict[int, float]
     wait = [(c.get("timing_s") or {}).get("wait", 0) / frames * 1e3 for c in counters.values()]
     cpu = [None if (c.get("cpu_s") or {}).get("frames") is None
            else c["cpu_s"]["frames"] / frames * 1e3 for c in counters.values()]
-    parts = [{p: _cpu_part(c.get("cpu_s") or {}, p) for p in CPU_PARTS} for c in counters.values()]
+    parts = [{p: _cpu_part(c, p) for p in CPU_PARTS} for c in counters.values()]
     split = {p: _median([None if x[p] is None else x[p] / frames * 1e3 for x in parts])
              for p in CPU_PARTS}
     # -- start-up
@@ -245,20 +246,24 @@ def _figures(state: ClusterState, n: int, frames: int, spawned: dict[int, float]
             "latency": latency, "bandwidth": bandwidth, "startup": startup, "problems": problems}
 
 
-CPU_PARTS = ("core", "source", "send", "loop_rest", "other_threads")
+CPU_PARTS = ("core", "source", "send", "loop_rest", "receive", "zenoh")
 
 
-def _cpu_part(cpu: dict, part: str) -> float | None:
-    """One part of a node's CPU since its first frame (``cpu_s`` of its counters file): the
-    loop thread's ``core`` (prepare + update), ``source`` (detections) and ``send`` (encode
-    and publish), the rest of that thread (``loop_rest``: track writer, status, waiting), and
-    the process's other threads (``other_threads``: Zenoh's, decoding in its callbacks)."""
-    if cpu.get("loop") is None or cpu.get("frames") is None:
+def _cpu_part(counters: dict, part: str) -> float | None:
+    """One part of a node's CPU since its first frame (its counters file): the loop thread's
+    ``core`` (prepare + update), ``source`` (detections) and ``send`` (encode and publish), the
+    rest of that thread (``loop_rest``: track writer, status, waiting), the Zenoh callbacks'
+    ``receive`` (checks and decoding) and the rest of the process's other threads
+    (``zenoh``: its runtime)."""
+    cpu = counters.get("cpu_s") or {}
+    if cpu.get("loop") is None or cpu.get("frames") is None or "receive_cpu_s" not in counters:
         return None
     if part == "loop_rest":
         return cpu["loop"] - cpu["core"] - cpu["source"] - cpu["send"]
-    if part == "other_threads":
-        return cpu["frames"] - cpu["loop"]
+    if part == "receive":
+        return counters["receive_cpu_s"]
+    if part == "zenoh":
+        return cpu["frames"] - cpu["loop"] - counters["receive_cpu_s"]
     return cpu[part]
 
 
