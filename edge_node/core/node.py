@@ -217,8 +217,7 @@ class CameraNode:
         """LDA of one camera's measurements; each pair adds its information (eq. 2) and may
         teach the gallery. Returns the unassigned measurements."""
         ids = sorted(self.trackers)
-        cands = [Candidate(self.trackers[t].x_bar, self.trackers[t].P, self.trackers[t].gallery)
-                 for t in ids]
+        cands = [Candidate(tr.x_bar, tr.P, tr.gallery) for tr in map(self.trackers.__getitem__, ids)]
         assigned = set()
         pairs = self.associate(cands, obs)
         if pairs:
@@ -431,7 +430,7 @@ class CameraNode:
                         for tr in trs])
         y = entries.summed(np.array([tr.local.u for tr in trs]), entries.u)
         S = entries.summed(np.array([tr.local.U for tr in trs]), entries.U)
-        diff = entries.summed(np.zeros_like(x_bar), entries.x_bar - ref[rows])
+        diff = entries.summed(np.zeros(x_bar.shape), entries.x_bar - ref[rows])
         upm = self.cfg.units_per_metre
         deg = np.bincount(rows, minlength=len(ids))  # terms of each consensus sum (eq. 4)
         bound = self.cfg.consensus_bound
@@ -482,6 +481,14 @@ class CameraNode:
         rows: dict[int, tuple[list, list, list]] = {c: ([], [], []) for c in self.registrations}
         for i, tid in enumerate(entries.ids):
             mine = self.trackers[tid].local.per_camera
+            if len(mine) == 1:  # one camera measured it (a node of one camera): no other of its own
+                ((cam_id, (_, _, raw)),) = mine.items()
+                if raw is not None and count[i]:
+                    raws, idx, others = rows[cam_id]
+                    raws.append(raw)
+                    idx.append(i)
+                    others.append(None)
+                continue
             for cam_id in sorted(mine):
                 raw = mine[cam_id][2]
                 own = [(u, U) for c, (u, U, _) in sorted(mine.items()) if c != cam_id]
