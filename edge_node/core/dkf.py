@@ -125,8 +125,8 @@ def consensus_gamma(M: np.ndarray, degree: int | np.ndarray = 1,
     one = M.ndim == 2
     Ms = M[None] if one else M
     d = np.asarray(degree, float)
-    if d.ndim == 0:
-        d = np.full(len(Ms), float(d))
+    if d.shape != Ms.shape[:1]:  # one degree for all (the common call passes one per matrix)
+        d = np.broadcast_to(d, Ms.shape[:1])
     frobenius = norms(Ms, axis=(-2, -1))
     g = 1.0 / (1.0 + frobenius)
     # ||M||_2 <= ||M||_F: where the Frobenius norm keeps the step within the bound the largest

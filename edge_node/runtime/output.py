@@ -6,7 +6,10 @@ Files in ``[output] dir`` (node-suffixed so several nodes can share one director
                             ``edge_node.formats.tracks.TrackWriter`` (the simulator's format too)
     status_node<id>.json    rewritten atomically about once per second and at exit
     counters_node<id>.json  written at exit: bytes / messages per link, receive counts, rejected
-                            messages by reason, one-hop latency (send time ``sent_at`` to receipt)
+                            messages by reason, one-hop latency (send time ``sent_at`` to receipt),
+                            CPU time: ``cpu_s`` (the process's; since its first frame; its frame
+                            loop thread's, in all and by step: source, core, send) and
+                            ``receive_cpu_s`` (Zenoh's callback threads in the node's code)
 """
 from __future__ import annotations
 
