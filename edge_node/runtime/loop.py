@@ -134,7 +134,8 @@ class LoopStats:
     thread_at_first_frame: float | None = None  # time.thread_time() then (the loop's thread)
     # CPU time of the frame loop's own thread, by step (time.thread_time): the detector or
     # scenario source, the core (prepare + update), sending (encode + publish); the rest of
-    # the process's CPU is Zenoh's threads, decoding in its callbacks, writing tracks
+    # that thread writes tracks and status and waits; the process's other threads are Zenoh's
+    # (its callbacks decode the neighbours' messages: the transport's receive_cpu_s)
     cpu_source_s: float = 0.0
     cpu_core_s: float = 0.0
     cpu_send_s: float = 0.0
