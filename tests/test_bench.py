@@ -114,3 +114,37 @@ def test_codec_counts_one_encode_and_a_decode_per_neighbour(tool, monkeypatch):
     assert counted.count("decode") == 2 * measured
     # the benchmark's own run before it counts nothing
     assert counted.count("uncounted encode") > 0 and "uncounted decode" in counted
+
+
+def test_track_hash_is_the_same_in_another_shell_and_moves_with_the_tracks(tmp_path, monkeypatch):
+    """``bench/track_hash.py`` fingerprints every track of the benchmark runs: a second
+    process with another hash seed prints the in-process hash (the core is deterministic), and
+    one track's number changed by an ulp changes it."""
+    import os
+    import subprocess
+    import sys
+
+    import numpy as np
+
+    script = SCRIPT.with_name("track_hash.py")
+    spec = importlib.util.spec_from_file_location("track_hash", script)
+    th = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(th)
+    here = th.track_hash([3], 12)
+    env = dict(os.environ, PYTHONHASHSEED="12345")
+    out = subprocess.run([sys.executable, str(script), "--targets", "3", "--frames", "12"],
+                         capture_output=True, text=True, env=env, cwd=tmp_path, check=True)
+    assert out.stdout.strip() == here
+    assert len(here) == 64 and here != th.track_hash([3], 11)
+
+    from edge_node.core.node import CameraNode
+    real = CameraNode.update
+
+    def nudged(self, *a, **kw):  # one node's first track, x moved by one ulp at frame 7
+        tracks = real(self, *a, **kw)
+        if self.id == 0 and self.frame == 7 and tracks:
+            t = tracks[0]
+            object.__setattr__(t, "x", np.nextafter(t.x, np.inf))
+        return tracks
+    monkeypatch.setattr(CameraNode, "update", nudged)
+    assert th.track_hash([3], 12) != here
