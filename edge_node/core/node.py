@@ -480,18 +480,10 @@ class CameraNode:
         # information on them (None: the neighbours' alone)
         rows: dict[int, tuple[list, list, list]] = {c: ([], [], []) for c in self.registrations}
         for i, tid in enumerate(entries.ids):
-            mine = self.trackers[tid].local.per_camera
-            if len(mine) == 1:  # one camera measured it (a node of one camera): no other of its own
-                ((cam_id, (_, _, raw)),) = mine.items()
-                if raw is not None and count[i]:
-                    raws, idx, others = rows[cam_id]
-                    raws.append(raw)
-                    idx.append(i)
-                    others.append(None)
-                continue
-            for cam_id in sorted(mine):
-                raw = mine[cam_id][2]
-                own = [(u, U) for c, (u, U, _) in sorted(mine.items()) if c != cam_id]
+            mine = sorted(self.trackers[tid].local.per_camera.items())
+            for cam_id, (_, _, raw) in mine:
+                # (a node of one camera has no other of its own: no list to build)
+                own = [(u, U) for c, (u, U, _) in mine if c != cam_id] if len(mine) > 1 else ()
                 if raw is None or not (count[i] or own):
                     continue
                 raws, idx, others = rows[cam_id]

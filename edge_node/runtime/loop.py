@@ -275,52 +275,38 @@ class FrameLoop:
             os.kill(os.getpid(), signal.SIGKILL)
 
     def step_sync(self, k: int, first: bool) -> list:
+        timeout = self.rt.startup_timeout_s if first else self.rt.sync_timeout_s
+        return self._step(k, lambda: list(self.transport.collect(k, timeout, self.stop).values()),
+                          stale_ok=False)
+
+    def step_async(self, k: int) -> list:
+        return self._step(k, lambda: self.transport.drain(k), stale_ok=True)
+
+    def _step(self, k: int, gather: Callable[[], list], stale_ok: bool) -> list:
+        """One frame: detections, ``prepare``, the message out, the neighbours' in (``gather``:
+        sync waits for frame ``k``'s, async takes what has come), ``update``. Keeps the wall
+        time of source + prepare, waiting and update, and the loop thread's CPU by step
+        (``LoopStats``)."""
+        st = self.stats
         t0, c0 = time.perf_counter(), time.thread_time()
         self._dets = self.source(k)
         c1 = time.thread_time()
         msg = self.node.prepare(k, self._dets)
         t1, c2 = time.perf_counter(), time.thread_time()
-        c3 = c2
-        inbox: dict = {}
+        c3, inbox = c2, []
         if self.transport.neighbours:
             self._send(msg)
             c3 = time.thread_time()
-            timeout = self.rt.startup_timeout_s if first else self.rt.sync_timeout_s
-            inbox = self.transport.collect(k, timeout, self.stop)
+            inbox = gather()
         t2, c4 = time.perf_counter(), time.thread_time()
-        tracks = self.node.update(list(inbox.values()))
+        tracks = self.node.update(inbox, stale_ok=stale_ok)
         t3, c5 = time.perf_counter(), time.thread_time()
-        self._tally(t0, t1, t2, t3, (c0, c1, c2, c3, c4, c5))
-        return tracks
-
-    def _tally(self, t0: float, t1: float, t2: float, t3: float, c: tuple[float, ...]) -> None:
-        """A frame's wall times (source + prepare, waiting, update) and its loop thread's CPU
-        (source, core, sending; ``c``: ``time.thread_time`` before the source, after it, after
-        prepare, after sending, before and after update)."""
-        st = self.stats
         st.prepare_s += t1 - t0
         st.wait_s += t2 - t1
         st.update_s += t3 - t2
-        st.cpu_source_s += c[1] - c[0]
-        st.cpu_core_s += (c[2] - c[1]) + (c[5] - c[4])
-        st.cpu_send_s += c[3] - c[2]
-
-    def step_async(self, k: int) -> list:
-        t0, c0 = time.perf_counter(), time.thread_time()
-        self._dets = self.source(k)
-        c1 = time.thread_time()
-        msg = self.node.prepare(k, self._dets)
-        t1, c2 = time.perf_counter(), time.thread_time()
-        c3 = c2
-        inbox: list = []
-        if self.transport.neighbours:
-            self._send(msg)
-            c3 = time.thread_time()
-            inbox = self.transport.drain(k)
-        t2, c4 = time.perf_counter(), time.thread_time()
-        tracks = self.node.update(inbox, stale_ok=True)
-        t3, c5 = time.perf_counter(), time.thread_time()
-        self._tally(t0, t1, t2, t3, (c0, c1, c2, c3, c4, c5))
+        st.cpu_source_s += c1 - c0
+        st.cpu_core_s += (c2 - c1) + (c5 - c4)
+        st.cpu_send_s += c3 - c2
         return tracks
 
     # -- the loop ----------------------------------------------------------------------------------
