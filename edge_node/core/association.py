@@ -45,13 +45,42 @@ class Candidate:
 @dataclass(eq=False, slots=True)
 class Observation:
     """What the associator needs of one measurement: ``z``, ``R`` and the descriptor; ``raw``
-    is the camera's own measurement before any registration correction (read only, not frozen:
-    see ``Candidate``)."""
+    is what the caller knows the measurement by, not read here (the node: the row of the
+    camera's box measurement before any registration correction). Read only, not frozen: see
+    ``Candidate``."""
 
     z: np.ndarray
     R: np.ndarray
     descriptor: np.ndarray | None
     raw: object = None
+
+
+class Observations(Sequence[Observation]):
+    """One camera frame's observations with their ``z`` ``(n, 4)`` and ``R`` ``(n, 4, 4)``
+    stacked (as the node computes them, for all boxes at once): the association reads the
+    columns instead of stacking them from rows again. ``[j]`` is row ``j`` as an
+    :class:`Observation` (``raw`` its row number: what the node knows it by). Any sequence of
+    :class:`Observation` works where this does."""
+
+    __slots__ = ("z", "R", "descriptors")
+
+    def __init__(self, z: np.ndarray, R: np.ndarray, descriptors: Sequence[np.ndarray | None]):
+        self.z, self.R, self.descriptors = z, R, descriptors
+
+    def __len__(self) -> int:
+        return len(self.z)
+
+    def __getitem__(self, j):  # type: ignore[override]
+        if isinstance(j, slice):
+            return [self[i] for i in range(len(self))[j]]
+        return Observation(self.z[j], self.R[j], self.descriptors[j], j)
+
+
+def _column(items: Sequence[Candidate] | Sequence[Observation], name: str) -> np.ndarray:
+    """``name`` (``z``, ``R``) of every item, stacked: an ``Observations``' own column."""
+    if isinstance(items, Observations):
+        return getattr(items, name)
+    return np.array([getattr(o, name) for o in items])
 
 
 def mahalanobis_matrix(trackers: Sequence[Candidate], obs: Sequence[Observation]) -> np.ndarray:
@@ -62,9 +91,9 @@ def mahalanobis_matrix(trackers: Sequence[Candidate], obs: Sequence[Observation]
     of measurements (contiguous: a tenth of the work of broadcasting ``(n, m, 2, 2)`` stacks).
     """
     P = np.array([t.P for t in trackers])[:, :2, :2].reshape(-1, 4).T[:, :, None]  # 4 x (n, 1)
-    R = np.array([o.R for o in obs])[:, :2, :2].reshape(-1, 4).T[:, None, :]  # 4 x (1, m)
+    R = _column(obs, "R")[:, :2, :2].reshape(-1, 4).T[:, None, :]  # 4 x (1, m)
     x = np.array([t.x_bar for t in trackers])[:, :2].T[:, :, None]  # 2 x (n, 1)
-    z = np.array([o.z for o in obs])[:, :2].T[:, None, :]  # 2 x (1, m)
+    z = _column(obs, "z")[:, :2].T[:, None, :]  # 2 x (1, m)
     a, b, c, d = P[0] + R[0], P[1] + R[1], P[2] + R[2], P[3] + R[3]  # V = P_xy + R_xy
     det = a * d - b * c
     ex, ey = z[0] - x[0], z[1] - x[1]
@@ -79,11 +108,17 @@ def appearance_matrix(trackers: Sequence[Candidate], obs: Sequence[Observation],
     hold ``unknown``): the pairs outside the geometric gate are never assigned, and scoring a
     query against a gallery is most of the association's arithmetic."""
     A = np.full((len(trackers), len(obs)), float(unknown))
-    has = np.array([o.descriptor is not None for o in obs], bool)
-    if not has.any():
+    descs = obs.descriptors if isinstance(obs, Observations) else [o.descriptor for o in obs]
+    known = [d for d in descs if d is not None]
+    if not known:
         return A
-    Q = np.zeros((len(obs), len(next(o.descriptor for o in obs if o.descriptor is not None))))
-    Q[has] = np.array([o.descriptor for o in obs if o.descriptor is not None])
+    if len(known) == len(descs):
+        has = np.ones(len(descs), bool)
+        Q = np.array(known, float)
+    else:
+        has = np.array([d is not None for d in descs], bool)
+        Q = np.zeros((len(obs), len(known[0])))
+        Q[has] = np.array(known)
     Q /= np.maximum(norms(Q, axis=1, keepdims=True), 1e-12)
     pairs = np.broadcast_to(has, A.shape) if where is None else where & has
     pair_rows, pair_cols = np.nonzero(pairs)  # row-major: each tracker's columns together, in order
@@ -156,7 +191,7 @@ def recover(trackers: Sequence[Candidate], obs: Sequence[Observation],
         return []
     sub_t = [trackers[i] for i in rows]
     sub_o = [obs[j] for j in cols]
-    d = norms(np.array([o.z for o in sub_o])[None, :, :2]
+    d = norms(_column(obs, "z")[cols][None, :, :2]
               - np.array([t.x_bar for t in sub_t])[:, None, :2], axis=2)
     s_a = appearance_matrix(sub_t, sub_o, np.nan)
     known = ~np.isnan(s_a)

@@ -30,14 +30,15 @@ import numpy as np
 
 import edge_node.core.dkf as dkf
 import edge_node.core.manager as manager
-from edge_node.core.association import Candidate, LocalDataAssociation, Observation
+from edge_node.core.association import Candidate, LocalDataAssociation, Observation, Observations
 from edge_node.core.config import TrackerConfig
 from edge_node.core.entries import Entries, Inbox
 from edge_node.core.gallery import Gallery
 from edge_node.core.identity import IdentityBook
 from edge_node.core.initiator import Initiator, Pending
 from edge_node.core.manager import DistributedTrackerManager, IndependentTrackers, MergeView
-from edge_node.core.measurement import box_measurements, fixed_R, pixels_per_unit, uncorrected
+from edge_node.core.measurement import (BoxMeasurements, box_measurements, fixed_R, pixels_per_unit,
+                                        uncorrected_many)
 from edge_node.core.memory import NeighbourMemory
 from edge_node.core.model import birth_covariance, birth_state, process_noise, quantize, transition
 from edge_node.core.registration import Registration
@@ -131,6 +132,7 @@ class CameraNode:
         self._frame: int | None = None
         self._prepared = False
         self._message_rows: list[Tracker] = []
+        self._raws: dict[int, BoxMeasurements] = {}  # per camera, this frame's box measurements
 
     # ------------------------------------------------------------------------------------
     # prepare: prediction, LDA, local information, local initialisation, the message
@@ -170,6 +172,7 @@ class CameraNode:
                 tr.x_bar, tr.P = x, P_i
         for tr in trs:
             tr.local = LocalInfo()
+        self._raws.clear()
         self._frame = k
 
     def _split(self, detections) -> dict[int, Sequence[Detection]]:
@@ -195,25 +198,26 @@ class CameraNode:
         self.stats.bad_detections += int(len(B) - good.sum())
         return [d for d, g in zip(dets, good) if g], B[good]
 
-    def _observe(self, cam: Camera, usable: tuple[list[Detection], np.ndarray]) -> list[Observation]:
+    def _observe(self, cam: Camera, usable: tuple[list[Detection], np.ndarray]) -> Sequence[Observation]:
         """One camera's usable detections and their boxes as measurements ``z, R``
-        (registration-corrected when the node registers its cameras), all at once."""
+        (registration-corrected when the node registers its cameras), all at once. The box
+        measurements stay in ``self._raws`` for the frame (registration residuals, box sizes);
+        an observation names its row there (``raw``)."""
         dets, boxes = usable
         if not dets:
             return []
-        raws = box_measurements(cam, boxes, self.cfg)
+        raws = self._raws[cam.id] = box_measurements(cam, boxes, self.cfg)
         descs = [self.associate.descriptor(d.descriptor) for d in dets]
         reg = self.registrations.get(cam.id)
         if reg is None:
-            zR = [uncorrected(raw, self.cfg) for raw in raws]
+            z, R = uncorrected_many(raws, self.cfg)
         else:
             z, R = reg.corrects(raws)
             if self.cfg.fixed_R is not None:
                 R = np.broadcast_to(fixed_R(self.cfg), R.shape).copy()
-            zR = list(zip(z, R))
-        return [Observation(z, R, desc, raw) for (z, R), desc, raw in zip(zR, descs, raws)]
+        return Observations(z, R, descs)  # an observation's raw: its row in raws
 
-    def _associate(self, k: int, cam_id: int, obs: list[Observation]) -> list[Observation]:
+    def _associate(self, k: int, cam_id: int, obs: Sequence[Observation]) -> list[Observation]:
         """LDA of one camera's measurements; each pair adds its information (eq. 2) and may
         teach the gallery. Returns the unassigned measurements."""
         ids = sorted(self.trackers)
@@ -221,20 +225,20 @@ class CameraNode:
         assigned = set()
         pairs = self.associate(cands, obs)
         if pairs:
-            u, U = dkf.informations(np.array([obs[j].z for _, j in pairs]),
-                                    np.array([obs[j].R for _, j in pairs]))
+            js = [j for _, j in pairs]
+            u, U = dkf.informations(obs.z[js], obs.R[js])  # (obs: this node's Observations)
         for n, (i, j) in enumerate(pairs):
             tr = self.trackers[ids[i]]
-            tr.local.add(cam_id, u[n], U[n], obs[j].raw)
-            tr.gallery.offer(obs[j].descriptor, k, self.cfg.gallery_admit)
+            tr.local.add(cam_id, u[n], U[n], j)
+            tr.gallery.offer(obs.descriptors[j], k, self.cfg.gallery_admit)
             assigned.add(j)
-        self._saw_many([self.trackers[ids[i]] for i, _ in pairs], cam_id, k,
-                       [obs[j] for _, j in pairs])
+        if pairs:
+            self._saw_many([self.trackers[ids[i]] for i, _ in pairs], cam_id, k, js)
         for i, j in self.associate.recover(cands, obs, pairs):
             # outside the gate: R grown until the innovation sits on it; no registration residual
             tr = self.trackers[ids[i]]
             tr.local.add(cam_id, *dkf.information(obs[j].z, self._on_gate(tr, obs[j])))
-            self._saw(tr, cam_id, k, obs[j])
+            self._saw_many([tr], cam_id, k, [j])
             assigned.add(j)
         return [o for j, o in enumerate(obs) if j not in assigned]
 
@@ -272,7 +276,7 @@ class CameraNode:
                      born=born, since=k, heard=k)
         self.book.born[tid] = born
         tr.local.add(cam_id, *dkf.information(last.z, last.R), last.raw)
-        self._saw(tr, cam_id, k, last)
+        self._saw_many([tr], cam_id, k, [last.raw])
         self.trackers[tid] = tr
 
     def _message(self, k: int) -> FrameMessage:
@@ -508,7 +512,8 @@ class CameraNode:
                 if len(ok):
                     V_o = np.linalg.inv(Us[ok])
                     z_o = (V_o @ us[ok][..., None])[..., 0]
-                    self.registrations[cam_id].observe_many([raws[i] for i in ok], z_o, V_o)
+                    self.registrations[cam_id].observe_many(self._raws[cam_id].take(np.array(raws)[ok]),
+                                                            z_o, V_o)
             self.registrations[cam_id].end_frame()
 
     def _adopt(self, k: int, tid: TrackerId, infos: list[TrackerInfo], heard: int | None = None) -> None:
@@ -645,23 +650,17 @@ class CameraNode:
         return [Track._built(t.id, self._frame, x, M_i, bool(t.local.seen_by), t.ell, b)
                 for t, x, M_i, b in zip(shown, x_hat, M, boxes)]
 
-    def _saw(self, tr: Tracker, cam_id: int, k: int, obs: Observation) -> None:
-        self._saw_many([tr], cam_id, k, [obs])
-
-    def _saw_many(self, trs: list[Tracker], cam_id: int, k: int, obs: list[Observation]) -> None:
-        """Camera ``cam_id`` measured each of ``trs`` at frame ``k`` (its ``obs``): the box size
-        it draws the tracker at is smoothed towards the measured one at ``view_rate``, all pairs
-        at once (``Tracker.views``)."""
-        pairs = [(tr, o.raw.size) for tr, o in zip(trs, obs) if o.raw is not None]
-        if not pairs:
-            return
-        size = np.array([s for _, s in pairs], float)
-        old = [tr.views.get(cam_id) for tr, _ in pairs]
+    def _saw_many(self, trs: list[Tracker], cam_id: int, k: int, rows: list[int]) -> None:
+        """Camera ``cam_id`` measured each of ``trs`` at frame ``k`` (its box measurement
+        ``rows`` of the frame): the box size it draws the tracker at is smoothed towards the
+        measured one at ``view_rate``, all pairs at once (``Tracker.views``)."""
+        size = self._raws[cam_id].size[rows]
+        old = [tr.views.get(cam_id) for tr in trs]
         held = [i for i, v in enumerate(old) if v is not None]
         if held:
             before = np.array([old[i][1] for i in held])
             size[held] = before + self.cfg.view_rate * (size[held] - before)
-        for (tr, _), s in zip(pairs, size):
+        for tr, s in zip(trs, size):
             tr.views[cam_id] = (k, s)
 
     def views(self, trackers: Sequence[Tracker]) -> list[dict[int, np.ndarray]]:

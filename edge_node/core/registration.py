@@ -75,11 +75,12 @@ Deterministic: the same residuals in the same order give the same correction.
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 
 import numpy as np
 
 from edge_node.core.config import TrackerConfig
-from edge_node.core.measurement import BoxMeasurement, away_direction
+from edge_node.core.measurement import BoxMeasurement, BoxMeasurements, away_direction
 from edge_node.geometry import Camera
 
 N_PARAMS = 5
@@ -136,11 +137,12 @@ class Registration:
         A[:, :, 4] = away
         return A
 
-    def corrects(self, ms: list[BoxMeasurement]) -> tuple[np.ndarray, np.ndarray]:
+    def corrects(self, ms: BoxMeasurements | Sequence[BoxMeasurement]) -> tuple[np.ndarray, np.ndarray]:
         """R5: the corrected ``z`` ``(n, 4)`` and ``R`` ``(n, 4, 4)`` of box measurements."""
-        z = np.array([m.z for m in ms])
-        R = np.array([m.R for m in ms])
-        A = self.bases(z[:, :2], np.array([m.away for m in ms]))
+        ms = BoxMeasurements.of(ms)
+        z = ms.z.copy()
+        R = ms.R.copy()
+        A = self.bases(z[:, :2], ms.away)
         z[:, :2] += A @ self.theta
         C = A @ self.Sigma @ A.transpose(0, 2, 1)
         top = np.linalg.eigvalsh(C)[:, -1]
@@ -171,17 +173,18 @@ class Registration:
         return bool(self.observe_many([m], np.asarray(z_other, float)[None],
                                       np.asarray(V_other, float)[None])[0])
 
-    def observe_many(self, ms: list[BoxMeasurement], z_other: np.ndarray,
+    def observe_many(self, ms: BoxMeasurements | Sequence[BoxMeasurement], z_other: np.ndarray,
                      V_other: np.ndarray) -> np.ndarray:
         """R2 for ``n`` residuals at once (``z_other`` ``(n, 2)``, ``V_other`` ``(n, 2, 2)``):
         which were used (not cut by the image border, inside the gate)."""
-        used = np.array([not m.cut for m in ms], bool)
+        ms = BoxMeasurements.of(ms)
+        used = ~ms.cut
         if not used.any():
             return used
         idx = used.nonzero()[0]
-        z = np.array([ms[i].z for i in idx])[:, :2]
-        A = self.bases(z, np.array([ms[i].away for i in idx]))
-        V = np.array([ms[i].R for i in idx])[:, :2, :2] + _I2 * self.noise_var + V_other[idx]
+        z = ms.z[idx, :2]
+        A = self.bases(z, ms.away[idx])
+        V = ms.R[idx, :2, :2] + _I2 * self.noise_var + V_other[idx]
         r = z_other[idx] - (z + A @ self.theta)
         S = V + A @ self.Sigma @ A.transpose(0, 2, 1)
         nis = np.einsum("ni,ni->n", r, np.linalg.solve(S, r[..., None])[..., 0])

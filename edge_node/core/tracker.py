@@ -41,7 +41,8 @@ class LocalInfo:
         self.seen_by = set() if seen_by is None else seen_by  # its cameras that associated it
         self.ell_sent = ell_sent  # eq. 8 as this node reports it
         self.x_bar_sent = x_bar_sent  # x_bar as the neighbours receive it (wire precision)
-        # per camera of this node: its (u, U) and the uncorrected measurement (registration)
+        # per camera of this node: its (u, U) and the row of its box measurement in the
+        # frame's BoxMeasurements of that camera (registration residuals)
         self.per_camera = {} if per_camera is None else per_camera
 
     def add(self, camera: int, u: np.ndarray, U: np.ndarray, raw: object = None) -> None:
