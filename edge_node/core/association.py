@@ -76,9 +76,30 @@ class Observations(Sequence[Observation]):
         return Observation(self.z[j], self.R[j], self.descriptors[j], j)
 
 
+class Candidates(Sequence[Candidate]):
+    """The trackers of one association with their ``x_bar`` ``(n, 6)`` and ``P`` ``(n, 6, 6)``
+    stacked (the node holds them so): the association reads the columns instead of stacking
+    them from rows. ``[i]`` is row ``i`` as a :class:`Candidate`. Any sequence of
+    :class:`Candidate` works where this does."""
+
+    __slots__ = ("x_bar", "P", "galleries")
+
+    def __init__(self, x_bar: np.ndarray, P: np.ndarray, galleries: Sequence[Gallery | None]):
+        self.x_bar, self.P, self.galleries = x_bar, P, galleries
+
+    def __len__(self) -> int:
+        return len(self.galleries)
+
+    def __getitem__(self, i):  # type: ignore[override]
+        if isinstance(i, slice):
+            return [self[j] for j in range(len(self))[i]]
+        return Candidate(self.x_bar[i], self.P[i], self.galleries[i])
+
+
 def _column(items: Sequence[Candidate] | Sequence[Observation], name: str) -> np.ndarray:
-    """``name`` (``z``, ``R``) of every item, stacked: an ``Observations``' own column."""
-    if isinstance(items, Observations):
+    """``name`` (``z``, ``R``, ``x_bar``, ``P``) of every item, stacked: an ``Observations``'
+    or ``Candidates``' own column."""
+    if isinstance(items, (Observations, Candidates)):
         return getattr(items, name)
     return np.array([getattr(o, name) for o in items])
 
@@ -90,9 +111,9 @@ def mahalanobis_matrix(trackers: Sequence[Candidate], obs: Sequence[Observation]
     the innovation's two) an ``(n_trackers, n_obs)`` table from a column of trackers plus a row
     of measurements (contiguous: a tenth of the work of broadcasting ``(n, m, 2, 2)`` stacks).
     """
-    P = np.array([t.P for t in trackers])[:, :2, :2].reshape(-1, 4).T[:, :, None]  # 4 x (n, 1)
+    P = _column(trackers, "P")[:, :2, :2].reshape(-1, 4).T[:, :, None]  # 4 x (n, 1)
     R = _column(obs, "R")[:, :2, :2].reshape(-1, 4).T[:, None, :]  # 4 x (1, m)
-    x = np.array([t.x_bar for t in trackers])[:, :2].T[:, :, None]  # 2 x (n, 1)
+    x = _column(trackers, "x_bar")[:, :2].T[:, :, None]  # 2 x (n, 1)
     z = _column(obs, "z")[:, :2].T[:, None, :]  # 2 x (1, m)
     a, b, c, d = P[0] + R[0], P[1] + R[1], P[2] + R[2], P[3] + R[3]  # V = P_xy + R_xy
     det = a * d - b * c
@@ -128,10 +149,11 @@ def appearance_matrix(trackers: Sequence[Candidate], obs: Sequence[Observation],
     np.not_equal(pair_rows[1:], pair_rows[:-1], out=first[1:])
     starts = first.nonzero()[0].tolist()
     rows, cols = pair_rows.tolist(), pair_cols.tolist()
+    galleries = trackers.galleries if isinstance(trackers, Candidates) else [t.gallery for t in trackers]
     sims, seg, scored = [], [], []  # cosines, where each pair's begin in them, the pairs
     at = 0
     for a, b in zip(starts, starts[1:] + [len(rows)]):
-        g = trackers[rows[a]].gallery
+        g = galleries[rows[a]]
         if g is None or not len(g):
             continue
         # one product per tracker over its gated queries (a view when there is one): a row of
@@ -192,7 +214,7 @@ def recover(trackers: Sequence[Candidate], obs: Sequence[Observation],
     sub_t = [trackers[i] for i in rows]
     sub_o = [obs[j] for j in cols]
     d = norms(_column(obs, "z")[cols][None, :, :2]
-              - np.array([t.x_bar for t in sub_t])[:, None, :2], axis=2)
+              - _column(trackers, "x_bar")[rows][:, None, :2], axis=2)
     s_a = appearance_matrix(sub_t, sub_o, np.nan)
     known = ~np.isnan(s_a)
     # appearance known: the GDA's gate and threshold; unknown: the co-motion gate, tighter

@@ -30,7 +30,7 @@ import numpy as np
 
 import edge_node.core.dkf as dkf
 import edge_node.core.manager as manager
-from edge_node.core.association import Candidate, LocalDataAssociation, Observation, Observations
+from edge_node.core.association import Candidates, LocalDataAssociation, Observation, Observations
 from edge_node.core.config import TrackerConfig
 from edge_node.core.entries import Entries, Inbox
 from edge_node.core.gallery import Gallery
@@ -40,9 +40,10 @@ from edge_node.core.manager import DistributedTrackerManager, IndependentTracker
 from edge_node.core.measurement import (BoxMeasurements, box_measurements, fixed_R, pixels_per_unit,
                                         uncorrected_many)
 from edge_node.core.memory import NeighbourMemory
-from edge_node.core.model import birth_covariance, birth_state, process_noise, quantize, transition
+from edge_node.core.model import STATE_DIM, birth_covariance, birth_state, process_noise, quantize, transition
 from edge_node.core.registration import Registration
 from edge_node.core.screen import Screen
+from edge_node.core.stacks import RowStack, stacked
 from edge_node.core.tracker import LocalInfo, Tracker
 from edge_node.core.types import Detection, Track
 from edge_node.geometry import Camera
@@ -133,6 +134,8 @@ class CameraNode:
         self._prepared = False
         self._message_rows: list[Tracker] = []
         self._raws: dict[int, BoxMeasurements] = {}  # per camera, this frame's box measurements
+        # the trackers' x_bar, P, x_bar_sent ("sent"), x_hat, M as rows of one stack each (stacks)
+        self._rows: dict[str, RowStack] = {}
 
     # ------------------------------------------------------------------------------------
     # prepare: prediction, LDA, local information, local initialisation, the message
@@ -146,11 +149,12 @@ class CameraNode:
             unassigned = self._associate(k, cam.id, obs)
             for chain in self.initiators[cam.id].step(k, unassigned):
                 self._birth(k, cam.id, chain)
-        trs = list(self.trackers.values())
-        sent = quantize(np.array([tr.x_bar for tr in trs])) if trs else ()  # all at once
-        for tr, x in zip(trs, sent):
-            tr.local.ell_sent = manager.ell_sent(bool(tr.local.seen_by), tr.ell)
-            tr.local.x_bar_sent = x
+        trs = [t for _, t in sorted(self.trackers.items())]
+        if trs:  # all at once
+            self._rows["sent"] = RowStack(quantize(stacked([tr.x_bar for tr in trs], self._rows.get("x_bar"))))
+            for tr, x in zip(trs, self._rows["sent"].rows):
+                tr.local.ell_sent = manager.ell_sent(bool(tr.local.seen_by), tr.ell)
+                tr.local.x_bar_sent = x
         self._prepared = True
         return self._message(k)
 
@@ -162,16 +166,20 @@ class CameraNode:
         if self._frame is not None and k <= self._frame:
             raise NodeStateError(f"node {self.id}: frame {k} does not follow frame {self._frame}")
         steps = 0 if self._frame is None else k - self._frame
-        trs = list(self.trackers.values())
+        trs = [t for _, t in sorted(self.trackers.items())]
         if steps and trs:
-            x_bar, P = dkf.predict(np.array([t.x_hat for t in trs]), np.array([t.M for t in trs]),
-                                   self.A, self.Q)
+            x_bar, P = dkf.predict(stacked([t.x_hat for t in trs], self._rows.get("x_hat")),
+                                   stacked([t.M for t in trs], self._rows.get("M")), self.A, self.Q)
             for _ in range(steps - 1):
                 x_bar, P = dkf.predict(x_bar, P, self.A, self.Q)
-            for tr, x, P_i in zip(trs, x_bar, P):
+            self._rows["x_bar"], self._rows["P"] = RowStack(x_bar), RowStack(P)
+            for tr, x, P_i in zip(trs, self._rows["x_bar"].rows, self._rows["P"].rows):
                 tr.x_bar, tr.P = x, P_i
-        for tr in trs:
-            tr.local = LocalInfo()
+        # this frame's local information (eq. 2), none yet: zero rows of one stack each
+        self._rows["u"] = RowStack(np.zeros((len(trs), STATE_DIM)))
+        self._rows["U"] = RowStack(np.zeros((len(trs), STATE_DIM, STATE_DIM)))
+        for tr, u, U in zip(trs, self._rows["u"].rows, self._rows["U"].rows):
+            tr.local = LocalInfo(u, U)
         self._raws.clear()
         self._frame = k
 
@@ -191,11 +199,19 @@ class CameraNode:
         counted, not measured)."""
         if not dets:
             return [], np.zeros((0, 4))
-        boxes = [np.asarray(d.box, float) for d in dets]
-        B = np.array([b if b.shape == (4,) else np.full(4, np.nan) for b in boxes])
+        try:  # every box four numbers (the common case): one call
+            B = np.array([d.box for d in dets], float)
+        except (ValueError, TypeError):
+            B = None
+        if B is None or B.shape != (len(dets), 4):  # box by box: a wrong shape is not usable
+            boxes = [np.asarray(d.box, float) for d in dets]
+            B = np.array([b if b.shape == (4,) else np.full(4, np.nan) for b in boxes])
         with np.errstate(invalid="ignore"):
             good = np.isfinite(B).all(axis=1) & (B[:, 2] > 0) & (B[:, 3] > 0)
-        self.stats.bad_detections += int(len(B) - good.sum())
+        bad = len(B) - int(np.count_nonzero(good))
+        if not bad:
+            return list(dets), B
+        self.stats.bad_detections += bad
         return [d for d, g in zip(dets, good) if g], B[good]
 
     def _observe(self, cam: Camera, usable: tuple[list[Detection], np.ndarray]) -> Sequence[Observation]:
@@ -221,26 +237,37 @@ class CameraNode:
         """LDA of one camera's measurements; each pair adds its information (eq. 2) and may
         teach the gallery. Returns the unassigned measurements."""
         ids = sorted(self.trackers)
-        cands = [Candidate(tr.x_bar, tr.P, tr.gallery) for tr in map(self.trackers.__getitem__, ids)]
+        trs = [self.trackers[t] for t in ids]
+        cands = Candidates(stacked([tr.x_bar for tr in trs], self._rows.get("x_bar")),
+                           stacked([tr.P for tr in trs], self._rows.get("P")), [tr.gallery for tr in trs])
         assigned = set()
         pairs = self.associate(cands, obs)
         if pairs:
-            js = [j for _, j in pairs]
+            rows, js = [i for i, _ in pairs], [j for _, j in pairs]
             u, U = dkf.informations(obs.z[js], obs.R[js])  # (obs: this node's Observations)
-        for n, (i, j) in enumerate(pairs):
-            tr = self.trackers[ids[i]]
-            tr.local.add(cam_id, u[n], U[n], j)
-            tr.gallery.offer(obs.descriptors[j], k, self.cfg.gallery_admit)
-            assigned.add(j)
-        if pairs:
-            self._saw_many([self.trackers[ids[i]] for i, _ in pairs], cam_id, k, js)
+            u0, U0 = self._rows.get("u"), self._rows.get("U")
+            if (u0 is not None and u0.stack([tr.local.u for tr in trs]) is u0.base
+                    and U0.stack([tr.local.U for tr in trs]) is U0.base
+                    and not any(trs[i].local.seen_by for i in rows)):
+                # every tracker's u, U is still its zero row of the frame's stacks and no camera
+                # has added to the paired ones: eq. 2's values go into their rows at once
+                u0.base[rows], U0.base[rows] = u, U
+                for i, j in pairs:
+                    trs[i].local.added(cam_id, j)
+            else:
+                for n, (i, j) in enumerate(pairs):
+                    trs[i].local.add(cam_id, u[n], U[n], j)
+            for i, j in pairs:
+                trs[i].gallery.offer(obs.descriptors[j], k, self.cfg.gallery_admit)
+                assigned.add(j)
+            self._saw_many([trs[i] for i in rows], cam_id, k, js)
         for i, j in self.associate.recover(cands, obs, pairs):
             # outside the gate: R grown until the innovation sits on it; no registration residual
             tr = self.trackers[ids[i]]
             tr.local.add(cam_id, *dkf.information(obs[j].z, self._on_gate(tr, obs[j])))
             self._saw_many([tr], cam_id, k, [j])
             assigned.add(j)
-        return [o for j, o in enumerate(obs) if j not in assigned]
+        return [obs[j] for j in range(len(obs)) if j not in assigned]
 
     def _on_gate(self, tr: Tracker, o: Observation) -> np.ndarray:
         """``R`` of a measurement outside the LDA gate, scaled so that its Mahalanobis distance
@@ -293,13 +320,11 @@ class CameraNode:
         if trs:
             # fresh arrays of the block's dtypes and shapes, made read-only: what the checked
             # constructor would copy them into (``encode`` checks the wire's value rules)
-            cols = (np.array([tr.id[0] for tr in trs], np.int64),
-                    np.array([tr.id[1] for tr in trs], np.int64),
-                    np.array([tr.born for tr in trs], np.int64),
-                    np.array([tr.local.ell_sent for tr in trs], np.int64),
-                    np.array([tr.local.x_bar_sent for tr in trs], float),
-                    np.array([tr.local.u for tr in trs], float),
-                    np.array([tr.local.U for tr in trs], float))
+            ints = np.array([(tr.id[0], tr.id[1], tr.born, tr.local.ell_sent) for tr in trs], np.int64)
+            cols = (*ints.T.copy(),  # camera, counter, born, ell: a contiguous row each
+                    stacked([tr.local.x_bar_sent for tr in trs], self._rows.get("sent")).copy(),
+                    stacked([tr.local.u for tr in trs], self._rows.get("u")).copy(),
+                    stacked([tr.local.U for tr in trs], self._rows.get("U")).copy())
             for a in (*cols, *(d for _, d in apps)):
                 a.setflags(write=False)
             block = TrackerBlock._trusted(*cols, tuple(apps))
@@ -428,12 +453,12 @@ class CameraNode:
         if not ids:
             return
         trs = [self.trackers[t] for t in ids]
-        x_bar = np.array([tr.x_bar for tr in trs])
-        P = np.array([tr.P for tr in trs])
-        ref = np.array([tr.x_bar if tr.local.x_bar_sent is None else tr.local.x_bar_sent
-                        for tr in trs])
-        y = entries.summed(np.array([tr.local.u for tr in trs]), entries.u)
-        S = entries.summed(np.array([tr.local.U for tr in trs]), entries.U)
+        x_bar = stacked([tr.x_bar for tr in trs], self._rows.get("x_bar"))
+        P = stacked([tr.P for tr in trs], self._rows.get("P"))
+        ref = stacked([tr.x_bar if tr.local.x_bar_sent is None else tr.local.x_bar_sent for tr in trs],
+                      self._rows.get("sent"))
+        y = entries.summed(stacked([tr.local.u for tr in trs], self._rows.get("u")), entries.u)
+        S = entries.summed(stacked([tr.local.U for tr in trs], self._rows.get("U")), entries.U)
         diff = entries.summed(np.zeros(x_bar.shape), entries.x_bar - ref[rows])
         upm = self.cfg.units_per_metre
         deg = np.bincount(rows, minlength=len(ids))  # terms of each consensus sum (eq. 4)
@@ -453,7 +478,8 @@ class CameraNode:
         if bad.any():
             self.stats.numerical += int(bad.sum())
             x_hat[bad], M[bad] = x_bar[bad], P[bad]
-        for tr, g, x_i, M_i in zip(trs, entries.ells(), x_hat, M):
+        self._rows["x_hat"], self._rows["M"] = RowStack(x_hat), RowStack(M)
+        for tr, g, x_i, M_i in zip(trs, entries.ells(), self._rows["x_hat"].rows, self._rows["M"].rows):
             tr.x_hat, tr.M = x_i, M_i
             seen_before = tr.ell - tr.lag
             tr.ell = self.manager.ell(tr.local.ell_sent, g)
@@ -645,8 +671,8 @@ class CameraNode:
         if not shown:
             return []
         boxes = self.views(shown)
-        x_hat = np.array([t.x_hat for t in shown])  # copies, stacked once
-        M = np.array([t.M for t in shown])
+        x_hat = stacked([t.x_hat for t in shown], self._rows.get("x_hat")).copy()  # the tracks' own
+        M = stacked([t.M for t in shown], self._rows.get("M")).copy()
         return [Track._built(t.id, self._frame, x, M_i, bool(t.local.seen_by), t.ell, b)
                 for t, x, M_i, b in zip(shown, x_hat, M, boxes)]
 
@@ -681,7 +707,7 @@ class CameraNode:
                 sizes.append(seen[1])
             if not rows:
                 continue
-            xy = np.array([trackers[i].x_hat for i in rows])[:, :2]
+            xy = stacked([trackers[i].x_hat for i in rows], self._rows.get("x_hat"))[:, :2]
             reg = self.registrations.get(cam.id)
             g = xy if reg is None else reg.to_camera_many(xy)
             with np.errstate(invalid="ignore", divide="ignore", over="ignore"):

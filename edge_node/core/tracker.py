@@ -47,12 +47,18 @@ class LocalInfo:
 
     def add(self, camera: int, u: np.ndarray, U: np.ndarray, raw: object = None) -> None:
         """Several cameras of one node add up (eq. 3)."""
-        if self.u is _NO_u and self.U is _NO_U:  # the first camera: nothing to add it to
+        if not self.seen_by:  # the first camera: nothing to add it to
             self.u, self.U = u, U
         else:
             self.u, self.U = self.u + u, self.U + U
         self.seen_by.add(camera)
         self.per_camera[camera] = (u, U, raw)
+
+    def added(self, camera: int, raw: object = None) -> None:
+        """``add`` of the first camera whose ``u, U`` were written into this tracker's own
+        ``u, U`` (the rows of the node's stacks of the frame, all pairs at once)."""
+        self.seen_by.add(camera)
+        self.per_camera[camera] = (self.u, self.U, raw)
 
 
 @dataclass
