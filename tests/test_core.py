@@ -502,7 +502,7 @@ def test_the_inbox_takes_one_entry_per_sender_and_surviving_id():
     e = inbox.entries([(0, 2), (3, 1), (5, 5)])
     assert e.rows.tolist() == [0, 0, 1]
     assert e.x_bar[:, 0].tolist() == [4.0, 2.0, 9.0]  # sender 0's alias entry, sender 1's own
-    assert e.ells() == [[2, 3], [1], []]
+    assert e.ell.tolist() == [2, 3, 1]  # eq. 8's received counters, per row
     # sender 1's ell-0 entry was under the alias, not the one taken: nobody is said to see it
     assert inbox.measured == {}
     m1_own_seen = FrameMessage("t", 1, 7, (info((0, 2), 2.0, 0),))
@@ -673,3 +673,19 @@ def test_the_core_s_own_message_block_is_what_the_checked_constructor_makes():
         for n in nodes.values():
             n.update([codec.decode(codec.encode(msgs[j])) for j in n.neighbours])
     assert sizes[-1] == 2 and with_appearance == 1  # two trackers, announced once, at birth
+
+
+def test_eq8_for_all_trackers_at_once_is_each_trackers_minimum():
+    """Eq. 8 batched: per tracker the minimum of its own counter and the counters its entries
+    carry, checked against ``min`` tracker by tracker; a tracker with no entry keeps its own;
+    the paper's ``dkf`` (no manager) keeps its own always."""
+    from edge_node.core.manager import DistributedTrackerManager, IndependentTrackers
+    rng = np.random.default_rng(8)
+    own = rng.integers(0, 6, 12)
+    rows = np.sort(rng.integers(0, 12, 30))
+    received = rng.integers(0, 6, 30)
+    got = DistributedTrackerManager(TrackerConfig()).ells(own.tolist(), rows, received)
+    want = [min([int(own[i]), *(int(r) for r, t in zip(received, rows) if t == i)]) for i in range(12)]
+    assert got.tolist() == want and got.dtype == np.int64
+    assert any(i not in rows for i in range(12)) and got.tolist() != own.tolist()  # both cases occur
+    assert IndependentTrackers(TrackerConfig()).ells(own.tolist(), rows, received).tolist() == own.tolist()

@@ -52,13 +52,6 @@ class Entries:
                 out += t
         return out
 
-    def ells(self) -> list[list[int]]:
-        """Per tracker, the ``ell`` of its entries (eq. 8's received counters)."""
-        out: list[list[int]] = [[] for _ in self.ids]
-        for i, e in zip(self.rows.tolist(), self.ell.tolist()):
-            out[i].append(e)
-        return out
-
 
 class Inbox:
     """A frame's (screened) messages, in the order given (sender, frame), gathered per id.

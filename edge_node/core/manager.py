@@ -43,6 +43,15 @@ def ell_consensus(own: int, received: Iterable[int]) -> int:
     return min([own, *received])
 
 
+def ell_consensus_many(own: Sequence[int], rows: np.ndarray, received: np.ndarray) -> np.ndarray:
+    """Eq. 8 for ``n`` trackers at once: ``own`` ``(n,)`` their counters as this camera reports
+    them, ``received`` ``(m,)`` the neighbours' counters, ``rows`` ``(m,)`` the tracker each
+    names. Returns ``(n,)`` int64: per tracker :func:`ell_consensus` of its own and received."""
+    out = np.array(own, np.int64)
+    np.minimum.at(out, rows, received)
+    return out
+
+
 @dataclass(eq=False, slots=True)
 class MergeView:
     """What the global association needs of one tracker on this node (read only, not frozen:
@@ -236,6 +245,10 @@ class DistributedTrackerManager:
     def ell(self, own: int, received: Sequence[int]) -> int:
         return ell_consensus(own, received)
 
+    def ells(self, own: Sequence[int], rows: np.ndarray, received: np.ndarray) -> np.ndarray:
+        """``ell`` of every tracker at once (:func:`ell_consensus_many`)."""
+        return ell_consensus_many(own, rows, received)
+
     def merges(self, views: Sequence[MergeView]) -> list[tuple[TrackerId, TrackerId]]:
         return find_merges(views, self.streaks, self.cfg)
 
@@ -281,6 +294,9 @@ class IndependentTrackers:
 
     def ell(self, own: int, received: Sequence[int]) -> int:
         return own
+
+    def ells(self, own: Sequence[int], rows: np.ndarray, received: np.ndarray) -> np.ndarray:
+        return np.array(own, np.int64)
 
     def merges(self, views: Sequence[MergeView]) -> list[tuple[TrackerId, TrackerId]]:
         return []

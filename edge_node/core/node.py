@@ -479,10 +479,11 @@ class CameraNode:
             self.stats.numerical += int(bad.sum())
             x_hat[bad], M[bad] = x_bar[bad], P[bad]
         self._rows["x_hat"], self._rows["M"] = RowStack(x_hat), RowStack(M)
-        for tr, g, x_i, M_i in zip(trs, entries.ells(), self._rows["x_hat"].rows, self._rows["M"].rows):
+        ells = self.manager.ells([tr.local.ell_sent for tr in trs], rows, entries.ell).tolist()  # eq. 8
+        for tr, ell, x_i, M_i in zip(trs, ells, self._rows["x_hat"].rows, self._rows["M"].rows):
             tr.x_hat, tr.M = x_i, M_i
             seen_before = tr.ell - tr.lag
-            tr.ell = self.manager.ell(tr.local.ell_sent, g)
+            tr.ell = ell
             if lagless is None:  # synchronous: every neighbour's news of frame k is here
                 tr.coast = tr.coast + 1 if tr.ell > seen_before else 0
                 continue
