@@ -49,6 +49,7 @@ from collections.abc import Iterable
 import numpy as np
 
 from edge_node.core.model import MEAS_DIM, STATE_DIM
+from edge_node.core.stacks import times
 from edge_node.geometry import norms
 
 # c of the stability condition ``degree ||gamma M||_2 <= c`` (module docstring); the default of
@@ -187,8 +188,10 @@ def corrects(x_bar: np.ndarray, P: np.ndarray, y: np.ndarray, S: np.ndarray, dif
 def predict(x_hat: np.ndarray, M: np.ndarray, A: np.ndarray, Q: np.ndarray
             ) -> tuple[np.ndarray, np.ndarray]:
     """``x_bar(k+1) = A x_hat(k)``, ``P(k+1) = A M A^T + Q``; one tracker ``(6,)``, ``(6, 6)``
-    or a stack ``(n, 6)``, ``(n, 6, 6)``."""
-    return x_hat @ A.T, symmetric(A @ M @ A.T + Q)
+    or a stack ``(n, 6)``, ``(n, 6, 6)`` (then ``(A M) A^T`` in one call: ``stacks.times``)."""
+    if M.ndim == 2:
+        return x_hat @ A.T, symmetric(A @ M @ A.T + Q)
+    return x_hat @ A.T, symmetric(times(A @ M, A.T) + Q)
 
 
 __all__ = ["information", "informations", "carried", "no_information", "fuse", "gain", "consensus_gamma",

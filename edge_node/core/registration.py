@@ -81,6 +81,7 @@ import numpy as np
 
 from edge_node.core.config import TrackerConfig
 from edge_node.core.measurement import BoxMeasurement, BoxMeasurements, away_direction
+from edge_node.core.stacks import times
 from edge_node.geometry import Camera
 
 N_PARAMS = 5
@@ -143,8 +144,8 @@ class Registration:
         z = ms.z.copy()
         R = ms.R.copy()
         A = self.bases(z[:, :2], ms.away)
-        z[:, :2] += A @ self.theta
-        C = A @ self.Sigma @ A.transpose(0, 2, 1)
+        z[:, :2] += times(A, self.theta)
+        C = times(A, self.Sigma) @ A.transpose(0, 2, 1)
         top = np.linalg.eigvalsh(C)[:, -1]
         room = max(self.cap - self.noise_var, 0.0)
         # an unconverged correction counts at most as calib_sigma
@@ -163,7 +164,7 @@ class Registration:
                 foot, J = self.camera.image_and_jacobians(g)
                 live &= np.isfinite(foot).all(axis=1)
                 a = away_direction(J)
-                step = xy - self.bases(g, a) @ self.theta
+                step = xy - times(self.bases(g, a), self.theta)
                 g = np.where(live[:, None], step, g)
         return g
 
@@ -185,8 +186,8 @@ class Registration:
         z = ms.z[idx, :2]
         A = self.bases(z, ms.away[idx])
         V = ms.R[idx, :2, :2] + _I2 * self.noise_var + V_other[idx]
-        r = z_other[idx] - (z + A @ self.theta)
-        S = V + A @ self.Sigma @ A.transpose(0, 2, 1)
+        r = z_other[idx] - (z + times(A, self.theta))
+        S = V + times(A, self.Sigma) @ A.transpose(0, 2, 1)
         nis = np.einsum("ni,ni->n", r, np.linalg.solve(S, r[..., None])[..., 0])
         ok = nis <= self.cfg.reg_gate  # False for nan too
         self.rejected += int(len(idx) - ok.sum())

@@ -1,4 +1,5 @@
-"""Per-tracker arrays that are rows of one stacked array, and stacking them back for free.
+"""Per-tracker arrays that are rows of one stacked array, stacking them back for free, and
+products of a stack with one shared matrix in one call.
 
 The core computes for all trackers at once (a prediction ``(n, 6)``, covariances
 ``(n, 6, 6)``) and keeps each tracker's row on its ``Tracker``. The next step needs them
@@ -39,3 +40,16 @@ class RowStack:
 def stacked(values: Sequence[np.ndarray], rows: RowStack | None) -> np.ndarray:
     """``rows.stack(values)``, or ``numpy.array(values)`` without a ``RowStack``."""
     return np.array(values) if rows is None else rows.stack(values)
+
+
+def times(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """``a @ b`` of a stack ``a`` ``(n, r, k)`` and one matrix ``(k, c)`` or vector ``(k,)``
+    ``b``, as one product of the ``n r`` rows of ``a``: one BLAS call where NumPy's stacked
+    product makes one per matrix (for 20 matrices of 2 x 5 times a vector, 14 k instructions
+    against 22 k). Each element is the same sum of the same products: with the OpenBLAS of
+    NumPy's wheels on the machines of the README the numbers are those of ``a @ b`` bit for bit
+    (20,000 random stacks of 1 to 59 matrices; the core's tracks unchanged); a BLAS that picks
+    another kernel for small products could round the last bit differently."""
+    n, r, k = a.shape
+    return (a.reshape(n * r, k) @ b).reshape((n, r) + b.shape[1:])
+
