@@ -34,6 +34,7 @@ class Entries:
     U: np.ndarray  # (m, 6, 6)
     x_bar: np.ndarray  # (m, 6)
     slot: np.ndarray  # (m,)
+    slots: int  # slot.max() + 1, 0 without entries: the rows of summed's table
 
     def summed(self, start: np.ndarray, values: np.ndarray) -> np.ndarray:
         """``start`` (a row per tracker) plus each tracker's entries' ``values`` (a row per
@@ -46,7 +47,7 @@ class Entries:
         rows of two numbers ``add.at`` is the cheaper.)"""
         out = np.array(start, float)
         if len(self.rows):
-            table = np.zeros((int(self.slot.max()) + 1,) + out.shape)
+            table = np.zeros((self.slots,) + out.shape)
             table[self.slot, self.rows] = values
             for t in table:
                 out += t
@@ -121,4 +122,5 @@ class Inbox:
         sel = [g for tid in ids for g in self.by_id.get(tid, ())]
         rows = np.array([i for i, tid in enumerate(ids) for _ in self.by_id.get(tid, ())], np.intp)
         slot = np.arange(len(rows)) - np.searchsorted(rows, rows)  # rows ascend: first of each
-        return Entries(ids, rows, self._ell[sel], self._u[sel], self._U[sel], self._x_bar[sel], slot)
+        return Entries(ids, rows, self._ell[sel], self._u[sel], self._U[sel], self._x_bar[sel], slot,
+                       int(slot.max()) + 1 if len(slot) else 0)

@@ -457,9 +457,12 @@ class CameraNode:
         P = stacked([tr.P for tr in trs], self._rows.get("P"))
         ref = stacked([tr.x_bar if tr.local.x_bar_sent is None else tr.local.x_bar_sent for tr in trs],
                       self._rows.get("sent"))
-        y = entries.summed(stacked([tr.local.u for tr in trs], self._rows.get("u")), entries.u)
+        # eq. 3's y and eq. 4's consensus sum in one table: (u | x_bar_j - x_bar_sent) per entry
+        y_diff = entries.summed(np.concatenate((stacked([tr.local.u for tr in trs], self._rows.get("u")),
+                                                np.zeros(x_bar.shape)), axis=1),
+                                np.concatenate((entries.u, entries.x_bar - ref[rows]), axis=1))
+        y, diff = y_diff[:, :STATE_DIM], y_diff[:, STATE_DIM:]
         S = entries.summed(stacked([tr.local.U for tr in trs], self._rows.get("U")), entries.U)
-        diff = entries.summed(np.zeros(x_bar.shape), entries.x_bar - ref[rows])
         upm = self.cfg.units_per_metre
         deg = np.bincount(rows, minlength=len(ids))  # terms of each consensus sum (eq. 4)
         bound = self.cfg.consensus_bound

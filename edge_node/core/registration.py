@@ -128,11 +128,15 @@ class Registration:
         """``A(g)`` of R1 (2 x 5)."""
         return self.bases(np.asarray(g, float)[None], np.asarray(away, float)[None])[0]
 
-    def bases(self, g: np.ndarray, away: np.ndarray) -> np.ndarray:
-        """``A(g)`` of R1 at ``(n, 2)`` ground points with their away directions: ``(n, 2, 5)``."""
+    def bases(self, g: np.ndarray, away: np.ndarray, out: np.ndarray | None = None) -> np.ndarray:
+        """``A(g)`` of R1 at ``(n, 2)`` ground points with their away directions: ``(n, 2, 5)``
+        (into ``out``, an earlier ``bases`` of as many points, when given)."""
         e = g - self.c0
-        A = np.zeros((len(e), 2, N_PARAMS))
-        A[:, 0, 0] = A[:, 1, 1] = 1.0
+        if out is None:
+            A = np.zeros((len(e), 2, N_PARAMS))
+            A[:, 0, 0] = A[:, 1, 1] = 1.0
+        else:
+            A = out  # columns 0 and 1 hold the identity already; 2 to 4 are all overwritten
         A[:, :, 2] = e @ _ROT90.T
         A[:, :, 3] = e
         A[:, :, 4] = away
@@ -159,13 +163,13 @@ class Registration:
         lie. A point whose iterate leaves the image's half-plane keeps that iterate."""
         g = np.array(xy, float)
         live = np.ones(len(g), bool)
+        A = None
         with np.errstate(invalid="ignore", divide="ignore", over="ignore"):
             for _ in range(3):
                 foot, J = self.camera.image_and_jacobians(g)
                 live &= np.isfinite(foot).all(axis=1)
-                a = away_direction(J)
-                step = xy - times(self.bases(g, a), self.theta)
-                g = np.where(live[:, None], step, g)
+                A = self.bases(g, away_direction(J), A)
+                g = np.where(live[:, None], xy - times(A, self.theta), g)
         return g
 
     # -- R2 to R4 --------------------------------------------------------------------------------
