@@ -138,9 +138,7 @@ def fixed_R(cfg: TrackerConfig) -> np.ndarray:
 def uncorrected(m: BoxMeasurement, cfg: TrackerConfig) -> tuple[np.ndarray, np.ndarray]:
     """``(z, R)`` of a box measurement without registration: ``calib_sigma`` on the position
     (or the paper's fixed ``R``)."""
-    z, R = uncorrected_many(BoxMeasurements(m.z[None], m.R[None], m.foot[None], m.away[None],
-                                            m.size[None], np.array([m.cut])), cfg)
-    return m.z, R[0]
+    return m.z, uncorrected_many(BoxMeasurements.of([m]), cfg)[1][0]
 
 
 def uncorrected_many(ms: BoxMeasurements, cfg: TrackerConfig) -> tuple[np.ndarray, np.ndarray]:

@@ -214,14 +214,14 @@ class CameraNode:
         self.stats.bad_detections += bad
         return [d for d, g in zip(dets, good) if g], B[good]
 
-    def _observe(self, cam: Camera, usable: tuple[list[Detection], np.ndarray]) -> Sequence[Observation]:
+    def _observe(self, cam: Camera, usable: tuple[list[Detection], np.ndarray]) -> Observations:
         """One camera's usable detections and their boxes as measurements ``z, R``
         (registration-corrected when the node registers its cameras), all at once. The box
         measurements stay in ``self._raws`` for the frame (registration residuals, box sizes);
         an observation names its row there (``raw``)."""
         dets, boxes = usable
         if not dets:
-            return []
+            return Observations(np.zeros((0, 4)), np.zeros((0, 4, 4)), [])
         raws = self._raws[cam.id] = box_measurements(cam, boxes, self.cfg)
         descs = [self.associate.descriptor(d.descriptor) for d in dets]
         reg = self.registrations.get(cam.id)
@@ -233,7 +233,7 @@ class CameraNode:
                 R = np.broadcast_to(fixed_R(self.cfg), R.shape).copy()
         return Observations(z, R, descs)  # an observation's raw: its row in raws
 
-    def _associate(self, k: int, cam_id: int, obs: Sequence[Observation]) -> list[Observation]:
+    def _associate(self, k: int, cam_id: int, obs: Observations) -> list[Observation]:
         """LDA of one camera's measurements; each pair adds its information (eq. 2) and may
         teach the gallery. Returns the unassigned measurements."""
         ids = sorted(self.trackers)
@@ -244,7 +244,7 @@ class CameraNode:
         pairs = self.associate(cands, obs)
         if pairs:
             rows, js = [i for i, _ in pairs], [j for _, j in pairs]
-            u, U = dkf.informations(obs.z[js], obs.R[js])  # (obs: this node's Observations)
+            u, U = dkf.informations(obs.z[js], obs.R[js])
             u0, U0 = self._rows.get("u"), self._rows.get("U")
             if (u0 is not None and u0.stack([tr.local.u for tr in trs]) is u0.base
                     and U0.stack([tr.local.U for tr in trs]) is U0.base
