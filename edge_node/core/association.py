@@ -18,6 +18,7 @@ import numpy as np
 
 from edge_node.core.config import TrackerConfig
 from edge_node.core.gallery import Gallery
+from edge_node.core.stacks import Columns
 from edge_node.geometry import norms
 
 FORBIDDEN = 1e9
@@ -55,7 +56,7 @@ class Observation:
     raw: object = None
 
 
-class Observations(Sequence[Observation]):
+class Observations(Columns):
     """One camera frame's observations with their ``z`` ``(n, 4)`` and ``R`` ``(n, 4, 4)``
     stacked (as the node computes them, for all boxes at once): the association reads the
     columns instead of stacking them from rows again. ``[j]`` is row ``j`` as an
@@ -67,16 +68,11 @@ class Observations(Sequence[Observation]):
     def __init__(self, z: np.ndarray, R: np.ndarray, descriptors: Sequence[np.ndarray | None]):
         self.z, self.R, self.descriptors = z, R, descriptors
 
-    def __len__(self) -> int:
-        return len(self.z)
-
-    def __getitem__(self, j):  # type: ignore[override]
-        if isinstance(j, slice):
-            return [self[i] for i in range(len(self))[j]]
+    def _row(self, j: int) -> Observation:
         return Observation(self.z[j], self.R[j], self.descriptors[j], j)
 
 
-class Candidates(Sequence[Candidate]):
+class Candidates(Columns):
     """The trackers of one association with their ``x_bar`` ``(n, 6)`` and ``P`` ``(n, 6, 6)``
     stacked (the node holds them so): the association reads the columns instead of stacking
     them from rows. ``[i]`` is row ``i`` as a :class:`Candidate`. Any sequence of
@@ -87,12 +83,7 @@ class Candidates(Sequence[Candidate]):
     def __init__(self, x_bar: np.ndarray, P: np.ndarray, galleries: Sequence[Gallery | None]):
         self.x_bar, self.P, self.galleries = x_bar, P, galleries
 
-    def __len__(self) -> int:
-        return len(self.galleries)
-
-    def __getitem__(self, i):  # type: ignore[override]
-        if isinstance(i, slice):
-            return [self[j] for j in range(len(self))[i]]
+    def _row(self, i: int) -> Candidate:
         return Candidate(self.x_bar[i], self.P[i], self.galleries[i])
 
 

@@ -16,6 +16,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from edge_node.core.config import TrackerConfig
+from edge_node.core.stacks import Columns
 from edge_node.geometry import Camera, norms
 
 
@@ -38,7 +39,7 @@ class BoxMeasurement:
     cut: bool = False  # the image border cuts the box: no use for registration
 
 
-class BoxMeasurements:
+class BoxMeasurements(Columns):
     """One camera frame's box measurements as arrays, one row per box: what
     :func:`box_measurements` computes for all boxes at once, kept stacked so that the
     registration (R5, R2) and the association read the columns without splitting them into
@@ -61,10 +62,7 @@ class BoxMeasurements:
                    np.array([m.foot for m in ms]), np.array([m.away for m in ms]),
                    np.array([m.size for m in ms]), np.array([m.cut for m in ms], bool))
 
-    def __len__(self) -> int:
-        return len(self.z)
-
-    def __getitem__(self, i: int) -> BoxMeasurement:
+    def _row(self, i: int) -> BoxMeasurement:
         return BoxMeasurement(self.z[i], self.R[i], self.foot[i], self.away[i], self.size[i],
                               bool(self.cut[i]))
 

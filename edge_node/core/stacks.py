@@ -37,6 +37,25 @@ class RowStack:
         return np.array(values)
 
 
+class Columns(Sequence):
+    """A sequence of records held as stacked columns (the first slot's length is the number of
+    rows): ``[i]`` builds record ``i`` from the columns (``_row``), a slice a list of records.
+    Code that reads the columns skips the records; code that iterates still gets them."""
+
+    __slots__ = ()
+
+    def __len__(self) -> int:
+        return len(getattr(self, self.__slots__[0]))
+
+    def __getitem__(self, i):
+        if isinstance(i, slice):
+            return [self._row(j) for j in range(len(self))[i]]
+        return self._row(i)
+
+    def _row(self, i: int):
+        raise NotImplementedError
+
+
 def stacked(values: Sequence[np.ndarray], rows: RowStack | None) -> np.ndarray:
     """``rows.stack(values)``, or ``numpy.array(values)`` without a ``RowStack``."""
     return np.array(values) if rows is None else rows.stack(values)
