@@ -1,5 +1,6 @@
-"""Per-tracker arrays that are rows of one stacked array, stacking them back for free, and
-products of a stack with one shared matrix in one call.
+"""Per-tracker arrays that are rows of one stacked array, stacking them back for free;
+records held as stacked columns (``Columns``); products of a stack with one shared matrix in
+one call (``times``).
 
 The core computes for all trackers at once (a prediction ``(n, 6)``, covariances
 ``(n, 6, 6)``) and keeps each tracker's row on its ``Tracker``. The next step needs them
@@ -29,8 +30,8 @@ class RowStack:
         self.rows = list(base)  # views
 
     def stack(self, values: Sequence[np.ndarray]) -> np.ndarray:
-        """``numpy.array(values)``: the stack itself (not a copy: read it, do not write it) when
-        ``values`` are its own rows in order."""
+        """``numpy.array(values)``: the stack itself when ``values`` are its own rows in order
+        (not a copy: writing it writes the trackers' rows)."""
         rows = self.rows
         if len(values) == len(rows) and all(map(operator.is_, values, rows)):
             return self.base
