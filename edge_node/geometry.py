@@ -61,6 +61,8 @@ class Camera:
     pixel_scale: float = 1.0  # EPFL: g = G [u*s, v*s, 1]
     fps: float = 25.0
     G_inv: np.ndarray = field(init=False, repr=False, compare=False)
+    # views of G and G_inv that image_and_jacobians reads for every point batch (made once)
+    _views: tuple[np.ndarray, ...] = field(init=False, repr=False, compare=False)
 
     def __post_init__(self) -> None:
         G = np.asarray(self.G, dtype=float)
@@ -78,6 +80,8 @@ class Camera:
                 G = -G
         object.__setattr__(self, "G", G)
         object.__setattr__(self, "G_inv", np.linalg.inv(G))
+        object.__setattr__(self, "_views", (self.G_inv[:, :2].T, self.G_inv[:, 2], G[None, :2, :2],
+                                            G[None, None, 2, :2]))
         if self.P is not None:
             P = np.asarray(self.P, dtype=float)
             if P.shape != (3, 4) or not np.all(np.isfinite(P)):
@@ -111,10 +115,10 @@ class Camera:
         (:func:`homography_jacobians`, times ``s``) is ``s h_3 (G_12,12 - g G_3,12)``. Equal to
         the round trip up to rounding."""
         g = np.asarray(xy, float).reshape(-1, 2)
-        h = g @ self.G_inv[:, :2].T + self.G_inv[:, 2]
+        Ginv_xy_T, Ginv_1, G_xy, G_3xy = self._views
+        h = g @ Ginv_xy_T + Ginv_1
         uv = h[:, :2] / h[:, 2:3] / self.pixel_scale
-        J = (self.G[None, :2, :2] - g[:, :, None] * self.G[None, None, 2, :2]) \
-            * (h[:, 2, None, None] * self.pixel_scale)
+        J = (G_xy - g[:, :, None] * G_3xy) * (h[:, 2, None, None] * self.pixel_scale)
         return uv, J
 
     def in_front(self, xy: np.ndarray) -> np.ndarray:
