@@ -337,7 +337,7 @@ class CameraNode:
         order (the event trigger's prior; call between ``prepare`` and ``update``)."""
         if not self._message_rows:
             return np.zeros((0, 6, 6))
-        return np.array([tr.P for tr in self._message_rows])
+        return stacked([tr.P for tr in self._message_rows], self._rows.get("P")).copy()
 
     def resync_message(self, msg: FrameMessage) -> FrameMessage:
         """``msg`` with every tracker's appearance attached: what this node sends a neighbour that
