@@ -15,6 +15,7 @@ returns the same numbers as stacking, bit for bit, whatever happened to the rows
 from __future__ import annotations
 
 import operator
+from abc import abstractmethod
 from collections.abc import Sequence
 
 import numpy as np
@@ -53,8 +54,9 @@ class Columns(Sequence):
             return [self._row(j) for j in range(len(self))[i]]
         return self._row(i)
 
+    @abstractmethod
     def _row(self, i: int):
-        raise NotImplementedError
+        """Record ``i`` built from the columns (each batch says how)."""
 
 
 def stacked(values: Sequence[np.ndarray], rows: RowStack | None) -> np.ndarray:
