@@ -67,9 +67,10 @@ class BoxMeasurements(Columns):
                               bool(self.cut[i]))
 
     def take(self, rows: np.ndarray | Sequence[int]) -> "BoxMeasurements":
-        """The rows ``rows`` (copies)."""
-        return BoxMeasurements(self.z[rows], self.R[rows], self.foot[rows], self.away[rows],
-                               self.size[rows], self.cut[rows])
+        """The rows ``rows`` (row numbers; copies)."""
+        at = np.asarray(rows, np.intp)  # (take: a third of the instructions of indexing)
+        return BoxMeasurements(*(a.take(at, axis=0) for a in (self.z, self.R, self.foot, self.away,
+                                                              self.size, self.cut)))
 
 
 def pixels_per_unit(J: np.ndarray) -> np.ndarray | float:

@@ -187,17 +187,18 @@ class Registration:
         if not used.any():
             return used
         idx = used.nonzero()[0]
-        z = ms.z[idx, :2]
-        A = self.bases(z, ms.away[idx])
-        V = ms.R[idx, :2, :2] + _I2 * self.noise_var + V_other[idx]
-        r = z_other[idx] - (z + times(A, self.theta))
+        # (take: a third of the instructions of indexing with an array, the same values)
+        z = ms.z[:, :2].take(idx, axis=0)
+        A = self.bases(z, ms.away.take(idx, axis=0))
+        V = ms.R[:, :2, :2].take(idx, axis=0) + _I2 * self.noise_var + V_other.take(idx, axis=0)
+        r = z_other.take(idx, axis=0) - (z + times(A, self.theta))
         S = V + times(A, self.Sigma) @ A.transpose(0, 2, 1)
         nis = np.einsum("ni,ni->n", r, np.linalg.solve(S, r[..., None])[..., 0])
         ok = nis <= self.cfg.reg_gate  # False for nan too
         self.rejected += int(len(idx) - ok.sum())
         used[idx] = ok
         if ok.any():
-            A, V, r = A[ok], V[ok], r[ok]
+            A, V, r = A.compress(ok, axis=0), V.compress(ok, axis=0), r.compress(ok, axis=0)
             AtW = A.transpose(0, 2, 1) @ np.linalg.inv(V)  # A^T V^-1 per residual
             self._info += (AtW @ A).sum(axis=0)
             self._vec += (AtW @ r[..., None])[..., 0].sum(axis=0)
