@@ -145,17 +145,26 @@ def appearance_matrix(trackers: Sequence[Candidate], obs: Sequence[Observation],
     at = 0
     for a, b in zip(starts, starts[1:] + [len(rows)]):
         g = galleries[rows[a]]
-        if g is None or not len(g):
+        n = 0 if g is None else len(g)
+        if not n:
             continue
-        # one product per tracker over its gated queries (a view when there is one): a row of
-        # cosines against its gallery per query; the maxima of all pairs in one call below
-        sims.append(g.similarities(Q[cols[a]:cols[a] + 1] if b - a == 1 else Q[cols[a:b]]).ravel())
-        seg.extend(range(at, at + (b - a) * len(g), len(g)))
-        scored.extend(range(a, b))
-        at += (b - a) * len(g)
+        # one product per tracker over its gated queries: a row of cosines against its gallery
+        # per query; the maxima of all pairs in one call below
+        if b - a == 1:  # one query (the common case): matrix times vector, two thirds of the
+            # instructions of the product of matrices (the same numbers with NumPy's OpenBLAS
+            # on 3000 random galleries; a score only ranks and gates, so a last bit could not
+            # move a track unless two pairs tied)
+            sims.append(np.dot(g.matrix(), Q[cols[a]]))
+            seg.append(at)
+            scored.append(a)
+        else:
+            sims.append(g.similarities(Q[cols[a:b]]).ravel())
+            seg.extend(range(at, at + (b - a) * n, n))
+            scored.extend(range(a, b))
+        at += (b - a) * n
     if scored:
         pick = np.array(scored)
-        A[pair_rows[pick], pair_cols[pick]] = 1.0 - np.maximum.reduceat(np.concatenate(sims), seg)
+        A[pair_rows.take(pick), pair_cols.take(pick)] = 1.0 - np.maximum.reduceat(np.concatenate(sims), seg)
     return A
 
 
