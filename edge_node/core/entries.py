@@ -71,15 +71,24 @@ class Inbox:
     def __init__(self, msgs: list[FrameMessage], aliases: Mapping[TrackerId, TrackerId] | None = None,
                  observed: Collection[tuple[int, TrackerId]] = frozenset()):
         aliases = aliases or {}
-        self.blocks = [m.block for m in msgs]
-        self.by_id: dict[TrackerId, list[int]] = {}  # surviving id -> stacked rows naming it
+        self.blocks = blocks = [m.block for m in msgs]
+        if blocks:
+            self._ell = np.concatenate([b.ell for b in blocks])
+            self._u = np.concatenate([b.u for b in blocks])
+            self._U = np.concatenate([b.U for b in blocks])
+            self._x_bar = np.concatenate([b.x_bar for b in blocks])
+        else:
+            self._ell, self._u = np.zeros(0, np.int64), np.zeros((0, 6))
+            self._U, self._x_bar = np.zeros((0, 6, 6)), np.zeros((0, 6))
+        tells = ((self._U[:, 0, 0] > 0) | (self._ell == 0)).tolist()  # measured, or ell 0
+        by_id: dict[TrackerId, list[int]] = {}  # surviving id -> stacked rows naming it
+        self.by_id = by_id
         measured: dict[TrackerId, list[int]] = {}
         self._starts: list[int] = []  # each message's first stacked row
         offset = 0
-        for m, b in zip(msgs, self.blocks):
+        for m, b in zip(msgs, blocks):
             ids = b.ids()
             self._starts.append(offset)
-            tells = ((b.U[:, 0, 0] > 0) | (b.ell == 0)).tolist()  # measured, or ell 0
             if aliases and not aliases.keys().isdisjoint(ids):
                 mine: dict[TrackerId, int] = {}
                 for r, tid in enumerate(ids):
@@ -89,21 +98,22 @@ class Inbox:
             else:  # no merged id (the common case): each id is its own, in row order
                 mine = dict(zip(ids, range(len(ids))))
             s = m.sender
-            for rid, r in mine.items():
-                self.by_id.setdefault(rid, []).append(offset + r)
-                if tells[r] or (observed and (s, ids[r]) in observed):
-                    measured.setdefault(rid, []).append(s)
+            for rid, r in mine.items():  # (get, then append: one lookup where it is held)
+                g = offset + r
+                rows = by_id.get(rid)
+                if rows is None:
+                    by_id[rid] = [g]
+                else:
+                    rows.append(g)
+                if tells[g] or (observed and (s, ids[r]) in observed):
+                    senders = measured.get(rid)
+                    if senders is None:
+                        measured[rid] = [s]
+                    else:
+                        senders.append(s)
             offset += len(ids)
         self.measured: dict[TrackerId, frozenset[int]] = {
             rid: frozenset(senders) for rid, senders in measured.items()}
-        if self.blocks:
-            self._ell = np.concatenate([b.ell for b in self.blocks])
-            self._u = np.concatenate([b.u for b in self.blocks])
-            self._U = np.concatenate([b.U for b in self.blocks])
-            self._x_bar = np.concatenate([b.x_bar for b in self.blocks])
-        else:
-            self._ell, self._u = np.zeros(0, np.int64), np.zeros((0, 6))
-            self._U, self._x_bar = np.zeros((0, 6, 6)), np.zeros((0, 6))
 
     def ids(self) -> list[TrackerId]:
         """The surviving ids the messages name, sorted."""
