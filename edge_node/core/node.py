@@ -44,7 +44,7 @@ from edge_node.core.model import STATE_DIM, birth_covariance, birth_state, proce
 from edge_node.core.registration import Registration
 from edge_node.core.screen import Screen
 from edge_node.core.stacks import RowStack, stacked
-from edge_node.core.tracker import LocalInfo, Tracker
+from edge_node.core.tracker import LocalInfo, Tracker, TrackerTable
 from edge_node.core.types import Detection, Track
 from edge_node.geometry import Camera
 from protocol.messages import MAX_DESCRIPTORS, FrameMessage, TrackerBlock, TrackerId, TrackerInfo
@@ -128,7 +128,7 @@ class CameraNode:
         self.A = transition(self.cfg.dt)
         self.Q = process_noise(self.cfg)
         self.P_birth = birth_covariance(self.cfg)
-        self.trackers: dict[TrackerId, Tracker] = {}
+        self.trackers = TrackerTable()  # by id, the sorted order kept
         self.stats = NodeStats()
         self._frame: int | None = None
         self._prepared = False
@@ -149,7 +149,7 @@ class CameraNode:
             unassigned = self._associate(k, cam.id, obs)
             for chain in self.initiators[cam.id].step(k, unassigned):
                 self._birth(k, cam.id, chain)
-        trs = [t for _, t in sorted(self.trackers.items())]
+        trs = self.trackers.in_order()
         if trs:  # all at once
             self._rows["sent"] = RowStack(quantize(stacked([tr.x_bar for tr in trs], self._rows.get("x_bar"))))
             for tr, x in zip(trs, self._rows["sent"].rows):
@@ -166,7 +166,7 @@ class CameraNode:
         if self._frame is not None and k <= self._frame:
             raise NodeStateError(f"node {self.id}: frame {k} does not follow frame {self._frame}")
         steps = 0 if self._frame is None else k - self._frame
-        trs = [t for _, t in sorted(self.trackers.items())]
+        trs = self.trackers.in_order()
         if steps and trs:
             x_bar, P = dkf.predict(stacked([t.x_hat for t in trs], self._rows.get("x_hat")),
                                    stacked([t.M for t in trs], self._rows.get("M")), self.A, self.Q)
@@ -236,8 +236,7 @@ class CameraNode:
     def _associate(self, k: int, cam_id: int, obs: Observations) -> list[Observation]:
         """LDA of one camera's measurements; each pair adds its information (eq. 2) and may
         teach the gallery. Returns the unassigned measurements."""
-        ids = sorted(self.trackers)
-        trs = [self.trackers[t] for t in ids]
+        ids, trs = self.trackers.ids(), self.trackers.in_order()
         cands = Candidates(stacked([tr.x_bar for tr in trs], self._rows.get("x_bar")),
                            stacked([tr.P for tr in trs], self._rows.get("P")), [tr.gallery for tr in trs])
         assigned = set()
@@ -312,7 +311,7 @@ class CameraNode:
         """This frame's message ``(ID, x_bar, u, U, ell)`` per tracker it sends (paper III-D),
         the appearance of the trackers new to this sender, and the merge announcements; built
         as one ``TrackerBlock`` (no per-tracker objects)."""
-        trs = [tr for _, tr in sorted(self.trackers.items()) if self._sends(tr)]
+        trs = [tr for tr in self.trackers.in_order() if self._sends(tr)]
         self._message_rows = trs
         apps = []
         for row, tr in enumerate(trs):
@@ -386,7 +385,7 @@ class CameraNode:
                 self._adopt(k, tid, inbox.infos(tid), self.memory.told.get(tid, k) if stale_ok else k)
         if stale_ok:
             self._late_appearance()
-        entries = inbox.entries(sorted(self.trackers))
+        entries = inbox.entries(self.trackers.ids())
         measured = inbox.measured
         if stale_ok:
             self._correct(entries, self.memory.lagless_ell, self.memory.news)
@@ -401,7 +400,7 @@ class CameraNode:
                  for t in self.trackers.values()]
         for loser, winner in self.manager.merges(views):
             self._merge(loser, winner)
-        for tid in sorted(self.trackers):
+        for tid in self.trackers.ids():
             if self.trackers[tid].ell > self.cfg.kappa:
                 self._drop(tid)
             elif not self._in_scope(self.trackers[tid]):
@@ -675,7 +674,7 @@ class CameraNode:
 
     def tracks(self) -> list[Track]:
         """The current estimates (after the last ``update``): the trackers it reports."""
-        shown = [t for _, t in sorted(self.trackers.items())
+        shown = [t for t in self.trackers.in_order()
                  if t.x_hat is not None and self._reported(t)]
         if not shown:
             return []
