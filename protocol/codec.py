@@ -217,9 +217,10 @@ def _information(w: _Wire, x_bar: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     if m:
         info = w.info.astype(np.float64)
         L = _factor(w.scale, info[:, :_N_TRIL])
-        rows = slice(None) if m == n else np.flatnonzero(w.measured)
+        rows = slice(None) if m == n else w.measured.nonzero()[0]
         U[rows, :_Z, :_Z] = L @ L.transpose(0, 2, 1)
-        v = (x_bar[rows, None, :_Z] @ L)[:, 0]  # (L^T H x_bar)^T
+        xz = x_bar[:, None, :_Z] if m == n else x_bar[:, :_Z].take(rows, axis=0)[:, None]  # (take: cheaper)
+        v = (xz @ L)[:, 0]  # (L^T H x_bar)^T
         v += info[:, _N_TRIL:]
         u[rows, :_Z] = (L @ v[:, :, None])[:, :, 0]
     return u, U
@@ -334,7 +335,7 @@ def _checked_block(msg: FrameMessage, limits: Limits) -> _Wire:
     if len(set(zip(ints[0].tolist(), ints[1].tolist()))) != n:
         raise err("malformed", "duplicate tracker ids")
     measured = b.U.reshape(n, -1).any(axis=1) | b.u.any(axis=1)
-    rows = np.flatnonzero(measured)
+    rows = measured.nonzero()[0]
     if len(rows) == n:  # every row measured: no gathering
         scale, info = _measurement_wire(b.u, b.U, x_bar, ints[:2])
     else:

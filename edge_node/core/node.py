@@ -722,7 +722,7 @@ class CameraNode:
                 foot, J = cam.image_and_jacobians(g)
                 wh = np.array(sizes) * pixels_per_unit(J)[:, None]
             box = np.concatenate([foot[:, :1] - wh[:, :1] / 2.0, foot[:, 1:] - wh[:, 1:], wh], axis=1)
-            for i, b, ok in zip(rows, box, np.isfinite(foot).all(axis=1)):
+            for i, b, ok in zip(rows, box, np.isfinite(foot).all(axis=1).tolist()):
                 if ok:
                     out[i][cam.id] = b
         return out
