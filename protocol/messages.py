@@ -184,8 +184,13 @@ class TrackerBlock:
         return len(self.camera)
 
     def ids(self) -> list[TrackerId]:
-        """The rows' ids ``(camera, counter)`` as Python ints, in row order."""
-        return list(zip(self.camera.tolist(), self.counter.tolist()))
+        """The rows' ids ``(camera, counter)`` as Python ints, in row order (a new list; the
+        block's columns are read-only, so the ids are made once: the screen and the inbox both
+        read them, 15 k instructions for 20 rows)."""
+        ids = self.__dict__.get("_ids")
+        if ids is None:
+            ids = self.__dict__["_ids"] = tuple(zip(self.camera.tolist(), self.counter.tolist()))
+        return list(ids)
 
     def take(self, rows: Sequence[int] | np.ndarray) -> TrackerBlock:
         """The block of the given rows, in that order (increasing: appearance stays in order)."""

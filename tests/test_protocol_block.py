@@ -130,6 +130,15 @@ def test_take_selects_rows_and_renumbers_their_appearance() -> None:
     assert not sub.x_bar.flags.writeable and not sub.camera.flags.writeable
 
 
+def test_ids_are_the_rows_ids_in_a_new_list_each_time() -> None:
+    ts = infos(12)
+    for b in (block_of(ts), decode(encode(FrameMessage("n", 0, 3, ts))).block):
+        first = b.ids()
+        assert first == [t.id for t in ts]
+        first.append((99, 99))  # the caller's list: the block's ids stay
+        assert b.ids() == [t.id for t in ts] and b.ids() is not b.ids()
+
+
 def test_equality_compares_rows() -> None:
     a, b = decode(encode(message(5))), decode(encode(message(5)))
     assert a == b
