@@ -394,10 +394,11 @@ class CameraNode:
         if self.registrations:
             self._register(entries)
         mine = {c.id for c in self.cameras}
+        none: frozenset[int] = frozenset()
         views = [MergeView(t.id, t.x_hat[:2], t.gallery, t.since == k, frozenset(t.local.seen_by),
-                           t.born, measured.get(t.id, frozenset()),
-                           started=t.born == k and t.id[0] in mine, since=t.since, heard=t.heard)
-                 for t in self.trackers.values()]
+                           t.born, measured.get(t.id, none), t.born == k and t.id[0] in mine,  # started
+                           t.since, t.heard)
+                 for t in self.trackers.in_order()]  # (in id order: the merge search sorts them)
         for loser, winner in self.manager.merges(views):
             self._merge(loser, winner)
         for tid in self.trackers.ids():
