@@ -7,6 +7,9 @@ estimate ``x_hat, M`` (eq. 4), the gallery, the drop counter ``ell`` (eq. 8), an
 This frame's working values (``LocalInfo``, rebuilt by every ``prepare``): the local
 measurement information ``u, U`` (eq. 2), which of the node's cameras saw the target, and what
 the node's message says about it (``ell`` and ``x_bar`` as sent, rounded to the wire).
+
+A node holds its trackers in a ``TrackerTable``: a ``dict`` by id that keeps their sorted order
+between changes (a frame visits them in id order seven times).
 """
 from __future__ import annotations
 
