@@ -178,10 +178,11 @@ def corrects(x_bar: np.ndarray, P: np.ndarray, y: np.ndarray, S: np.ndarray, dif
     M = gain(P, S)
     x_hat = x_bar + (M @ (y - (S @ x_bar[..., None])[..., 0])[..., None])[..., 0]
     pull = (diff != 0).any(axis=1).nonzero()[0]
-    if len(pull):  # (take: a third of the instructions of indexing, the same values)
+    if len(pull):  # (rows by take: see stacks)
         M_m = M.take(pull, axis=0) / units_per_metre**2
         gamma = consensus_gamma(M_m, np.maximum(np.asarray(degree).take(pull), 1), bound)
-        x_hat[pull] = x_hat.take(pull, axis=0) + gamma[:, None] * (M_m @ diff.take(pull, axis=0)[..., None])[..., 0]
+        step = (M_m @ diff.take(pull, axis=0)[..., None])[..., 0]
+        x_hat[pull] = x_hat.take(pull, axis=0) + gamma[:, None] * step
     return x_hat, M
 
 

@@ -133,6 +133,6 @@ class Inbox:
         sel = np.array([g for group in groups for g in group], np.intp)
         rows = np.repeat(np.arange(len(ids)), [len(group) for group in groups])
         slot = np.arange(len(rows)) - np.searchsorted(rows, rows)  # rows ascend: first of each
-        # (take: a third of the instructions of indexing with an array, the same values)
+        # (rows by take: see stacks)
         return Entries(ids, rows, self._ell.take(sel), self._u.take(sel, axis=0), self._U.take(sel, axis=0),
                        self._x_bar.take(sel, axis=0), slot, int(slot.max()) + 1 if len(slot) else 0)

@@ -68,7 +68,7 @@ class BoxMeasurements(Columns):
 
     def take(self, rows: np.ndarray | Sequence[int]) -> "BoxMeasurements":
         """The rows ``rows`` (row numbers; copies)."""
-        at = np.asarray(rows, np.intp)  # (take: a third of the instructions of indexing)
+        at = np.asarray(rows, np.intp)  # (rows by take: see stacks)
         return BoxMeasurements(*(a.take(at, axis=0) for a in (self.z, self.R, self.foot, self.away,
                                                               self.size, self.cut)))
 

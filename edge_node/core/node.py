@@ -243,16 +243,16 @@ class CameraNode:
         pairs = self.associate(cands, obs)
         if pairs:
             rows, js = [i for i, _ in pairs], [j for _, j in pairs]
-            at = np.array(js, np.intp)  # (take: a third of the instructions of indexing)
-            u, U = dkf.informations(obs.z.take(at, axis=0), obs.R.take(at, axis=0))
+            js_at = np.array(js, np.intp)  # (rows by take: see stacks)
+            u, U = dkf.informations(obs.z.take(js_at, axis=0), obs.R.take(js_at, axis=0))
             u0, U0 = self._rows.get("u"), self._rows.get("U")
             if (u0 is not None and u0.stack([tr.local.u for tr in trs]) is u0.base
                     and U0.stack([tr.local.U for tr in trs]) is U0.base
                     and not any(trs[i].local.seen_by for i in rows)):
                 # every tracker's u, U is still its zero row of the frame's stacks and no camera
                 # has added to the paired ones: eq. 2's values go into their rows at once
-                at = np.array(rows, np.intp)
-                u0.base[at], U0.base[at] = u, U
+                rows_at = np.array(rows, np.intp)
+                u0.base[rows_at], U0.base[rows_at] = u, U
                 for i, j in pairs:
                     trs[i].local.added(cam_id, j)
             else:

@@ -187,7 +187,7 @@ class Registration:
         if not used.any():
             return used
         idx = used.nonzero()[0]
-        # (take: a third of the instructions of indexing with an array, the same values)
+        # (rows by take: see stacks; sliced first, so that each result is contiguous)
         z = ms.z[:, :2].take(idx, axis=0)
         A = self.bases(z, ms.away.take(idx, axis=0))
         V = ms.R[:, :2, :2].take(idx, axis=0) + _I2 * self.noise_var + V_other.take(idx, axis=0)

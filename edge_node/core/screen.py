@@ -225,7 +225,7 @@ class Screen:
             todo = (~(asym | vel | zero)).nonzero()[0]
         implausible = np.zeros(n, bool)
         if len(todo):
-            u4, U4 = u[:, :4].take(todo, axis=0), U[:, :4, :4].take(todo, axis=0)  # (take: cheaper)
+            u4, U4 = u[:, :4].take(todo, axis=0), U[:, :4, :4].take(todo, axis=0)  # (see stacks)
             sure, far = self._measured(u4, U4)
             implausible[todo[sure]] = far[sure]
             unsure = (~sure).nonzero()[0]

@@ -11,6 +11,11 @@ the stack itself. A row that was replaced (a merge takes the other tracker's est
 (a birth, an adoption) or dropped breaks the match, and the rows are stacked as before. A row
 changed in place is still a view of the stack, so the stack holds the change: the shortcut
 returns the same numbers as stacking, bit for bit, whatever happened to the rows.
+
+Rows of a stack by number: the core takes them with ``a.take(rows, axis=0)`` (and a mask's
+with ``a.compress(mask, axis=0)``), not ``a[rows]``. The values are the same; in NumPy 2.4 the
+indexing of a multi-dimensional array costs about 20 k instructions with an index array and
+45 k with a list, ``take`` 7-9 k (``compress`` 11-13 k against 23-27 k for ``a[mask]``).
 """
 from __future__ import annotations
 
