@@ -9,7 +9,7 @@ measurement information ``u, U`` (eq. 2), which of the node's cameras saw the ta
 the node's message says about it (``ell`` and ``x_bar`` as sent, rounded to the wire).
 
 A node holds its trackers in a ``TrackerTable``: a ``dict`` by id that keeps their sorted order
-between changes (a frame visits them in id order seven times).
+between changes (a frame visits them in id order eight times).
 """
 from __future__ import annotations
 
@@ -119,9 +119,9 @@ class Tracker:
 class TrackerTable(dict):
     """A node's trackers by id (a ``dict``), with the ids' sorted order kept between changes.
 
-    A frame visits the trackers in id order seven times (prediction, association, message,
-    update, drops, tracks); sorting twenty ``(camera, counter)`` ids with their trackers cost
-    about 50 k instructions each time. Every change of the table (an item set, popped or
+    A frame visits the trackers in id order eight times (prediction, the sent states,
+    association, message, the neighbours' entries, merge views, drops, tracks); sorting twenty
+    ``(camera, counter)`` ids with their trackers cost about 50 k instructions each time. Every change of the table (an item set, popped or
     deleted) drops the kept order; ``ids`` and ``in_order`` return new lists."""
 
     __slots__ = ("_order",)
