@@ -19,6 +19,13 @@ codec instead: every node's message of the measured frames encoded once (from it
 node sends it) and decoded once per neighbour, the node-frame of ``sim_cluster bench``'s codec
 line (1 encode + 4 decodes).
 
+``--cameras N [--scope S] [--layout corridor|grid]`` counts ``sim_cluster bench --cameras``'s
+workload instead: every node's ``prepare`` + ``update`` on the generated ``<layout>-<N>``
+network (6.25 people per camera, the layout's neighbour graph), the first third of the frames
+not counted. It prints the mean over the counted node-frames (the scale sweep's CPU column is a
+median of noisy timings) and the trackers a node held on average, so that the issue's ratio
+"per-node cost at 64 cameras over 4" can be given without the machine's noise.
+
 Prints the instructions per node-frame (millions). Instructions are not time (a cache miss
 costs more than an add), but the core's time is spread over hundreds of small numpy calls
 whose cost is their instructions: on this machine 15 M instructions per node-frame at 20
@@ -88,10 +95,44 @@ def _codec(args, warm: int) -> None:
             _counted(functools.partial(codec.decode, payload))
 
 
+def _scale(args, warm: int) -> int:
+    """The scale sweep's run of ``<layout>-<cameras>`` (scope ``args.scope``), every node's
+    ``prepare`` + ``update`` of the frames from ``warm`` on counted; returns the node-frames
+    counted (and prints the trackers held)."""
+    from edge_node.core.config import TrackerConfig
+    from edge_node.core.node import CameraNode
+    from sim_cluster.network.inprocess import run_network
+    from sim_cluster.scenarios.loader import open_scenario
+    data = open_scenario(f"{args.layout}-{args.cameras}", seed=0, frames=args.frames)
+    counted, held = [0], [0]
+    prepare, update = CameraNode.prepare, CameraNode.update
+
+    def counted_prepare(node, k, dets):
+        counted[0] += k >= warm
+        return _through_reduce(k, functools.partial(prepare, node, k, dets), warm)
+
+    def counted_update(node, *a, **kw):
+        k = node._frame
+        out = _through_reduce(k, functools.partial(update, node, *a, **kw), warm)
+        held[0] += len(node.trackers) if k >= warm else 0
+        return out
+
+    CameraNode.prepare, CameraNode.update = counted_prepare, counted_update
+    try:
+        run_network(data, data.neighbours, TrackerConfig(scope_hops=args.scope), topology_name="layout")
+    finally:
+        CameraNode.prepare, CameraNode.update = prepare, update
+    print(f"trackers held per node-frame {held[0] / max(counted[0], 1):.1f}")
+    return counted[0]
+
+
 def child(args) -> None:
     """The benchmark's run, under valgrind."""
     from sim_cluster.experiments.bench import bench_targets, warm_frames
     warm = warm_frames(args.frames)
+    if args.cameras:
+        print(f"node-frames {_scale(args, warm)}")
+        return
     if args.codec:
         _codec(args, warm)
     else:
@@ -109,9 +150,15 @@ def main() -> int:
                     help="count this function of the core alone, e.g. edge_node.core.screen:Screen.messages")
     ap.add_argument("--codec", action="store_true",
                     help="count the codec instead: 1 encode + one decode per neighbour per node-frame")
+    ap.add_argument("--cameras", type=int, default=0,
+                    help="count the scale sweep's run of <layout>-<N> instead (sim_cluster bench --cameras N)")
+    ap.add_argument("--scope", type=int, default=1, help="--cameras: the tracker's scope_hops (default 1)")
+    ap.add_argument("--layout", choices=("corridor", "grid"), default="corridor", help="--cameras: the layout")
     args = ap.parse_args()
     if args.codec and args.only:
         ap.error("--codec counts the codec; --only counts one function of the core")
+    if args.cameras and (args.codec or args.only):
+        ap.error("--cameras counts the scale sweep's nodes; it takes neither --codec nor --only")
     if os.environ.get(_CHILD):
         child(args)
         return 0
@@ -133,6 +180,12 @@ def main() -> int:
                      if "Collected" in line)
     what = (f"codec: 1 encode + {args.neighbours} decodes" if args.codec
             else args.only or "prepare + update")
+    if args.cameras:
+        held = next(line.split()[-1] for line in out.stdout.splitlines() if line.startswith("trackers held"))
+        print(f"{args.layout}-{args.cameras}, scope {args.scope}: {collected / frames / 1e6:.3f} M "
+              f"instructions per node-frame (prepare + update, mean of {frames} node-frames; "
+              f"{held} trackers held per node-frame)")
+        return 0
     print(f"{args.targets} targets, {args.neighbours} neighbours: "
           f"{collected / frames / 1e6:.3f} M instructions per node-frame "
           f"({what}, {frames} node-frames)")

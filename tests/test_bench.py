@@ -116,6 +116,23 @@ def test_codec_counts_one_encode_and_a_decode_per_neighbour(tool, monkeypatch):
     assert counted.count("uncounted encode") > 0 and "uncounted decode" in counted
 
 
+def test_cameras_counts_every_nodes_prepare_and_update_of_the_measured_frames(tool, monkeypatch, capsys):
+    """``--cameras N``: the scale sweep's network of N cameras, every live node's ``prepare``
+    and ``update`` counted from the warm frames on, and the node's methods restored after."""
+    from edge_node.core.node import CameraNode
+    real = CameraNode.prepare, CameraNode.update
+    calls = _reduce_calls(monkeypatch)
+    args = argparse.Namespace(cameras=4, scope=1, layout="corridor", frames=9)
+    try:
+        counted = tool._scale(args, warm=warm_frames(9))
+    finally:
+        monkeypatch.undo()
+    assert counted == 4 * (9 - warm_frames(9))
+    assert len(calls) == 2 * counted
+    assert (CameraNode.prepare, CameraNode.update) == real
+    assert "trackers held per node-frame" in capsys.readouterr().out
+
+
 def test_track_hash_is_the_same_in_another_shell_and_moves_with_the_tracks(tmp_path, monkeypatch):
     """``bench/track_hash.py`` fingerprints every track of the benchmark runs: a second
     process with another hash seed prints the in-process hash (the core is deterministic), and
