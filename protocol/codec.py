@@ -207,35 +207,41 @@ def _factor(scale: np.ndarray, tril: np.ndarray) -> np.ndarray:
     return t.take(_SQUARE, axis=1).reshape(-1, _Z, _Z)
 
 
-def _information(w: _Wire, x_bar: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def _information(w: _Wire, x_bar: np.ndarray
+                 ) -> tuple[np.ndarray, np.ndarray, tuple[np.ndarray, np.ndarray]]:
     """Eq. 2's ``u, U`` (n, 6) and (n, 6, 6) from the wire (``x_bar`` its float64 values):
     ``U = L L^T`` and ``u = U z = L (L^T H x_bar + w)`` (from ``z = H x_bar + L^-T w``); zero
     for unmeasured rows. ``L @ L^T`` of one array with its own transpose is BLAS's ``syrk`` in
-    NumPy's matmul, which computes one triangle and copies it: ``U`` is exactly symmetric."""
+    NumPy's matmul, which computes one triangle and copies it: ``U`` is exactly symmetric.
+    Also the factor they were built from (``TrackerBlock.measurement_factor``, with the
+    measured mask): ``L`` and ``v = L^T H x_bar + w`` (so ``u_z = L v``)."""
     n, m = len(w.measured), len(w.scale)
     u, U = np.zeros((n, _N)), np.zeros((n, _N, _N))
-    if m:
-        info = w.info.astype(np.float64)
-        L = _factor(w.scale, info[:, :_N_TRIL])
-        rows = slice(None) if m == n else w.measured.nonzero()[0]
-        U[rows, :_Z, :_Z] = L @ L.transpose(0, 2, 1)
-        xz = x_bar[:, None, :_Z] if m == n else x_bar[:, :_Z].take(rows, axis=0)[:, None]  # (take: cheaper)
-        v = (xz @ L)[:, 0]  # (L^T H x_bar)^T
-        v += info[:, _N_TRIL:]
-        u[rows, :_Z] = (L @ v[:, :, None])[:, :, 0]
-    return u, U
+    if not m:
+        return u, U, (np.zeros((0, _Z, _Z)), np.zeros((0, _Z)))
+    info = w.info.astype(np.float64)
+    L = _factor(w.scale, info[:, :_N_TRIL])
+    rows = slice(None) if m == n else w.measured.nonzero()[0]
+    U[rows, :_Z, :_Z] = L @ L.transpose(0, 2, 1)
+    xz = x_bar[:, None, :_Z] if m == n else x_bar[:, :_Z].take(rows, axis=0)[:, None]  # (take: cheaper)
+    v = (xz @ L)[:, 0]  # (L^T H x_bar)^T
+    v += info[:, _N_TRIL:]
+    u[rows, :_Z] = (L @ v[:, :, None])[:, :, 0]
+    return u, U, (L, v)
 
 
 def _assemble(w: _Wire) -> TrackerBlock:
-    """The block a peer reads from wire values ``w`` (read-only float64), keeping ``w``."""
+    """The block a peer reads from wire values ``w`` (read-only float64), keeping ``w`` and the
+    measurements' factor."""
     x_bar = w.x_bar.astype(np.float64)
-    u, U = _information(w, x_bar)
-    for a in (w.ints, x_bar, u, U):
+    u, U, (L, v) = _information(w, x_bar)
+    for a in (w.ints, x_bar, u, U, w.measured, L, v):
         a.setflags(write=False)
     apps = tuple((row, _readonly(q.astype(np.float64) * s.astype(np.float64)[:, None]))
                  for row, s, q in w.appearance)
     block = TrackerBlock._trusted(w.ints[0], w.ints[1], w.ints[2], w.ints[3], x_bar, u, U, apps)
     block.__dict__["_wire"] = w
+    block.__dict__["_factor"] = (w.measured, L, v)
     return block
 
 

@@ -153,6 +153,14 @@ class TrackerBlock:
         it, or made any other way, is not."""
         return "_wire" in self.__dict__
 
+    def measurement_factor(self) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
+        """A decoded block's measurements in the form the decoder built ``u, U`` from (see
+        ``protocol.codec``): which rows carry one (``(n,)`` bool, ``m`` set), their ``L (m, 4,
+        4)``, lower-triangular with a positive diagonal, and ``v (m, 4)``, with ``U_zz = L L^T``
+        and ``u_z = L v`` (so the measurement is ``z = L^-T v``); read-only. ``None`` unless
+        :attr:`factored`."""
+        return self.__dict__.get("_factor")
+
     @classmethod
     def empty(cls) -> TrackerBlock:
         return _EMPTY

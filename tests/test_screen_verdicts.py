@@ -130,13 +130,18 @@ def test_honest_measurements_are_decided_without_eigenvalues(screen):
 
 
 def test_a_decoded_block_gets_the_verdicts_of_its_numbers(screen):
-    """A decoded block skips the form checks (``TrackerBlock.factored``); its verdicts equal those
-    of the same numbers checked in full, honest and hostile (1 km off, better than 1 cm)."""
+    """A decoded block skips the form checks and the factorisation (its decoder's factor,
+    ``TrackerBlock.measurement_factor``); its verdicts equal those of the same numbers checked
+    in full, honest and hostile (1 km off, better than 1 cm), and so do those of entries the
+    bounds cannot decide (a condition number of 10^5, decided with eigenvalues)."""
     rng = np.random.default_rng(2)
-    n = 30
+    n = 36  # (row 36 would be 1 km off with a 1 cm sigma: beyond float16 on the wire)
     A = rng.normal(size=(n, 4, 4))
     U4 = np.linalg.inv(A @ A.transpose(0, 2, 1) + 0.05 * np.eye(4))
     U4[1::7] *= 1e4
+    Q, _ = np.linalg.qr(rng.normal(size=(n, 4, 4)))
+    ill = np.arange(n) % 8 == 3
+    U4[ill] = (Q @ (np.array([1e-4, 1e-2, 0.1, 10.0])[:, None] * Q.transpose(0, 2, 1)))[ill]
     U = np.zeros((n, 6, 6))
     U[:, :4, :4] = 0.5 * (U4 + U4.transpose(0, 2, 1))
     U[::5] = 0.0  # unmeasured rows
@@ -150,7 +155,17 @@ def test_a_decoded_block_gets_the_verdicts_of_its_numbers(screen):
     msg = FrameMessage(network="n", sender=0, frame=n, sent_at=0.0, block=block)
     decoded = codec.decode(codec.encode(msg)).block
     assert decoded.factored and not block.factored and not decoded.take([0, 1]).factored
-    fast = screen.informations(decoded.u, decoded.U, factored=True)
+    assert block.measurement_factor() is None and decoded.take([0, 1]).measurement_factor() is None
+    measured, L, v = decoded.measurement_factor()
+    rows = measured.nonzero()[0]
+    assert rows.tolist() == [i for i in range(n) if i % 5]
+    assert np.allclose(L @ L.transpose(0, 2, 1), decoded.U[rows, :4, :4], rtol=1e-12, atol=0)
+    assert np.allclose((L @ v[:, :, None])[:, :, 0], decoded.u[rows, :4], rtol=1e-9, atol=1e-9)
+    fast = screen.informations(decoded.u, decoded.U, factor=(measured, L, v))
     assert fast == screen.informations(decoded.u, decoded.U)
     assert {None, "implausible_information"} == set(fast)
     assert fast == [verdict(screen, decoded.u[i], decoded.U[i]) for i in range(n)]
+    sure, far = screen._measured(None, decoded.U[rows, :4, :4], (L, v))
+    sure_full, far_full = screen._measured(decoded.u[rows, :4], decoded.U[rows, :4, :4])
+    assert sure.tolist() == sure_full.tolist() and far.tolist() == far_full.tolist()
+    assert ill[rows].any() and not sure[ill[rows]].any()  # the eigenvalues decided those

@@ -84,6 +84,17 @@ def anchors(cameras: list[Camera]) -> np.ndarray:
     return np.array([p for p in pts if np.all(np.isfinite(p))]).reshape(-1, 2)
 
 
+def _factors(blocks) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
+    """The measurement factors of decoded blocks, stacked as one block's would be, or ``None``
+    if a block has none (not decoded)."""
+    factors = [b.measurement_factor() for b in blocks]
+    if any(f is None for f in factors):
+        return None
+    if len(factors) == 1:
+        return factors[0]
+    return tuple(np.concatenate(columns) for columns in zip(*factors))
+
+
 class Screen:
     """Checks neighbours' messages for meaning; counts what it drops in ``rejected``."""
 
@@ -112,7 +123,7 @@ class Screen:
         blocks = [m.block for m in msgs]  # the messages' numbers as arrays (the codec's form)
         infos = self.informations(np.concatenate([b.u for b in blocks]).reshape(-1, 6),
                                   np.concatenate([b.U for b in blocks]).reshape(-1, 6, 6),
-                                  factored=all(b.factored for b in blocks)) if blocks else []
+                                  factor=_factors(blocks)) if blocks else []
         bad = self.states(np.concatenate([b.x_bar for b in blocks]).reshape(-1, 6)).tolist() \
             if blocks else []
         out, i = [], 0
@@ -142,7 +153,8 @@ class Screen:
         self._heard_low[s] = min(low, m.frame)
         b = m.block
         if verdicts is None:
-            verdicts = (self.informations(b.u, b.U, b.factored), self.states(b.x_bar).tolist())
+            verdicts = (self.informations(b.u, b.U, factor=b.measurement_factor()),
+                        self.states(b.x_bar).tolist())
         keep: list[int] = []
         frame, ell_max, known = m.frame, 2 * self.cfg.kappa + 2, book.born
         for i, (tid, born, ell, info, bad_state) in enumerate(
@@ -200,21 +212,24 @@ class Screen:
         """Eq. 2's ``u, U`` as a camera produces them, or why not."""
         return self.informations(np.asarray(u, float)[None], np.asarray(U, float)[None])[0]
 
-    def informations(self, u: np.ndarray, U: np.ndarray, factored: bool = False
+    def informations(self, u: np.ndarray, U: np.ndarray,
+                     factor: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None
                      ) -> list[str | None]:
         """:meth:`information` of a message's entries at once: ``u (n, 6)``, ``U (n, 6, 6)``.
-        ``factored``: ``u, U`` are the decoder's, built from a factor it checked
-        (:attr:`TrackerBlock.factored`), so the form checks hold by construction and are
-        skipped: ``U = L L^T`` exactly symmetric, nothing on the velocity, ``u = 0`` where
-        ``U = 0``."""
+        ``factor``: ``u, U`` are the decoder's, and this is the factor they were built from
+        (:meth:`TrackerBlock.measurement_factor`: which rows are measured, their ``L`` and
+        ``v``), so the form checks hold by construction and are skipped (``U = L L^T`` exactly
+        symmetric, nothing on the velocity, ``u = 0`` where ``U = 0``), and so is the
+        factorisation."""
         n = len(u)
         if not n:
             return []
-        flat = U.reshape(n, 36)
-        if factored:
-            bad = np.zeros(n, bool)
-            todo = flat.any(axis=1).nonzero()[0]
+        bad = np.zeros(n, bool)
+        if factor is not None:
+            measured, L, v = factor
+            todo = measured.nonzero()[0]
         else:
+            flat = U.reshape(n, 36)
             vel = flat[:, VELOCITY_PLACES].any(axis=1) | u[:, 4:].any(axis=1)
             # symmetry of the measured block: outside it an entry without ``vel`` is zero (and
             # symmetric), and one with ``vel`` is bad anyway
@@ -225,18 +240,21 @@ class Screen:
             todo = (~(asym | vel | zero)).nonzero()[0]
         implausible = np.zeros(n, bool)
         if len(todo):
-            u4, U4 = u[:, :4].take(todo, axis=0), U[:, :4, :4].take(todo, axis=0)  # (see stacks)
-            sure, far = self._measured(u4, U4)
+            U4 = U[:, :4, :4].take(todo, axis=0)  # (see stacks)
+            u4 = None if factor is not None else u[:, :4].take(todo, axis=0)
+            sure, far = self._measured(u4, U4, None if factor is None else (L, v))
             implausible[todo[sure]] = far[sure]
             unsure = (~sure).nonzero()[0]
             if len(unsure):
+                u4 = u[:, :4].take(todo, axis=0) if u4 is None else u4
                 b, i = self._eigen(u4.take(unsure, axis=0), U4.take(unsure, axis=0))
                 bad[todo[unsure]] |= b
                 implausible[todo[unsure]] = i
         return ["bad_information" if b else "implausible_information" if i else None
                 for b, i in zip(bad.tolist(), implausible.tolist())]
 
-    def _measured(self, u4: np.ndarray, U4: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    def _measured(self, u4: np.ndarray | None, U4: np.ndarray,
+                  Lv: tuple[np.ndarray, np.ndarray] | None = None) -> tuple[np.ndarray, np.ndarray]:
         """The common case of :meth:`_eigen` without eigenvalues: for each ``U4 (m, 4, 4)`` whether
         it is ``sure``ly positive definite with every direction measured and none above
         ``max_info``, and for those whether the measurement ``z = U^-1 u`` is ``far``
@@ -246,7 +264,9 @@ class Screen:
         ``L`` over all ``m`` matrices: for a frame's 80 4 x 4 matrices NumPy's batched ``eigh``
         alone costs 0.55 M instructions, its ``cholesky`` and ``solve`` 0.49 M (and
         ``cholesky`` fails the whole batch for one matrix that is not positive definite), all of
-        this about 0.5 M, a bad matrix only making its own row NaN. Bounds instead of
+        this about 0.5 M, a bad matrix only making its own row NaN. A decoder's entries come
+        with their factor (``Lv``: ``L`` and ``v = L^-1 u``, what the closed form computes, to
+        rounding), which saves half of that. Bounds instead of
         eigenvalues: ``lambda_max <= tr U``, and the product of the other three being at most
         ``(tr U / 3)^3`` (their mean cubed), ``lambda_min >= 27 det U / (tr U)^3`` with ``det U =
         prod(diag L)^2``. So ``27 det U > 10 RANK_TOL (tr U)^4`` proves every eigenvalue above
@@ -257,23 +277,29 @@ class Screen:
         far beyond (honest runs of five presets: 2 entries of 100,000 went to :meth:`_eigen`,
         both on campus-gt with condition numbers about 10^6)."""
         a = U4.reshape(len(U4), 16).T  # a[4 i + j] = U[:, i, j]
-        b = u4.T
         with np.errstate(all="ignore"):  # not positive definite: NaN, and not sure
-            l00 = np.sqrt(a[0])
-            l10, l20, l30 = a[4] / l00, a[8] / l00, a[12] / l00
-            l11 = np.sqrt(a[5] - l10 * l10)
-            l21, l31 = (a[9] - l20 * l10) / l11, (a[13] - l30 * l10) / l11
-            l22 = np.sqrt(a[10] - l20 * l20 - l21 * l21)
-            l32 = (a[14] - l30 * l20 - l31 * l21) / l22
-            l33 = np.sqrt(a[15] - l30 * l30 - l31 * l31 - l32 * l32)
+            if Lv is None:
+                b = u4.T
+                l00 = np.sqrt(a[0])
+                l10, l20, l30 = a[4] / l00, a[8] / l00, a[12] / l00
+                l11 = np.sqrt(a[5] - l10 * l10)
+                l21, l31 = (a[9] - l20 * l10) / l11, (a[13] - l30 * l10) / l11
+                l22 = np.sqrt(a[10] - l20 * l20 - l21 * l21)
+                l32 = (a[14] - l30 * l20 - l31 * l21) / l22
+                l33 = np.sqrt(a[15] - l30 * l30 - l31 * l31 - l32 * l32)
+                # z = U^-1 u: L y = u forward, then L^T z = y backward
+                y0 = b[0] / l00
+                y1 = (b[1] - l10 * y0) / l11
+                y2 = (b[2] - l20 * y0 - l21 * y1) / l22
+                y3 = (b[3] - l30 * y0 - l31 * y1 - l32 * y2) / l33
+            else:
+                f = Lv[0].reshape(len(U4), 16).T
+                l00, l10, l11, l20, l21, l22, l30, l31, l32, l33 = (
+                    f[0], f[4], f[5], f[8], f[9], f[10], f[12], f[13], f[14], f[15])
+                y0, y1, y2, y3 = Lv[1].T
             trace = a[0] + a[5] + a[10] + a[15]
             det_root = l00 * l11 * l22 * l33
             sure = (27 * det_root * det_root > 10 * RANK_TOL * trace ** 4) & (trace <= self.max_info)
-            # z = U^-1 u: L y = u forward, then L^T z = y backward
-            y0 = b[0] / l00
-            y1 = (b[1] - l10 * y0) / l11
-            y2 = (b[2] - l20 * y0 - l21 * y1) / l22
-            y3 = (b[3] - l30 * y0 - l31 * y1 - l32 * y2) / l33
             z3 = y3 / l33
             z2 = (y2 - l32 * z3) / l22
             z1 = (y1 - l21 * z2 - l31 * z3) / l11
