@@ -169,3 +169,35 @@ def test_a_decoded_block_gets_the_verdicts_of_its_numbers(screen):
     sure_full, far_full = screen._measured(decoded.u[rows, :4], decoded.U[rows, :4, :4])
     assert sure.tolist() == sure_full.tolist() and far.tolist() == far_full.tolist()
     assert ill[rows].any() and not sure[ill[rows]].any()  # the eigenvalues decided those
+
+
+def test_a_frames_factors_stack_in_message_order_and_skip_empty_blocks():
+    """``Screen.messages`` checks a frame's entries in one batch: the decoded blocks' factors
+    stacked as their rows are; an empty message (a neighbour that tracks nobody) has nothing
+    to factor and leaves the others' factors in use; a block that was not decoded has none, and
+    the batch is checked in full."""
+    from edge_node.core.screen import _factors
+    rng = np.random.default_rng(4)
+
+    def decoded(n, sender):
+        A = rng.normal(size=(n, 4, 4))
+        U = np.zeros((n, 6, 6))
+        U[:, :4, :4] = np.linalg.inv(A @ A.transpose(0, 2, 1) + 0.1 * np.eye(4))
+        U[1::3] = 0.0
+        x = np.column_stack([rng.uniform(0, 10, (n, 2)), np.full(n, 0.5), np.full(n, 1.7),
+                             np.zeros((n, 2))])
+        u = (U @ x[:, :, None])[:, :, 0]
+        ints = np.arange(n)
+        block = TrackerBlock(np.full(n, sender, np.int64), ints, ints, np.zeros(n, np.int64), x, u, U)
+        msg = FrameMessage(network="n", sender=sender, frame=9, sent_at=0.0, block=block)
+        return codec.decode(codec.encode(msg)).block, block
+
+    (a, plain), (b, _) = decoded(5, 1), decoded(4, 2)
+    empty, _ = decoded(0, 3)
+    assert empty.measurement_factor() is None
+    measured, L, v = _factors([a, empty, b])
+    assert measured.tolist() == [i % 3 != 1 for i in range(5)] + [i % 3 != 1 for i in range(4)]
+    assert np.array_equal(L, np.concatenate([a.measurement_factor()[1], b.measurement_factor()[1]]))
+    assert np.array_equal(v, np.concatenate([a.measurement_factor()[2], b.measurement_factor()[2]]))
+    assert _factors([empty, b])[0].tolist() == b.measurement_factor()[0].tolist()
+    assert _factors([a, plain]) is None and _factors([empty]) is None

@@ -86,9 +86,9 @@ def anchors(cameras: list[Camera]) -> np.ndarray:
 
 def _factors(blocks) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
     """The measurement factors of decoded blocks, stacked as one block's would be, or ``None``
-    if a block has none (not decoded)."""
-    factors = [b.measurement_factor() for b in blocks]
-    if any(f is None for f in factors):
+    if a block with rows has none (not decoded; an empty block has nothing to factor)."""
+    factors = [b.measurement_factor() for b in blocks if len(b)]
+    if not factors or any(f is None for f in factors):
         return None
     if len(factors) == 1:
         return factors[0]
