@@ -150,8 +150,9 @@ class TrackerBlock:
         """Whether ``u, U`` are the decoder's (``protocol.codec``), built from a factor it
         checked: ``U = L L^T`` with ``L`` lower-triangular with a positive diagonal, exactly
         symmetric, zero outside ``(x, y, w, h)``; ``u = 0`` where ``U = 0``. A block taken from
-        it, or made any other way, is not."""
-        return "_wire" in self.__dict__
+        it, or made any other way, is not. (The decoder leaves that factor with the block:
+        :meth:`measurement_factor`.)"""
+        return "_factor" in self.__dict__
 
     def measurement_factor(self) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
         """A decoded block's measurements in the form the decoder built ``u, U`` from (see
