@@ -241,13 +241,14 @@ class Screen:
         implausible = np.zeros(n, bool)
         if len(todo):
             U4 = U[:, :4, :4].take(todo, axis=0)  # (see stacks)
-            u4 = None if factor is not None else u[:, :4].take(todo, axis=0)
-            sure, far = self._measured(u4, U4, None if factor is None else (L, v))
+            if factor is None:
+                sure, far = self._measured(u[:, :4].take(todo, axis=0), U4)
+            else:
+                sure, far = self._measured(None, U4, (L, v))
             implausible[todo[sure]] = far[sure]
             unsure = (~sure).nonzero()[0]
             if len(unsure):
-                u4 = u[:, :4].take(todo, axis=0) if u4 is None else u4
-                b, i = self._eigen(u4.take(unsure, axis=0), U4.take(unsure, axis=0))
+                b, i = self._eigen(u[:, :4].take(todo.take(unsure), axis=0), U4.take(unsure, axis=0))
                 bad[todo[unsure]] |= b
                 implausible[todo[unsure]] = i
         return ["bad_information" if b else "implausible_information" if i else None

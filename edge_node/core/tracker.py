@@ -121,8 +121,9 @@ class TrackerTable(dict):
 
     A frame visits the trackers in id order eight times (prediction, the sent states,
     association, message, the neighbours' entries, merge views, drops, tracks); sorting twenty
-    ``(camera, counter)`` ids with their trackers cost about 50 k instructions each time. Every change of the table (an item set, popped or
-    deleted) drops the kept order; ``ids`` and ``in_order`` return new lists."""
+    ``(camera, counter)`` ids with their trackers cost about 50 k instructions each time. Every
+    change of the table (an item set, popped or deleted) drops the kept order; ``ids`` and
+    ``in_order`` return new lists."""
 
     __slots__ = ("_order",)
 
