@@ -356,7 +356,7 @@ def build_parser() -> argparse.ArgumentParser:
                    help="--cameras: ground matching threshold in metres (default 1)")
     b.add_argument("--long-walk-cameras", type=integer(1), default=4,
                    help="--cameras: a long walk crosses at least this many cameras' views")
-    b.add_argument("--out", default="runs/bench-scale", help="--cameras: scale.json, scale.csv")
+    b.add_argument("--out", default="runs/bench-scale", help="--cameras: scale.json, scale.csv, scale.png")
     b.add_argument("--quiet", action="store_true", help="no progress")
     b.set_defaults(func=bench.main)
 

@@ -12,6 +12,7 @@ from sim_cluster.cli import main
 from sim_cluster.evaluation.metrics import evaluate_ground
 from sim_cluster.evaluation.online import OnlineGround
 from sim_cluster.evaluation.walks import WalkLog, walk_ids
+from sim_cluster.experiments.bench_scale import size_ratios
 from sim_cluster.network import topology
 from sim_cluster.network.inprocess import run_network
 from sim_cluster.scenarios.data import Frame
@@ -67,3 +68,13 @@ def test_scale_sweep_writes_its_table(tmp_path, capsys):
     assert row["bytes_per_node_frame"] > 0 and 0 < row["cpu_ms_median"]
     assert set(row["per_node"]["ground"]) == {"0", "1", "2", "3"}
     assert (tmp_path / "scale.csv").read_text().startswith("cameras,scope,frames,")
+    assert (tmp_path / "scale.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+
+
+def test_the_size_ratio_is_each_scopes_cpu_at_the_largest_size_over_the_smallest():
+    rows = [{"cameras": c, "scope": h, "cpu_ms_median": ms}
+            for c, h, ms in ((4, 0, 1.6), (16, 0, 4.0), (64, 0, 6.4), (4, 1, 1.5), (64, 1, 1.8),
+                             (16, 2, 2.0))]
+    got = size_ratios(rows)
+    assert set(got) == {0, 1}  # scope 2 ran at one size: no ratio
+    assert got[0] == pytest.approx(4.0) and got[1] == pytest.approx(1.2)

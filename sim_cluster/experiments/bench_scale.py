@@ -29,7 +29,10 @@ grid), and reports per N:
 With ``--scope 0,1,2`` each size runs once per hop limit (``TrackerConfig.scope_hops``; 0 is
 the paper's every-node-holds-every-tracker), one row per (cameras, scope).
 
-Results go to ``<out>/scale.json`` (with the per-node metrics) and ``<out>/scale.csv``. The
+Results go to ``<out>/scale.json`` (with the per-node metrics), ``<out>/scale.csv`` and the plot
+``<out>/scale.png`` (per-node CPU, trackers held, bytes and regional scores against the number
+of cameras, a line per scope; the legend gives each scope's CPU at the largest size over the
+smallest, issue 15's "64 over 4 cameras" ratio). The
 tracker configuration is a :class:`TrackerConfig` (``--config`` and ``--tracker-config``, as
 ``sim_cluster run``); ``--scope`` overrides its ``scope_hops``.
 """
@@ -162,7 +165,8 @@ def table(rows: list[dict]) -> str:
 
 
 def write_results(rows: list[dict], out: Path, meta: dict) -> None:
-    """``scale.json`` (every figure, per-node metrics too) and ``scale.csv`` (the table)."""
+    """``scale.json`` (every figure, per-node metrics too), ``scale.csv`` (the table) and
+    ``scale.png`` (:func:`plot`)."""
     out.mkdir(parents=True, exist_ok=True)
     (out / "scale.json").write_text(json.dumps({**meta, "rows": rows}, indent=2, sort_keys=True))
     with open(out / "scale.csv", "w", newline="") as fh:
@@ -170,6 +174,72 @@ def write_results(rows: list[dict], out: Path, meta: dict) -> None:
         w.writerow(COLUMNS)
         for r in rows:
             w.writerow(["" if r[c] is None else r[c] for c in COLUMNS])
+    plot(rows, out / "scale.png", meta)
+
+
+def size_ratios(rows: list[dict]) -> dict[int, float]:
+    """Per scope: median CPU ms per node-frame at the largest size over the smallest (scopes
+    run at one size only are left out)."""
+    out = {}
+    for h in sorted({r["scope"] for r in rows}):
+        mine = sorted((r for r in rows if r["scope"] == h), key=lambda r: r["cameras"])
+        if len(mine) > 1 and mine[0]["cpu_ms_median"] > 0:
+            out[h] = mine[-1]["cpu_ms_median"] / mine[0]["cpu_ms_median"]
+    return out
+
+
+def plot(rows: list[dict], path: Path, meta: dict) -> None:
+    """``scale.png``: against the number of cameras (log scale), a line per scope: CPU ms per
+    node-frame (median; the band up to p90), trackers held per node (median; dotted: max),
+    bytes per node-frame, regional MOTA (solid) and IDF1 (dashed)."""
+    import matplotlib  # plotting only here: keeps matplotlib out of every other command
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt  # after use("Agg"): no display needed
+
+    fig, axes = plt.subplots(2, 2, figsize=(11, 7.5))
+    (cpu, held), (sent, score) = axes
+    ratios = size_ratios(rows)
+    colors = plt.get_cmap("tab10")
+    sizes = sorted({r["cameras"] for r in rows})
+    for i, h in enumerate(sorted({r["scope"] for r in rows})):
+        mine = sorted((r for r in rows if r["scope"] == h), key=lambda r: r["cameras"])
+        n = [r["cameras"] for r in mine]
+        c = colors(i)
+        label = "scope 0 (every node holds all)" if h == 0 else f"scope {h}"
+        if h in ratios:
+            label += f": CPU {n[-1]}/{n[0]} cameras {ratios[h]:.2f}x"
+        cpu.plot(n, [r["cpu_ms_median"] for r in mine], "o-", color=c, label=label)
+        cpu.fill_between(n, [r["cpu_ms_median"] for r in mine], [r["cpu_ms_p90"] for r in mine],
+                         color=c, alpha=0.15, lw=0)
+        held.plot(n, [r["trackers_median"] for r in mine], "o-", color=c)
+        held.plot(n, [r["trackers_max"] for r in mine], ":", color=c)
+        sent.plot(n, [r["bytes_per_node_frame"] for r in mine], "o-", color=c)
+        for key, style in (("mota_region", "o-"), ("idf1_region", "s--")):
+            pts = [(x, r[key]) for x, r in zip(n, mine) if r[key] is not None]
+            if pts:
+                score.plot(*zip(*pts), style, color=c, ms=4)
+    for ax, title in ((cpu, "CPU ms of prepare + update per node-frame (median; band to p90)"),
+                      (held, "trackers held per node (median; dotted: max)"),
+                      (sent, "bytes sent per node-frame"),
+                      (score, "regional ground MOTA (solid) / IDF1 (dashed), median node")):
+        ax.set_xscale("log", base=2)
+        ax.set_xticks(sizes, [str(s) for s in sizes])
+        ax.minorticks_off()
+        ax.set_xlabel("cameras")
+        ax.set_title(title, fontsize=9)
+        ax.grid(alpha=0.3)
+    cpu.set_ylim(bottom=0)
+    held.set_ylim(bottom=0)
+    sent.set_yscale("log")
+    score.set_ylim(min(0.0, score.get_ylim()[0]), 1.0)
+    cpu.legend(fontsize=8, loc="upper left")
+    fig.suptitle(f"{meta.get('layout', '?')}-N: {meta.get('frames', '?')} frames, seed "
+                 f"{meta.get('seed', '?')}, {meta.get('config', '?')}, 6.25 people per camera "
+                 "(sim_cluster bench --cameras)", fontsize=10)
+    fig.tight_layout()
+    fig.savefig(path, dpi=100)
+    plt.close(fig)
 
 
 def main(args, cfg: TrackerConfig) -> int:
@@ -197,5 +267,9 @@ def main(args, cfg: TrackerConfig) -> int:
     meta = {"layout": args.layout, "frames": frames, "seed": args.seed, "config": cfg.ablation,
             "scopes": scopes}
     write_results(rows, Path(args.out), meta)
-    print(f"wrote {args.out}/scale.json and scale.csv")
+    ratios = size_ratios(rows)
+    if ratios:
+        print("per-node CPU at the largest size over the smallest: " + ", ".join(
+            f"scope {h} {r:.2f}x" for h, r in ratios.items()))
+    print(f"wrote {args.out}/scale.json, scale.csv and scale.png")
     return 0
