@@ -3,6 +3,7 @@ counted by valgrind instead of timed, so that two versions of the core compare e
 
     .venv/bin/python bench/core_instructions.py [--targets 20] [--frames 30] [--neighbours 4]
                                                 [--only edge_node.core.screen:Screen.messages]
+                                                [--codec] [--split]
 
 CPU time on the shared 2-core machines of the README moves by 30 % and more from one run to
 the next (other machines' load), which hides a change of a few per cent however many runs are
@@ -26,21 +27,67 @@ not counted. It prints the mean over the counted node-frames (the scale sweep's 
 median of noisy timings) and the trackers a node held on average, so that the issue's ratio
 "per-node cost at 64 cameras over 4" can be given without the machine's noise.
 
+``--split`` also says whose code executes them: CPython's interpreter, NumPy's dispatch (argument
+parsing, array creation, type resolution, iterators), NumPy's inner loops (the elementwise
+arithmetic, copies and casts themselves), BLAS and LAPACK (OpenBLAS), the C library
+(``malloc``, ``memset``, ``memcpy``) and the rest: by the shared object and function
+``callgrind_annotate`` (valgrind's) names for each instruction. What a compiled kernel would
+keep of the core is about the inner loops and BLAS; the rest is the price of calling them from
+Python one small array at a time.
+
 Prints the instructions per node-frame (millions). Instructions are not time (a cache miss
 costs more than an add), but the core's time is spread over hundreds of small numpy calls
 whose cost is their instructions: on this machine 15 M instructions per node-frame at 20
 targets were 3 ms of CPU time.
 """
 import argparse
+import collections
 import functools
 import importlib
 import os
+import re
 import shutil
 import subprocess
 import sys
 import tempfile
 
 _CHILD = "DMTT_CORE_INSTRUCTIONS_CHILD"
+
+
+# NumPy's inner loops: the typed elementwise kernels (``DOUBLE_add``...), copies and casts, sorts;
+# not the per-element ``_setitem`` / ``_getitem`` of Python objects (conversion, not arithmetic)
+_KERNEL = re.compile(r"((C?DOUBLE|C?FLOAT|C?LONGDOUBLE|HALF|BOOL|U?BYTE|U?SHORT|U?INT|U?LONG|U?LONGLONG)_"
+                     r"(?!setitem|getitem)|_aligned|_contig|_strided|_cast|npyv|simd|.*sort)")
+_ANNOTATE_LINE = re.compile(r"\s*([\d,]+)\s+\([\s\d.]+%\)\s+(.*?):(.+?)(?:\s+\[(.*)\])?\s*$")
+SPLIT = ("Python interpreter", "NumPy dispatch", "NumPy inner loops", "BLAS / LAPACK", "C library", "other")
+
+
+def split(annotate: str) -> dict[str, int]:
+    """Instructions by whose code runs them (``SPLIT``), from ``callgrind_annotate
+    --inclusive=no --auto=no``'s listing (``Ir file:function [object]`` per line). Code inlined
+    from a header is listed without its object; its source file tells: CPython's tree, or
+    glibc's (a relative ``./`` path)."""
+    out: collections.Counter[str] = collections.Counter({k: 0 for k in SPLIT})
+    for line in annotate.splitlines():
+        m = _ANNOTATE_LINE.match(line)
+        if m is None:
+            continue
+        n, src, fn = int(m.group(1).replace(",", "")), m.group(2), m.group(3)
+        obj = os.path.basename(m.group(4)) if m.group(4) else ""
+        if not obj:  # inlined: by the source file
+            obj = ("libpython" if re.search(r"/Python-\d|/Include/", src)
+                   else "libc.so" if src.startswith("./") else "")
+        if "libpython" in obj or re.fullmatch(r"python3(\.\d+)?", obj):
+            out["Python interpreter"] += n
+        elif "openblas" in obj or "lapack" in obj or "blas" in obj:
+            out["BLAS / LAPACK"] += n
+        elif "_multiarray_umath" in obj or "_umath_linalg" in obj:
+            out["NumPy inner loops" if _KERNEL.match(fn) else "NumPy dispatch"] += n
+        elif obj.startswith(("libc.so", "libm.so")):
+            out["C library"] += n
+        else:
+            out["other"] += n
+    return dict(out)
 
 
 def _counted(call):
@@ -154,6 +201,8 @@ def main() -> int:
                     help="count the scale sweep's run of <layout>-<N> instead (sim_cluster bench --cameras N)")
     ap.add_argument("--scope", type=int, default=1, help="--cameras: the tracker's scope_hops (default 1)")
     ap.add_argument("--layout", choices=("corridor", "grid"), default="corridor", help="--cameras: the layout")
+    ap.add_argument("--split", action="store_true",
+                    help="also split the instructions by whose code runs them (interpreter, NumPy, BLAS, libc)")
     args = ap.parse_args()
     if args.codec and args.only:
         ap.error("--codec counts the codec; --only counts one function of the core")
@@ -172,6 +221,14 @@ def main() -> int:
             [valgrind, "--tool=callgrind", "--collect-atstart=no", "--toggle-collect=functools_reduce",
              f"--callgrind-out-file={tmp}/callgrind.out", sys.executable, __file__, *sys.argv[1:]],
             env=env, capture_output=True, text=True)
+        parts = None
+        if out.returncode == 0 and args.split:
+            annotate = subprocess.run(["callgrind_annotate", "--inclusive=no", "--threshold=100", "--auto=no",
+                                       f"{tmp}/callgrind.out"], capture_output=True, text=True)
+            parts = split(annotate.stdout) if annotate.returncode == 0 else None
+            if parts is None:
+                print("core_instructions: callgrind_annotate failed: " + annotate.stderr[-500:],
+                      file=sys.stderr)
     if out.returncode != 0:
         print(out.stdout + out.stderr[-3000:], file=sys.stderr)
         return 1
@@ -185,11 +242,17 @@ def main() -> int:
         print(f"{args.layout}-{args.cameras}, scope {args.scope}: {collected / frames / 1e6:.3f} M "
               f"instructions per node-frame (prepare + update, mean of {frames} node-frames; "
               f"{held} trackers held per node-frame)")
-        return 0
-    print(f"{args.targets} targets, {args.neighbours} neighbours: "
-          f"{collected / frames / 1e6:.3f} M instructions per node-frame "
-          f"({what}, {frames} node-frames)")
-    return 0
+    else:
+        print(f"{args.targets} targets, {args.neighbours} neighbours: "
+              f"{collected / frames / 1e6:.3f} M instructions per node-frame "
+              f"({what}, {frames} node-frames)")
+    if parts is not None:
+        for name in SPLIT:
+            print(f"  {name:<20} {parts[name] / frames / 1e6:6.3f} M  {parts[name] / max(collected, 1):6.1%}")
+        if args.split and sum(parts.values()) != collected:
+            print(f"  ({sum(parts.values()) / max(collected, 1):.1%} of the instructions named by "
+                  "callgrind_annotate)")
+    return 0 if not args.split or parts is not None else 1
 
 
 if __name__ == "__main__":

@@ -133,6 +133,35 @@ def test_cameras_counts_every_nodes_prepare_and_update_of_the_measured_frames(to
     assert "trackers held per node-frame" in capsys.readouterr().out
 
 
+def test_split_names_whose_code_runs_each_instruction(tool):
+    """``--split``: ``callgrind_annotate``'s self costs summed by object, NumPy's own split into
+    its inner loops (typed kernels, copies, casts) and the rest; lines it cannot read (headers,
+    totals) are skipped. The listing below is in callgrind_annotate's format, the sums by hand."""
+    numpy = "/v/site-packages/numpy/_core/_multiarray_umath.cpython-311-x86_64-linux-gnu.so"
+    listing = f"""--------------------------------------------------------------------------------
+912,478,370 (100.0%)  PROGRAM TOTALS
+Ir                    file:function
+110,000 (12.07%)  /tmp/Python-3.11.7/Python/ceval.c:_PyEval_EvalFrameDefault'2 [/root/lib/libpython3.11.so.1.0]
+ 26,000 ( 2.87%)  ???:ufunc_generic_fastcall [{numpy}]
+  7,000 ( 0.77%)  ???:DOUBLE_add_X86_V3 [{numpy}]
+  5,000 ( 0.66%)  ???:_aligned_strided_to_contig_size8_srcstride0 [{numpy}]
+  1,500 ( 0.17%)  ???:LONG_setitem [{numpy}]
+    900 ( 0.10%)  ???:LONGLONG_multiply [{numpy}]
+  8,000 ( 0.91%)  ???:dtrsm_kernel_LT_HASWELL [/v/numpy.libs/libscipy_openblas64_-32a4b2a6.so]
+    300 ( 0.01%)  ???:npy_clear_floatstatus_barrier [/v/numpy/linalg/_umath_linalg.cpython-311-x86_64-linux-gnu.so]
+ 14,000 ( 1.55%)  ./string/memset-vec-unaligned-erms.S:__memset_avx2_unaligned_erms [/usr/lib/x86_64-linux-gnu/libc.so.6]
+     20 ( 0.00%)  ???:sqrt [/usr/lib/x86_64-linux-gnu/libm.so.6]
+     70 ( 0.00%)  ???:solve [/v/scipy/optimize/_lsap.cpython-311-x86_64-linux-gnu.so]
+     10 ( 0.00%)  ???:PyLong_FromLong [/usr/bin/python3.11]
+  2,000 ( 0.33%)  /tmp/Python-3.11.7/./Include/object.h:_PyEval_EvalFrameDefault'2
+    600 ( 0.07%)  ./malloc/./malloc/malloc.c:_int_malloc
+      5 ( 0.00%)  /somewhere/else.c:mystery
+"""
+    assert tool.split(listing) == {"Python interpreter": 112_010, "NumPy dispatch": 27_800,
+                                   "NumPy inner loops": 12_900, "BLAS / LAPACK": 8_000,
+                                   "C library": 14_620, "other": 75}
+
+
 def test_track_hash_is_the_same_in_another_shell_and_moves_with_the_tracks(tmp_path, monkeypatch):
     """``bench/track_hash.py`` fingerprints every track of the benchmark runs: a second
     process with another hash seed prints the in-process hash (the core is deterministic), and
