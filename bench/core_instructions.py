@@ -79,7 +79,7 @@ def split(annotate: str) -> dict[str, int]:
                    else "libc.so" if src.startswith("./") else "")
         if "libpython" in obj or re.fullmatch(r"python3(\.\d+)?", obj):
             out["Python interpreter"] += n
-        elif "openblas" in obj or "lapack" in obj or "blas" in obj:
+        elif "blas" in obj or "lapack" in obj:  # OpenBLAS carries LAPACK too
             out["BLAS / LAPACK"] += n
         elif "_multiarray_umath" in obj or "_umath_linalg" in obj:
             out["NumPy inner loops" if _KERNEL.match(fn) else "NumPy dispatch"] += n
@@ -249,7 +249,7 @@ def main() -> int:
     if parts is not None:
         for name in SPLIT:
             print(f"  {name:<20} {parts[name] / frames / 1e6:6.3f} M  {parts[name] / max(collected, 1):6.1%}")
-        if args.split and sum(parts.values()) != collected:
+        if sum(parts.values()) != collected:
             print(f"  ({sum(parts.values()) / max(collected, 1):.1%} of the instructions named by "
                   "callgrind_annotate)")
     return 0 if not args.split or parts is not None else 1

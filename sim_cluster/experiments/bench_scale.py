@@ -234,9 +234,10 @@ def plot(rows: list[dict], path: Path, meta: dict) -> None:
     sent.set_yscale("log")
     score.set_ylim(min(0.0, score.get_ylim()[0]), 1.0)
     cpu.legend(fontsize=8, loc="upper left")
+    density = statistics.median(r["people_per_frame"] / r["cameras"] for r in rows)
     fig.suptitle(f"{meta.get('layout', '?')}-N: {meta.get('frames', '?')} frames, seed "
-                 f"{meta.get('seed', '?')}, {meta.get('config', '?')}, 6.25 people per camera "
-                 "(sim_cluster bench --cameras)", fontsize=10)
+                 f"{meta.get('seed', '?')}, {meta.get('config', '?')}, {density:.1f} people in view "
+                 "per camera (sim_cluster bench --cameras)", fontsize=10)
     fig.tight_layout()
     fig.savefig(path, dpi=100)
     plt.close(fig)
