@@ -145,21 +145,14 @@ class TrackerBlock:
                           appearance=appearance)
         return b
 
-    @property
-    def factored(self) -> bool:
-        """Whether ``u, U`` are the decoder's (``protocol.codec``), built from a factor it
-        checked: ``U = L L^T`` with ``L`` lower-triangular with a positive diagonal, exactly
-        symmetric, zero outside ``(x, y, w, h)``; ``u = 0`` where ``U = 0``. A block taken from
-        it, or made any other way, is not. (The decoder leaves that factor with the block:
-        :meth:`measurement_factor`.)"""
-        return "_factor" in self.__dict__
-
     def measurement_factor(self) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
         """A decoded block's measurements in the form the decoder built ``u, U`` from (see
         ``protocol.codec``): which rows carry one (``(n,)`` bool, ``m`` set), their ``L (m, 4,
         4)``, lower-triangular with a positive diagonal, and ``v (m, 4)``, with ``U_zz = L L^T``
-        and ``u_z = L v`` (so the measurement is ``z = L^-T v``); read-only. ``None`` unless
-        :attr:`factored`."""
+        and ``u_z = L v`` (so the measurement is ``z = L^-T v``); read-only. Such ``u, U`` hold
+        the wire's form by construction: ``U`` exactly symmetric and zero outside ``(x, y, w,
+        h)``, ``u = 0`` where ``U = 0``. ``None`` for a block taken from a decoded one or made
+        any other way."""
         return self.__dict__.get("_factor")
 
     @classmethod
