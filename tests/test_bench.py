@@ -9,6 +9,7 @@ import functools
 import importlib.util
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 from sim_cluster.experiments.bench import bench_targets, warm_frames
@@ -194,3 +195,29 @@ def test_track_hash_is_the_same_in_another_shell_and_moves_with_the_tracks(tmp_p
         return tracks
     monkeypatch.setattr(CameraNode, "update", nudged)
     assert th.track_hash([3], 12) != here
+
+
+def test_compiled_kernel_benchmark_replays_the_cores_own_calls(tmp_path, monkeypatch):
+    """``bench/compiled_kernel.py`` times eq. 4 on the calls the core made: the arguments it
+    saves, replayed through ``dkf.corrects``, give what the core got from those calls."""
+    from edge_node.core import dkf
+
+    spec = importlib.util.spec_from_file_location(
+        "compiled_kernel", SCRIPT.parent / "compiled_kernel.py")
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    real, results = dkf.corrects, []
+
+    def outer(*a, **kw):
+        out = real(*a, **kw)
+        results.append(tuple(o.copy() for o in out))
+        return out
+    monkeypatch.setattr(dkf, "corrects", outer)
+    n = module.capture(5, tmp_path / "calls.npz", keep=12)
+    assert dkf.corrects is outer  # put back
+    calls = module._load(tmp_path / "calls.npz")
+    assert n == len(calls) == 12 and len(results) > 12
+    for c, (x_hat, M) in zip(calls, results[-12:]):
+        assert len(c[0]) == 5  # the bench holds its 5 targets
+        x2, M2 = real(*c[:6], degree=c[6], bound=c[7])
+        assert np.array_equal(x2, x_hat) and np.array_equal(M2, M)
