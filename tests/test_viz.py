@@ -279,3 +279,52 @@ def test_cluster_up_streams_to_a_running_viewer(tmp_path):
     paths = {c.entity_path for c in reader.stream().to_chunks()}
     assert {"/nodes/0/tracks", "/nodes/1/tracks", "/world/ground_truth",
             "/world/disagreement/max", "/world/cameras/1/fov"} <= paths
+
+
+def _unused_port() -> int:
+    import socket
+
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def test_closing_a_sink_whose_viewer_cannot_be_reached_is_bounded_and_does_not_raise():
+    """``connect`` to an address nothing listens on: the flush gives up after
+    ``FLUSH_TIMEOUT_S`` and says so (``False``); it used to wait forever (a finished node never
+    exited) or, interrupted, raise past the code that writes a node's last files."""
+    import time
+
+    from edge_node.viz import rerun_log
+
+    sink = make_sink(f"connect 127.0.0.1:{_unused_port()}")
+    sink.log_frame(0, [_track((0, 1), 1.0, 2.0)], node=0)
+    t = time.monotonic()
+    assert sink.close() is False
+    # the bounded flush, then Rerun's own shutdown of the connection (up to 5 s)
+    assert time.monotonic() - t < rerun_log.FLUSH_TIMEOUT_S + 10
+    assert NullSink().close() is True
+
+
+@pytest.mark.integration
+def test_a_cluster_streaming_to_no_viewer_finishes_and_stops_every_node(tmp_path):
+    """``sim_cluster up --rerun connect ADDR`` with nothing at ADDR: the run ends as without
+    Rerun (summary, every node's counters with exit code 0) and no node is left running; the
+    nodes used to hang at exit and ignore SIGTERM, and Ctrl-C left them orphaned."""
+    import json
+    import os
+
+    out = tmp_path / "c"
+    r = subprocess.run([str(BIN / "sim_cluster"), "up", "--scenario", "terrace-sim", "--nodes", "2",
+                        "--frames", "10", "--out", str(out), "--quiet", "--sync-timeout", "30",
+                        "--rerun", "connect", f"127.0.0.1:{_unused_port()}"],
+                       capture_output=True, text=True, timeout=240)
+    assert r.returncode == 0, r.stdout + r.stderr
+    assert (out / "summary.json").exists()
+    assert "the data not delivered is dropped" in r.stderr
+    for i in range(2):
+        counters = json.loads((out / "nodes" / f"counters_node{i}.json").read_text())
+        assert counters["exit_code"] == 0 and counters["frames_done"] == 10
+        pid = json.loads((out / "nodes" / f"status_node{i}.json").read_text())["pid"]
+        with pytest.raises(ProcessLookupError):
+            os.kill(pid, 0)

@@ -36,6 +36,7 @@ from __future__ import annotations
 
 import colorsys
 import functools
+import logging
 import zlib
 from collections import deque
 from collections.abc import Iterable, Mapping, Sequence
@@ -51,6 +52,12 @@ DEFAULT_GRPC_PORT = 9876
 DEFAULT_WEB_PORT = 9090
 DEFAULT_URL = f"rerun+http://127.0.0.1:{DEFAULT_GRPC_PORT}/proxy"
 TRAIL = 25  # positions kept per track trail
+# How long closing a streaming sink (spawn, connect, serve) waits for its data to reach the
+# viewer: one that cannot be reached (``connect`` to an address nothing listens on, a viewer
+# closed meanwhile) must not hold a finished node or launcher; Rerun's own shutdown adds up to
+# 5 s more. A saved file is flushed without a bound (it goes to disk, and a cut one is lost).
+FLUSH_TIMEOUT_S = 5.0
+log = logging.getLogger(__name__)
 _ANG = np.linspace(0.0, 2.0 * np.pi, 25)
 _UNIT_CIRCLE = np.stack([np.cos(_ANG), np.sin(_ANG)], axis=1)  # closed: first == last
 
@@ -228,7 +235,9 @@ class NullSink:
     def log_frame(self, *a, **k) -> None: ...
     def log_disagreement(self, *a, **k) -> None: ...
     def log_image(self, *a, **k) -> None: ...
-    def close(self) -> None: ...
+
+    def close(self) -> bool:
+        return True
 
 
 def make_sink(spec: str | Sequence[str] | VizSpec | None, *, app_id: str = APP_ID,
@@ -465,18 +474,33 @@ class RerunSink:
             mins=b[:, :2], sizes=b[:, 2:4], labels=[track_label(t) for t, _ in tracks],
             colors=[track_colour(t) for t, _ in tracks]))
 
-    def close(self) -> None:
-        """The time series' last values, flush; a saved file gets its footer."""
+    def close(self) -> bool:
+        """The time series' last values, flush; a saved file gets its footer. Never raises: a
+        viewer that cannot be reached within ``FLUSH_TIMEOUT_S`` costs the data it did not get
+        (a warning, and ``False``), not the files its caller writes after this (a node's
+        counters and status, a launcher's stopping of its nodes)."""
+        ok = True
         try:
             for path, (k, v, pending) in self._stats.items():
                 if pending:
                     self.rec.set_time("frame", sequence=k)
                     self.rec.log(path, self.rr.Scalars(v))
             self._stats = {}
-            self.rec.flush()
+            if self.spec.kind == "save":
+                self.rec.flush()
+            else:
+                self.rec.flush(timeout_sec=FLUSH_TIMEOUT_S)
+        except Exception as e:  # noqa: BLE001 - Rerun raises RuntimeError when the flush times out
+            ok = False
+            log.warning("Rerun (%s): %s; the data not delivered is dropped", self.spec, e)
         finally:
             if self.spec.kind != "serve":  # a server keeps serving until the process ends
-                self.rec.disconnect()
+                try:
+                    self.rec.disconnect()
+                except Exception as e:  # noqa: BLE001 - as above
+                    ok = False
+                    log.warning("Rerun (%s): %s", self.spec, e)
+        return ok
 
 
 def open_node_sink(cfg, camera, units_per_metre: float = 1.0, *, keep_existing: bool = False):

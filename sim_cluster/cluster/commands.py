@@ -94,8 +94,10 @@ def up(args) -> int:
         print("sim_cluster: interrupted: stopping the cluster", file=sys.stderr)
         return 130
     finally:
-        viz.close()
-        cluster.stop()  # anything still running that this launcher owns: end it
+        try:
+            viz.close()
+        finally:
+            cluster.stop()  # anything still running that this launcher owns: end it
 
 
 def video_sources(args, data, out: Path, n: int) -> dict[int, str] | None:
