@@ -441,6 +441,61 @@ def test_a_node_id_already_alive_is_refused_and_a_restart_is_not():
             t.close()
 
 
+
+class _PeerReplies:
+    """A Zenoh session whose peers (node 1) say whether node 0 is alive: ``pattern`` gives,
+    poll by poll, whether the answer arrives (True), or is late and missed (False)."""
+
+    def __init__(self, pattern):
+        self.pattern, self.polls = list(pattern), 0
+
+    def liveliness(self):
+        return self
+
+    def get(self, key, timeout):
+        from types import SimpleNamespace
+
+        if "/alive/" in str(key):  # the liveliness query: no token of ours reaches us
+            return []
+        answered = self.pattern[min(self.polls, len(self.pattern) - 1)]
+        self.polls += 1
+        payload = json.dumps({"node": 1, "alive": [0], "frame": 10}).encode()
+        ok = SimpleNamespace(payload=SimpleNamespace(to_bytes=lambda: payload))
+        return [SimpleNamespace(ok=ok)] if answered else []
+
+
+def _checker(session):
+    from edge_node.runtime.transport import ZenohTransport
+
+    t = object.__new__(ZenohTransport)
+    t.network, t.node, t._neigh, t._self_seen = "dup", 0, {1}, False
+    t.session, t.running_at_start = session, {}
+    return t
+
+
+@pytest.mark.parametrize("pattern, refused", [
+    ([True, False] * 100, True),  # every other answer late: the holder is there all along
+    ([True, True, False, False, True] * 40, True),  # two late in a row
+    ([True] * 3 + [False] * 200, False),  # the holder is gone (a restart): the id is free
+    ([False] * 200, False),  # nobody holds it
+])
+def test_the_id_check_does_not_take_one_late_answer_for_a_free_id(pattern, refused):
+    """``_id_holders``: a holder seen is taken to be gone only when nobody has said it is alive
+    for ``ID_SETTLE_S`` and ``ID_MISSES`` polls in a row; before, the first poll past the settle
+    time whose answer came late freed the id (half the duplicates of a busy cluster got in)."""
+    from edge_node.runtime import transport
+
+    session = _PeerReplies(pattern)
+    t0 = time.monotonic()
+    holders = _checker(session)._id_holders(wait_s=1.5, since=t0)
+    took = time.monotonic() - t0
+    assert holders == (["node 1"] if refused else [])
+    if refused:
+        assert took >= 1.5  # it waited the lease for a previous life to vanish
+    else:
+        assert took >= transport.ID_SETTLE_S and session.polls >= transport.ID_MISSES
+
+
 def test_a_camera_process_keeps_large_blocks_out_of_its_heap():
     """``steady_allocator`` (called as a camera process starts) fixes glibc's mmap threshold:
     a freed array of a few MB (a source's chunk) leaves the process at once instead of raising
