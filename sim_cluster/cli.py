@@ -203,8 +203,8 @@ def build_parser() -> argparse.ArgumentParser:
     r.add_argument("--tracker-config", default=None, help="TOML file overriding tracker parameters")
     r.add_argument("--reid-rank1", type=number(0, above=True), default=None, metavar="R",
                    help="re-id quality of the simulated descriptors: cross-camera rank-1 in "
-                        "(0, 1] with 20 people (default: the scenario's [appearance]; the "
-                        "presets' is 1, perfect re-id)")
+                        "(0, 1] with 20 people, 1 perfect (default: the scenario's [appearance]; "
+                        "the presets' confuse look-alikes as a rank-1 of 0.8 does)")
     r.add_argument("--ground-threshold", type=number(0, above=True), default=1.0,
                    help="ground matching threshold in metres (default 1)")
     r.add_argument("--mode", default="sync", choices=("sync", "async"),

@@ -261,7 +261,7 @@ def test_histogram_reid_separates_rendered_identities(close_world):
 # -- calibration -------------------------------------------------------------------------------------
 @pytest.mark.integration
 def test_calibrate_recovers_a_known_homography(tmp_path):
-    from edge_node.perception.calibrate import fit_homography, read_pairs
+    from edge_node.perception.calibrate import fit_homography, read_pairs, report
     from sim_cluster.scenarios.synthetic.schema import camera_from_pose
 
     cam = camera_from_pose(0, (360, 288), np.array([-1.0, -1.0, 3.0]), 45.0, 20.0, fov_deg=62.0)
@@ -285,6 +285,15 @@ def test_calibrate_recovers_a_known_homography(tmp_path):
     table = tomllib.loads(out.stdout.split("\n\n")[0])["camera"]
     np.testing.assert_allclose(np.array(table["homography"]), cal.G, rtol=1e-6, atol=1e-9)
     assert table["image_size"] == [360, 288]
+    # a pair 6 px off: without RANSAC it is fitted with the others and reported as used (OpenCV
+    # 5's mask of the plain fit marks the pairs within its threshold); RANSAC leaves it out
+    pixels[4] += (6.0, 0.0)
+    cal = fit_homography(pixels, ground)
+    assert cal.inliers.all() and cal.summary()["inliers"] == 6
+    assert cal.image_error[4] > 3.0  # (what the plain fit's mask would have called an outlier)
+    assert "(outlier" not in report(cal)
+    robust = fit_homography(pixels, ground, ransac_px=3.0)
+    assert not robust.inliers[4] and robust.inliers.sum() == 5
     f.write_text("1,2,3,4\n5,6,7,8\n")
     bad = subprocess.run([sys.executable, "-m", "edge_node.cli", "calibrate", "--points", str(f)],
                          capture_output=True, text=True, cwd=REPO)

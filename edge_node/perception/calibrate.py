@@ -90,7 +90,9 @@ def fit_homography(image_points: np.ndarray, ground_points: np.ndarray,
     G = np.linalg.inv(H)
     if abs(G[2, 2]) > 1e-12:
         G = G / G[2, 2]
-    inliers = np.ones(len(img), bool) if mask is None else mask.ravel().astype(bool)
+    # every pair is fitted without RANSAC; OpenCV 5 still returns a mask then (the pairs within
+    # the threshold of the fit), which is not which pairs were used
+    inliers = np.ones(len(img), bool) if mask is None or not ransac_px else mask.ravel().astype(bool)
     gh = np.hstack([img, np.ones((len(img), 1))]) @ G.T
     g = gh[:, :2] / gh[:, 2:3]
     ih = np.hstack([gnd, np.ones((len(gnd), 1))]) @ H.T
