@@ -189,7 +189,7 @@ def child(args) -> None:
 
 
 def main() -> int:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap = argparse.ArgumentParser(description=" ".join(__doc__.split("\n\n")[0].split()))
     ap.add_argument("--targets", type=int, default=20)
     ap.add_argument("--frames", type=int, default=30, help="frames of the run (a third are not counted)")
     ap.add_argument("--neighbours", type=int, default=4)

@@ -45,7 +45,7 @@ def track_hash(targets: list[int], frames: int) -> str:
 
 
 def main() -> int:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap = argparse.ArgumentParser(description=" ".join(__doc__.split("\n\n")[0].split()))
     ap.add_argument("--targets", default="5,20,50", help="comma-separated target counts")
     ap.add_argument("--frames", type=int, default=90)
     args = ap.parse_args()

@@ -210,7 +210,8 @@ def build_parser() -> argparse.ArgumentParser:
     r.add_argument("--mode", default="sync", choices=("sync", "async"),
                    help="sync: fuse frame-k messages at k; async: event-triggered, latest messages")
     r.add_argument("--faults", default=None, help="fault plan TOML (loss, delay, partitions, crashes)")
-    r.add_argument("--out", default="runs/latest")
+    r.add_argument("--out", default="runs/run",
+                   help="folder to write (default runs/run; make run's cluster writes runs/latest)")
     r.add_argument("--quiet", action="store_true", help="no progress bar")
     _rerun_arg(r)
     r.set_defaults(func=run.main)
@@ -261,7 +262,10 @@ def build_parser() -> argparse.ArgumentParser:
 
     fz = sub.add_parser("fuzz", help="wire-valid hostile messages into two running nodes through "
                         "Zenoh: no crash, every rejection counted, tracks as without the attacker")
-    fz.add_argument("--messages", type=integer(100), default=10_000)
+    fz.add_argument("--messages", type=integer(100), default=10_000,
+                    help="hostile messages to send, at least (40 a frame, over at least 20 "
+                         "frames, and a tenth more frames for a victim that falls behind: "
+                         "--messages 100 sends 800)")
     fz.add_argument("--scenario", default="lab-sim")
     fz.add_argument("--fps", type=number(0, above=True), default=50.0, help="victims' pacing")
     fz.add_argument("--seed", type=integer(0), default=0)

@@ -101,6 +101,19 @@ def test_a_node_config_with_a_plan_naming_a_non_neighbour_is_rejected(tmp_path):
                             "(node 0's neighbours: 1)")
 
 
+
+def test_a_node_config_with_a_plan_shows_it_resolved(tmp_path):
+    """``edge_node check`` prints the resolved config: the plan's file, resolved against the
+    config's folder, is part of it (it was left out)."""
+    (tmp_path / "faults.toml").write_text("[[link]]\nsrc = 0\ndst = 1\nloss = 0.5\n")
+    cfg = tmp_path / "cam0.toml"
+    cfg.write_text('node = 0\nnetwork = "n"\nneighbours = [1]\n[source]\nkind = "scenario"\n'
+                   'scenario = "lab-sim"\n[faults]\nfile = "faults.toml"\n')
+    assert load_node_config(cfg).to_dict()["faults"] == {"file": str(tmp_path / "faults.toml")}
+    cfg.write_text('node = 0\nnetwork = "n"\nneighbours = [1]\n[source]\nkind = "scenario"\n'
+                   'scenario = "lab-sim"\n')
+    assert load_node_config(cfg).to_dict()["faults"] is None
+
 @pytest.mark.parametrize("plan, topology, message", [
     ("[[node]]\nnode = 9\nkill = 5\n", "chain",
      "node[0].node names node 9, but the network has 4 nodes (0, 1, 2, 3)"),

@@ -269,6 +269,7 @@ class NodeConfig:
             "output": table(self.output),
             "viz": table(self.viz),
             "perception": None if self.perception is None else self.perception.to_dict(),
+            "faults": None if self.faults is None else {"file": str(self.faults)},
         }
 
 
