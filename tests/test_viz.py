@@ -328,3 +328,96 @@ def test_a_cluster_streaming_to_no_viewer_finishes_and_stops_every_node(tmp_path
         pid = json.loads((out / "nodes" / f"status_node{i}.json").read_text())["pid"]
         with pytest.raises(ProcessLookupError):
             os.kill(pid, 0)
+
+
+@pytest.mark.integration
+def test_down_stops_a_detached_cluster_streaming_to_no_viewer_and_keeps_its_files(tmp_path):
+    """``up --detach --rerun connect ADDR`` with nothing at ADDR, then ``down``: every node is
+    gone when ``down`` returns (it said 'could not be stopped': it looked right after SIGKILL),
+    and each node wrote its counters and status before closing its sink (a node waiting on an
+    unreachable viewer outlives the SIGTERM grace)."""
+    import json
+    import time
+
+    out = tmp_path / "c"
+    r = subprocess.run([str(BIN / "sim_cluster"), "up", "--scenario", "terrace-sim", "--nodes", "2",
+                        "--frames", "3000", "--out", str(out), "--quiet", "--detach",
+                        "--rerun", "connect", f"127.0.0.1:{_unused_port()}"],
+                       capture_output=True, text=True, timeout=240)
+    assert r.returncode == 0, r.stdout + r.stderr
+    status = [out / "nodes" / f"status_node{i}.json" for i in range(2)]
+    deadline = time.time() + 60
+    while not all(p.exists() and json.loads(p.read_text()).get("frames_done", 0) > 5 for p in status):
+        assert time.time() < deadline, "the nodes did not start"
+        time.sleep(0.2)
+    pids = [json.loads(p.read_text())["pid"] for p in status]
+    d = subprocess.run([str(BIN / "sim_cluster"), "down", "--out", str(out)],
+                       capture_output=True, text=True, timeout=60)
+    assert d.returncode == 0, d.stdout + d.stderr
+    from sim_cluster.cluster.processes import alive  # (a zombie is not alive)
+
+    for i, pid in enumerate(pids):
+        assert not alive(pid)
+        counters = json.loads((out / "nodes" / f"counters_node{i}.json").read_text())
+        assert counters["exit_code"] == 0 and counters["stopped"] is True
+        assert counters["viz_dropped"] >= 0  # counted (edge_node/viz/live.py)
+        assert json.loads(status[i].read_text())["phase"] == "stopped"
+
+
+
+class _Recorder:
+    """A sink that records its calls; ``gate``: each call waits for it (a stuck viewer)."""
+
+    def __init__(self, gate=None):
+        import threading
+
+        from edge_node.viz import VizSpec
+
+        self.spec, self.url, self.calls, self.gate, self.closed = VizSpec("connect", "x"), None, [], gate, 0
+        self.entered = threading.Event()
+
+    def log_frame(self, k, tracks, **kw):
+        self.entered.set()
+        if self.gate is not None:
+            self.gate.wait()
+        self.calls.append(k)
+
+    def close(self):
+        self.closed += 1
+        return True
+
+
+def test_a_live_sink_delivers_every_call_in_order_to_a_viewer_that_keeps_up():
+    from edge_node.viz.live import LiveSink
+
+    rec = _Recorder()
+    live = LiveSink(rec, depth=1000, timeout=5.0)
+    for k in range(500):
+        live.log_frame(k, [])
+    assert live.close() is True
+    assert rec.calls == list(range(500)) and rec.closed == 1 and live.dropped == 0
+
+
+def test_a_live_sink_never_blocks_its_caller_on_a_stuck_viewer():
+    """Rerun blocks ``log`` once its buffer for an unreachable viewer is full: the frame loop
+    must go on. Calls beyond the queue are dropped and counted; ``close`` gives up after its
+    timeout and says so."""
+    import threading
+    import time
+
+    from edge_node.viz.live import LiveSink
+
+    gate = threading.Event()  # never set: the first call blocks for good
+    rec = _Recorder(gate)
+    live = LiveSink(rec, depth=8, timeout=0.5)
+    t = time.monotonic()
+    live.log_frame(0, [])
+    assert rec.entered.wait(5.0)  # the logging thread is in the sink, stuck
+    for k in range(1, 1000):
+        live.log_frame(k, [])
+    assert time.monotonic() - t < 0.5  # the caller never waited
+    assert live.dropped == 1000 - 8 - 1  # the queue's 8 and the one stuck in the sink
+    t = time.monotonic()
+    assert live.close() is False
+    assert 0.4 < time.monotonic() - t < 2.0 and rec.closed == 0
+    gate.set()

@@ -578,7 +578,6 @@ def run_node(cfg: NodeConfig, *, frames: int | None = None, mode: str | None = N
         finally:
             if writer is not None:
                 writer.close()
-            sink.close()
             counters = {}
             try:
                 counters = transport.counters()
@@ -598,6 +597,9 @@ def run_node(cfg: NodeConfig, *, frames: int | None = None, mode: str | None = N
                         write_counters(cfg, loop, node, None, code, counters, lat)
                 except OSError as e:
                     log.warning("cannot write the exit files: %s", e)
+            # the node's own files first: a viewer that cannot be reached holds the close up to
+            # FLUSH_TIMEOUT_S, longer than a launcher's SIGTERM grace may wait
+            sink.close()
             if sink.url and code == EXIT_OK:  # --rerun serve: keep serving until Ctrl-C
                 log.warning("node %d: Rerun web viewer at %s until Ctrl-C", cfg.node, sink.url)
                 shutdown.event.wait()
@@ -618,6 +620,7 @@ def write_counters(cfg: NodeConfig, loop: FrameLoop, node: CameraNode, transport
         "startup_s": st.startup_s, "latency": lat, **counters,
         "rejected": rejected(counters, node),
         **wire_counters(loop.outbox),
+        "viz_dropped": getattr(loop.sink, "dropped", 0),  # Rerun calls a stuck viewer cost
         "timing_s": {"prepare": st.prepare_s, "wait": st.wait_s, "update": st.update_s},
         # CPU of the whole process (all its threads: Zenoh's too), and since its first frame
         "cpu_s": {"process": time.process_time(),

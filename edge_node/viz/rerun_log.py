@@ -46,6 +46,8 @@ from typing import Any
 
 import numpy as np
 
+from edge_node.viz.live import LiveSink
+
 APP_ID = "dmtt"
 KINDS = ("off", "spawn", "connect", "save", "serve")
 DEFAULT_GRPC_PORT = 9876
@@ -525,4 +527,6 @@ def open_node_sink(cfg, camera, units_per_metre: float = 1.0, *, keep_existing: 
         sink.log_world(area=viz.area, units_per_metre=units_per_metre, cameras=[camera])
     except Exception as e:  # noqa: BLE001 - port in use, unwritable file, no viewer binary ...
         raise SinkError(f"{str(spec)!r}: Rerun could not start ({type(e).__name__}: {e})") from None
-    return sink
+    # streaming: from a thread of its own, so that a viewer that cannot keep up (or be reached)
+    # costs frames of the view, never frames of tracking (edge_node/viz/live.py)
+    return sink if spec.kind == "save" else LiveSink(sink, timeout=FLUSH_TIMEOUT_S)

@@ -11,6 +11,7 @@ import sys
 import time
 
 TERM_GRACE_S = 5.0
+KILL_WAIT_S = 2.0  # after SIGKILL, how long terminate waits for the processes to be gone
 
 
 def free_ports(n: int) -> list[int]:
@@ -72,3 +73,6 @@ def terminate(pids: list[int], grace: float = TERM_GRACE_S) -> None:
     while time.time() < deadline and any(alive(p) for p in pids):
         time.sleep(0.05)
     _signal(pids, signal.SIGKILL)
+    deadline = time.time() + KILL_WAIT_S  # a killed process takes a moment to be gone
+    while time.time() < deadline and any(alive(p) for p in pids):
+        time.sleep(0.02)
