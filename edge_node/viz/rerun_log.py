@@ -479,8 +479,8 @@ class RerunSink:
     def close(self) -> bool:
         """The time series' last values, flush; a saved file gets its footer. Never raises: a
         viewer that cannot be reached within ``FLUSH_TIMEOUT_S`` costs the data it did not get
-        (a warning, and ``False``), not the files its caller writes after this (a node's
-        counters and status, a launcher's stopping of its nodes)."""
+        (a warning, and ``False``), not what its caller does after this (a launcher stops its
+        nodes)."""
         ok = True
         try:
             for path, (k, v, pending) in self._stats.items():
