@@ -289,7 +289,7 @@ def _unused_port() -> int:
         return s.getsockname()[1]
 
 
-def test_closing_a_sink_whose_viewer_cannot_be_reached_is_bounded_and_does_not_raise():
+def test_closing_a_sink_whose_viewer_cannot_be_reached_is_bounded_and_does_not_raise(monkeypatch):
     """``connect`` to an address nothing listens on: the flush gives up after
     ``FLUSH_TIMEOUT_S`` and says so (``False``); it used to wait forever (a finished node never
     exited) or, interrupted, raise past the code that writes a node's last files."""
@@ -297,6 +297,7 @@ def test_closing_a_sink_whose_viewer_cannot_be_reached_is_bounded_and_does_not_r
 
     from edge_node.viz import rerun_log
 
+    monkeypatch.setattr(rerun_log, "FLUSH_TIMEOUT_S", 1.0)
     sink = make_sink(f"connect 127.0.0.1:{_unused_port()}")
     sink.log_frame(0, [_track((0, 1), 1.0, 2.0)], node=0)
     t = time.monotonic()
@@ -341,7 +342,7 @@ def test_down_stops_a_detached_cluster_streaming_to_no_viewer_and_keeps_its_file
 
     out = tmp_path / "c"
     r = subprocess.run([str(BIN / "sim_cluster"), "up", "--scenario", "terrace-sim", "--nodes", "2",
-                        "--frames", "3000", "--out", str(out), "--quiet", "--detach",
+                        "--frames", "600", "--fps", "25", "--out", str(out), "--quiet", "--detach",
                         "--rerun", "connect", f"127.0.0.1:{_unused_port()}"],
                        capture_output=True, text=True, timeout=240)
     assert r.returncode == 0, r.stdout + r.stderr
