@@ -22,6 +22,14 @@ log = logging.getLogger(__name__)
 LIVE_QUEUE = 256  # calls waiting for the logging thread (a few seconds of frames)
 
 
+def _forwarded(name: str):
+    """A sink method of ``LiveSink``: the call, queued for the logging thread."""
+    def call(self, *args, **kwargs) -> None:
+        self._put(name, args, kwargs)
+    call.__name__ = name
+    return call
+
+
 class LiveSink:
     """``sink`` (a ``RerunSink``) behind a queue of ``depth`` calls and one logging thread.
     ``close`` waits up to ``timeout`` s for the queue to drain, then closes ``sink`` (whose own
@@ -60,23 +68,12 @@ class LiveSink:
         except queue.Full:
             self.dropped += 1
 
-    def log_world(self, *a, **k) -> None:
-        self._put("log_world", a, k)
-
-    def log_cameras(self, *a, **k) -> None:
-        self._put("log_cameras", a, k)
-
-    def log_truth(self, *a, **k) -> None:
-        self._put("log_truth", a, k)
-
-    def log_frame(self, *a, **k) -> None:
-        self._put("log_frame", a, k)
-
-    def log_disagreement(self, *a, **k) -> None:
-        self._put("log_disagreement", a, k)
-
-    def log_image(self, *a, **k) -> None:
-        self._put("log_image", a, k)
+    log_world = _forwarded("log_world")
+    log_cameras = _forwarded("log_cameras")
+    log_truth = _forwarded("log_truth")
+    log_frame = _forwarded("log_frame")
+    log_disagreement = _forwarded("log_disagreement")
+    log_image = _forwarded("log_image")
 
     def close(self) -> bool:
         """Drain (up to ``timeout``), close the sink; never raises. ``False`` when something
