@@ -66,13 +66,16 @@ def _signal(pids: list[int], sig: int) -> None:
                 pass
 
 
-def terminate(pids: list[int], grace: float = TERM_GRACE_S) -> None:
-    """SIGTERM (a node finishes its frame and flushes), then SIGKILL whatever is left."""
-    _signal(pids, signal.SIGTERM)
-    deadline = time.time() + grace
-    while time.time() < deadline and any(alive(p) for p in pids):
-        time.sleep(0.05)
-    _signal(pids, signal.SIGKILL)
-    deadline = time.time() + KILL_WAIT_S  # a killed process takes a moment to be gone
+def _wait_gone(pids: list[int], seconds: float) -> None:
+    deadline = time.time() + seconds
     while time.time() < deadline and any(alive(p) for p in pids):
         time.sleep(0.02)
+
+
+def terminate(pids: list[int], grace: float = TERM_GRACE_S) -> None:
+    """SIGTERM (a node finishes its frame and flushes), then SIGKILL whatever is left, and
+    wait for that to be gone too (a killed process takes a moment)."""
+    _signal(pids, signal.SIGTERM)
+    _wait_gone(pids, grace)
+    _signal(pids, signal.SIGKILL)
+    _wait_gone(pids, KILL_WAIT_S)
