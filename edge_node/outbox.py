@@ -11,6 +11,14 @@ Every frame the node's message goes through the same steps, in one process or in
    some frames or duplicated; late ones wait here until their frame;
 4. what was handed to each link is counted: bytes, tracker entries, appearance.
 
+A neighbour whose frames jump (``heard``: more than ``rejoin_gap`` frames since the last of its
+messages the core took, or since this node's first frame for one not heard before) skipped
+ahead after a freeze and started its core afresh, booted late, or was cut off for that long: it
+gets the resync message at the next frame, as a neighbour that came back does (unless it got
+one within the last ``rejoin_gap`` frames). A message over the wire's limits (a node made to hold more trackers than a message may
+carry) is cut to fit, never left unsent: the trackers this node measured first, then the
+others in id order; the cut is counted (``trackers_cut``).
+
 Pure: no clock, no I/O. ``send`` and ``due`` return ``(destination, payload)`` pairs; the shell
 hands them to its transport. A message that would break the wire rules is never sent: it is
 counted under ``encode_errors`` and ``last_error`` says why.
@@ -44,6 +52,8 @@ class OutboxCounters:
     appearance_bytes: int = 0  # bytes of those appearance fields
     bytes_saved: int = 0  # event-triggered: bytes not sent against the full message, all links
     encode_errors: int = 0
+    trackers_cut: int = 0  # tracker entries left out of messages over the wire's limits
+    resyncs: int = 0  # resync messages sent (one per link)
 
     @property
     def total_bytes(self) -> int:
@@ -55,7 +65,8 @@ class OutboxCounters:
         for dst, b in other.bytes_per_link.items():
             out.bytes_per_link[dst] = out.bytes_per_link.get(dst, 0) + b
         for name in ("messages", "frames_sent", "frames_skipped", "tracker_entries",
-                     "appearance_entries", "appearance_bytes", "bytes_saved", "encode_errors"):
+                     "appearance_entries", "appearance_bytes", "bytes_saved", "encode_errors",
+                     "trackers_cut", "resyncs"):
             setattr(out, name, getattr(self, name) + getattr(other, name))
         return out
 
@@ -64,14 +75,42 @@ class Outbox:
     """Sends one node's frame messages to its neighbours."""
 
     def __init__(self, node: int, neighbours: Iterable[int], faults: FaultPlan = NO_FAULTS,
-                 trigger: EventTrigger | None = None):
+                 trigger: EventTrigger | None = None, rejoin_gap: int | None = None,
+                 limits: codec.Limits = codec.DEFAULT_LIMITS):
+        """``rejoin_gap``: frames a neighbour's messages may jump before it is resynced
+        (``heard``; the core's ``kappa``: a shorter skip keeps its trackers); ``None``: never."""
         self.node = int(node)
         self.neighbours = tuple(sorted(int(n) for n in neighbours))
         self.faults = faults
         self.trigger = trigger  # None: synchronous operation, every frame's message is sent
+        self.rejoin_gap = rejoin_gap
+        self.limits = limits
         self.counters = OutboxCounters()
         self.last_error: str | None = None
+        self.rejoined: set[int] = set()  # neighbours whose frames jumped: resync them
+        self._heard: dict[int, int] = {}  # neighbour -> newest frame of its the core took
+        self._start: int | None = None  # the first frame heard() was called at
+        self._resynced_at: dict[int, int] = {}  # neighbour -> the frame of its last resync
         self._delayed: dict[int, list[Delivery]] = {}  # frame due -> deliveries
+
+    def heard(self, msgs: Iterable[FrameMessage], k: int, stale_ok: bool = False) -> None:
+        """The neighbours' messages the core takes at frame ``k`` (synchronous: of frame ``k``;
+        event-triggered: up to ``rejoin_gap`` frames old): a sender whose frame is more than
+        ``rejoin_gap`` past the last one taken from it is resynced at the next ``send``. Both
+        shells call this with the messages they hand the core, so both resync alike."""
+        if self.rejoin_gap is None:
+            return
+        if self._start is None:
+            self._start = k
+        for m in msgs:
+            if m.frame > k or m.frame < k - self.rejoin_gap or (not stale_ok and m.frame != k):
+                continue
+            last = self._heard.get(m.sender, self._start)
+            if m.frame > last + self.rejoin_gap \
+                    and k - self._resynced_at.get(m.sender, -self.rejoin_gap - 1) > self.rejoin_gap:
+                self.rejoined.add(m.sender)
+            if m.frame > last or m.sender not in self._heard:
+                self._heard[m.sender] = m.frame
 
     def send(self, msg: FrameMessage, *, resync: Iterable[int] = (),
              resync_message: Callable[[FrameMessage], FrameMessage] | None = None,
@@ -88,7 +127,9 @@ class Outbox:
             return []
         c = self.counters
         full = msg
-        resync = set(resync) & set(self.neighbours) if resync_message is not None else set()
+        resync = (set(resync) | self.rejoined) & set(self.neighbours) \
+            if resync_message is not None else set()
+        self.rejoined.clear()
         stayers = len(self.neighbours) - len(resync)  # the neighbours the trigger's cut goes to
         if self.trigger is not None:
             msg = self.trigger.filter(full, covariance)
@@ -123,6 +164,9 @@ class Outbox:
             if pair is None:
                 continue
             m, p = pair
+            if pair is special:
+                c.resyncs += 1
+                self._resynced_at[dst] = k
             c.bytes_per_link[dst] = c.bytes_per_link.get(dst, 0) + len(p)
             c.messages += 1
             c.tracker_entries += len(m.trackers)
@@ -144,11 +188,47 @@ class Outbox:
 
     def _encode(self, msg: FrameMessage) -> bytes | None:
         try:
-            return codec.encode(msg)
-        except ProtocolError as e:  # our own message breaks the wire rules: never send it
+            return codec.encode(msg, limits=self.limits)
+        except ProtocolError as e:
+            if e.reason == "oversize":
+                cut = self._cut(msg)
+                if cut is not None:
+                    return cut
+            # our own message breaks the wire rules otherwise: never send it
             self.counters.encode_errors += 1
             self.last_error = f"frame {msg.frame}: {e}"
             return None
+
+    def _cut(self, msg: FrameMessage) -> bytes | None:
+        """``msg`` cut to the wire's limits: its trackers this node measured (``U != 0``) first,
+        then the others in id order, as many as fit; merges beyond ``max_merges`` left out."""
+        lim = self.limits
+        block = msg.block
+        measured = np.flatnonzero(block.U.reshape(len(block), -1).any(axis=1))
+        others = np.setdiff1d(np.arange(len(block)), measured)
+        order = np.concatenate([measured, others])
+
+        def part(n: int) -> FrameMessage:
+            return replace(msg, _block=block.take(np.sort(order[:n])), _infos=None,
+                           merges=msg.merges[:lim.max_merges])
+
+        lo, hi = 0, min(len(order), lim.max_trackers)  # lo fits (if anything does)
+        try:
+            if codec.encoded_size(part(hi), limits=lim) <= lim.max_bytes:
+                lo = hi
+            while lo < hi:
+                mid = (lo + hi + 1) // 2
+                if codec.encoded_size(part(mid), limits=lim) <= lim.max_bytes:
+                    lo = mid
+                else:
+                    hi = mid - 1
+            payload = codec.encode(part(lo), limits=lim)
+        except ProtocolError:
+            return None
+        self.counters.trackers_cut += len(block) - lo
+        self.last_error = (f"frame {msg.frame}: {len(block)} trackers, {len(msg.merges)} merges: "
+                           f"sent {lo} trackers (the {len(measured)} it measured first)")
+        return payload
 
     def _count_saved(self, full: FrameMessage, sent: int, links: int) -> None:
         """Bytes not sent on ``links`` links against sending ``full`` on them (its length from

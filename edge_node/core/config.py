@@ -120,6 +120,8 @@ class TrackerConfig:
     # --- trust boundary (edge_node/core/screen.py): what a neighbour's entry may claim -----
     world_radius: float = positive(1000.0, "m, states farther than this from every camera of the node are implausible")
     max_size: float = positive(20.0, "m, largest plausible target width or height")
+    max_trackers_per_neighbour: int = integer(1024, lo=1, doc="the most tracker entries one neighbour's message may bring (it relays the network's trackers: 1024 is 64 cameras of 16 people); entries beyond are dropped, those this node holds kept first")
+    max_adoptions_per_frame: int = integer(64, lo=1, doc="new trackers adopted from one neighbour in one frame (people appear a few at a time; a restarted node takes the network's trackers over a few frames); the rest wait for the next frame")
     max_speed: float = positive(150.0, "m/s, largest plausible speed of an estimate (before eq. 4's step was bounded by the degree, honest coasting estimates in a ring reached 103; since, 2.8 on ring8 over 10 minutes)")
 
     # --- asynchronous operation (event-triggered consensus) ----------------------------------

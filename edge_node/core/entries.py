@@ -72,6 +72,7 @@ class Inbox:
                  observed: Collection[tuple[int, TrackerId]] = frozenset()):
         aliases = aliases or {}
         self.blocks = blocks = [m.block for m in msgs]
+        self._senders = [m.sender for m in msgs]
         if blocks:
             self._ell = np.concatenate([b.ell for b in blocks])
             self._u = np.concatenate([b.u for b in blocks])
@@ -126,6 +127,10 @@ class Inbox:
             m = bisect_right(self._starts, g) - 1
             out.append(self.blocks[m].info(g - self._starts[m]))
         return out
+
+    def first_sender(self, tid: TrackerId) -> int:
+        """The sender of the first entry naming ``tid`` (the one adoption takes)."""
+        return self._senders[bisect_right(self._starts, self.by_id[tid][0]) - 1]
 
     def entries(self, ids: list[TrackerId]) -> Entries:
         """The entries of trackers ``ids``, stacked (see ``Entries``)."""

@@ -371,8 +371,7 @@ class CameraNode:
         if not self._prepared:
             raise NodeStateError(f"node {self.id}: update() without prepare()")
         k = self._frame
-        msgs = self.screen.messages(self._accept(inbox, k, stale_ok), self.book)
-        self.stats.rejected = dict(self.screen.rejected)
+        msgs = self.screen.messages(self._bounded(self._accept(inbox, k, stale_ok)), self.book)
         for m in msgs:
             for mg in m.merges:
                 self._merge(mg.loser, mg.winner, mg.winner_born)
@@ -380,9 +379,16 @@ class CameraNode:
             self.memory.remember(msgs)
             msgs = self.memory.at(k)
         inbox = Inbox(msgs, self.book.aliases, self.memory.observed if stale_ok else frozenset())
+        adopted: Counter[int] = Counter()  # per sender, this frame
         for tid in inbox.ids():
             if tid not in self.trackers:
-                self._adopt(k, tid, inbox.infos(tid), self.memory.told.get(tid, k) if stale_ok else k)
+                sender = inbox.first_sender(tid)
+                if adopted[sender] >= self.cfg.max_adoptions_per_frame:
+                    self.screen.rejected["adoption_rate"] += 1  # it waits for the next frame
+                    continue
+                adopted[sender] += self._adopt(k, tid, inbox.infos(tid),
+                                               self.memory.told.get(tid, k) if stale_ok else k)
+        self.stats.rejected = dict(self.screen.rejected)
         if stale_ok:
             self._late_appearance()
         entries = inbox.entries(self.trackers.ids())
@@ -429,6 +435,25 @@ class CameraNode:
         for key in [key for key in self._taken if key[1] < k - self.cfg.kappa]:
             del self._taken[key]  # older frames are ignored anyway: bounded memory
         return sorted(msgs, key=lambda m: (m.sender, m.frame))
+
+    def _bounded(self, msgs: list[FrameMessage]) -> list[FrameMessage]:
+        """Each message cut to ``max_trackers_per_neighbour`` entries: the ids this node holds
+        first, then the others in the sender's order; the rest dropped and counted
+        (``too_many_trackers``). One message of thousands of plausible phantoms under fresh
+        ids must not make a node hold them all (it stalled two nodes for good)."""
+        cap = self.cfg.max_trackers_per_neighbour
+        out = []
+        for m in msgs:
+            n = len(m.block)
+            if n <= cap:
+                out.append(m)
+                continue
+            held = [self.book.resolve(t) in self.trackers for t in m.block.ids()]
+            order = [i for i in range(n) if held[i]] + [i for i in range(n) if not held[i]]
+            keep = sorted(order[:cap])
+            out.append(replace(m, _block=m.block.take(keep), _infos=None))
+            self.screen.rejected["too_many_trackers"] += n - len(keep)
+        return out
 
     def _correct(self, entries: Entries, lagless: dict[TrackerId, int] | None = None,
                  news: set[TrackerId] | frozenset[TrackerId] = frozenset()) -> None:
@@ -551,12 +576,13 @@ class CameraNode:
                                                             z_o, V_o)
             self.registrations[cam_id].end_frame()
 
-    def _adopt(self, k: int, tid: TrackerId, infos: list[TrackerInfo], heard: int | None = None) -> None:
+    def _adopt(self, k: int, tid: TrackerId, infos: list[TrackerInfo], heard: int | None = None) -> bool:
         """A tracker heard of from neighbours but not held here (paper III-C, case 1);
-        ``heard``: the frame of the oldest message that told of it (``k`` unless it came late)."""
+        ``heard``: the frame of the oldest message that told of it (``k`` unless it came late).
+        Whether it was adopted."""
         ell = min(t.ell for t in infos)
         if ell > self.cfg.kappa or not self.manager.may_adopt(tid, self.book.dropped):
-            return
+            return False
         if self.cfg.scope_hops and ell >= self.cfg.scope_hops:
             # Beyond this node's scope: not held. Its appearance, sent once with the first entry
             # of a sender, is kept with the dropped trackers' galleries, so that a later
@@ -568,7 +594,7 @@ class CameraNode:
                 if len(heard):
                     self.book.note_born(tid, infos[0].born)  # its rank, should it be re-found here
                     self.book.retire(tid, heard, True)
-            return
+            return False
         src = infos[0]  # messages are sorted by sender: deterministic choice
         gallery = Gallery(self.cfg.gallery_size, self.cfg.gallery_every)
         if tid in self.book.old:
@@ -584,6 +610,7 @@ class CameraNode:
         tr.local.ell_sent = ell
         tr.local.x_bar_sent = tr.x_bar
         self.trackers[tid] = tr
+        return True
 
     def _late_appearance(self) -> None:
         """Event-triggered: a neighbour's first entry of a tracker, which carries its

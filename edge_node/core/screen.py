@@ -47,6 +47,13 @@ Merge announcement ``loser -> winner``:
   forged (honest merges link ids that exist; a forged one would hijack a target not yet
   born): the alias is removed (the entry itself is kept and counted here).
 
+Bounds per neighbour (``CameraNode._bounded`` and its adoption, counted here too):
+
+* ``too_many_trackers``: a message's entries beyond ``max_trackers_per_neighbour`` (the ids
+  this node holds are kept first);
+* ``adoption_rate``: trackers new to this node beyond ``max_adoptions_per_frame`` from one
+  sender in one frame (they are adopted in a later frame if the sender still tells of them).
+
 What stays possible for a peer that can publish on a link (no mTLS): entries that pass every
 rule, i.e. a plausible phantom target under a fresh id of its own camera, born now; an ``ell``
 of 0 that keeps a target alive; measurement information that pulls an estimate within the
@@ -74,7 +81,7 @@ MIN_SIGMA_M = 0.01  # m: no camera measures a foot point better than 1 cm
 
 BIRTH_REASONS = ("future_birth", "born_moved", "implausible_birth")
 REASONS = ("bad_information", "implausible_information", "implausible_state", "implausible_ell",
-           *BIRTH_REASONS, "forged_alias")
+           *BIRTH_REASONS, "forged_alias", "too_many_trackers", "adoption_rate")
 
 
 def anchors(cameras: list[Camera]) -> np.ndarray:

@@ -167,7 +167,7 @@ def run_network(data: ScenarioData, adjacency: Adjacency | str, cfg: TrackerConf
 
     def outbox(i: int) -> Outbox:
         trig = EventTrigger(trigger, cfg.dt, cfg.units_per_metre) if mode == "async" else None
-        return Outbox(i, adjacency[i], faults, trig)
+        return Outbox(i, adjacency[i], faults, trig, rejoin_gap=cfg.kappa)
 
     nodes: dict[int, CameraNode | None] = {i: fresh(i) for i in range(n)}
     outboxes = {i: outbox(i) for i in range(n)}
@@ -218,6 +218,7 @@ def run_network(data: ScenarioData, adjacency: Adjacency | str, cfg: TrackerConf
                 now[i] = []
                 continue
             t0 = time.process_time() if probe else 0.0
+            outboxes[i].heard(arrived[i], k, mode == "async")  # frames that jumped: resync
             now[i] = node.update(arrived[i], stale_ok=True) if mode == "async" \
                 else node.update(arrived[i])
             if probe:
