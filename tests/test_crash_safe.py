@@ -19,6 +19,7 @@ import pytest
 from edge_node.core.types import Track
 from edge_node.formats import tracks as tracks_mod
 from edge_node.formats.tracks import HEADER, TrackWriter, read_tracks
+from edge_node.runtime.output import ReservedJson, clean_temporaries, write_json_atomic
 
 X = np.array([1.0, 2.0, 0.5, 1.7, 0.1, -0.2])
 
@@ -114,6 +115,32 @@ def test_rows_that_wait_are_bounded_and_the_oldest_dropped_counted(tmp_path, mon
     assert not w.close()  # never raises; says the rows were not written
 
 
+def test_a_full_disk_then_freed_keeps_whole_rows_and_the_status_written(tmpfs):
+    path = tmpfs / "tracks_node1.csv"
+    status = ReservedJson(tmpfs / "status_node1.json")
+    status.write({"phase": "running"})
+    clock = Clock()
+    w = TrackWriter(path, clock=clock)
+    w.write(frame(0, n=9))
+    assert w.flush()
+    filler = fill(tmpfs)
+    k = 1
+    while not w.failing:  # a disk full at whatever byte the next chunk crosses it
+        for _ in range(40):
+            w.write(frame(k, n=9))
+            k += 1
+        w.flush()
+    rows_of(path)
+    status.write({"phase": "degraded", "why": w.error})  # its space was reserved
+    assert json.loads((tmpfs / "status_node1.json").read_text())["phase"] == "degraded"
+    filler.unlink()
+    clock.t += 60.0
+    assert w.flush()
+    w.close()
+    got = read_tracks(path)
+    assert len(got) == k and all(len(f) == 9 for f in got)
+
+
 def test_a_torn_last_line_is_cut_before_a_restart_appends(tmp_path, caplog):
     path = tmp_path / "tracks_node2.csv"
     with TrackWriter(path) as w:
@@ -153,3 +180,99 @@ def test_a_reader_skips_a_bad_row_and_names_it(tmp_path, caplog):
         back = read_tracks(path)
     assert [len(f) for f in back] == [3, 3]
     assert "skipped 2 row(s)" in caplog.text and "line(s) 3, 5" in caplog.text
+
+
+# -- small JSON files ------------------------------------------------------------------------------
+def test_reserved_json_is_replaced_atomically_and_reads_back(tmp_path):
+    f = ReservedJson(tmp_path / "status_node0.json", reserve=4096)
+    for i in range(3):
+        f.write({"i": i, "pad": "x" * i})
+        assert json.loads((tmp_path / "status_node0.json").read_text()) == {"i": i, "pad": "x" * i}
+    spare = tmp_path / ".status_node0.json.spare"
+    assert spare.stat().st_size == 4096 and not (tmp_path / ".status_node0.json.prev").exists()
+    f.write({"big": "y" * 5000})  # beyond the reserve: a plain atomic write
+    assert json.loads((tmp_path / "status_node0.json").read_text())["big"] == "y" * 5000
+
+
+def test_a_failed_atomic_write_leaves_no_temporary(tmp_path, monkeypatch):
+    def refuse(src, dst):
+        raise OSError(errno.ENOSPC, "No space left on device")
+
+    monkeypatch.setattr(os, "replace", refuse)
+    with pytest.raises(OSError):
+        write_json_atomic(tmp_path / "counters_node2.json", {"a": 1})
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_temporaries_of_an_earlier_life_are_cleaned(tmp_path):
+    stale = tmp_path / ".status_node2.json.4242.tmp"
+    stale.write_bytes(b"")
+    other = tmp_path / ".status_node3.json.4242.tmp"  # another node's: not ours to remove
+    other.write_bytes(b"")
+    assert clean_temporaries(tmp_path, 2) == [stale]
+    assert not stale.exists() and other.exists()
+
+
+# -- a node's way out --------------------------------------------------------------------------------
+class FakeTransport:
+    neighbours = ()
+
+    def __init__(self, status_file: Path):
+        self.status_file = status_file
+        self.phase_at_close = None
+        self.closed = False
+
+    def __call__(self, *a, **k):  # the transport factory
+        return self
+
+    def counters(self):
+        return {"bytes_sent": 0}
+
+    def latency_samples(self):
+        return np.zeros(0)
+
+    def close(self):
+        self.closed = True
+        self.phase_at_close = json.loads(self.status_file.read_text())["phase"]
+
+
+def test_every_way_out_closes_the_transport_first_and_runs_every_step(tmp_path, monkeypatch):
+    """An internal error inside a frame, and a Rerun sink whose close fails too: the transport
+    is closed first (its liveliness token withdrawn while the node still says 'running'), then
+    the status and counters files say what happened, the track file holds the frames done,
+    whole, and the error reaches the caller (before: a failing close in the way out masked the
+    rest and left the Zenoh session open: a hung process that looked alive)."""
+    from edge_node.runtime import loop as loop_mod
+    from edge_node.runtime.config import load_node_config
+    from tests.loopback import export_scenario
+
+    export = export_scenario(tmp_path / "export", 10)
+    out = tmp_path / "out"
+    cfg_path = tmp_path / "cam0.toml"
+    cfg_path.write_text(f'node = 0\nnetwork = "x"\nneighbours = []\n[source]\nkind = "det-file"\n'
+                        f'path = "{export}"\n[output]\ndir = "{out}"\n')
+    real_output = loop_mod.FrameLoop._output
+
+    def boom(self, k, tracks):
+        if k == 3:
+            raise RuntimeError("boom")
+        real_output(self, k, tracks)
+
+    class BadSink:
+        enabled, url, dropped = False, None, 0
+
+        def close(self):
+            raise RuntimeError("viewer gone")
+
+    monkeypatch.setattr(loop_mod.FrameLoop, "_output", boom)
+    monkeypatch.setattr(loop_mod, "open_node_sink", lambda *a, **k: BadSink())
+    fake = FakeTransport(out / "status_node0.json")
+    with pytest.raises(RuntimeError, match="boom"):
+        loop_mod.run_node(load_node_config(cfg_path), transport_factory=fake,
+                          install_signals=False)
+    assert fake.closed and fake.phase_at_close == "running"
+    st = json.loads((out / "status_node0.json").read_text())
+    assert st["phase"] == "failed" and st["error"] == "RuntimeError: boom" and st["exit_code"] == 1
+    assert json.loads((out / "counters_node0.json").read_text())["exit_code"] == 1
+    back = read_tracks(out / "tracks_node0.csv")  # frames 0-2 done (tracks from frame 1 on)
+    assert len(back) == 3 and back[2] and rows_of(out / "tracks_node0.csv")

@@ -81,7 +81,7 @@ def test_config_defaults_and_relative_paths(tmp_path, export_dir):
                  '[output]\ndir = "out"\n')
     cfg = load_node_config(p)
     assert cfg.neighbours == (0, 2) and cfg.runtime.mode == "sync"
-    assert cfg.runtime.sync_timeout_s == 1.0 and cfg.runtime.startup_timeout_s == 30.0
+    assert cfg.runtime.sync_timeout_s == 1.0 and cfg.runtime.startup_timeout_s == 5.0
     assert cfg.zenoh.scouting is False and cfg.zenoh.listen == ()
     assert cfg.zenoh.shared_memory is False
     assert cfg.source.path == tmp_path / "data" / "calibration.json"

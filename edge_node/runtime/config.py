@@ -24,7 +24,9 @@ Schema (defaults in brackets)::
     [runtime]
     mode = "sync"                   # "sync" | "async"                                     ["sync"]
     sync_timeout_s = 1.0            # sync: how long frame k waits for live neighbours      [1.0]
-    startup_timeout_s = 30.0        # start-up barrier (and the first frame's wait)         [30.0]
+    startup_timeout_s = 5.0         # start-up barrier: how long to wait for own neighbours [5.0]
+                                    # (and an unpaced run's first frame: runtime/loop.py)
+    stall_after_s = 5.0             # status 'stalled' after this long without a frame      [5.0]
     fps = 0.0                       # pacing; 0 = as fast as possible                       [0]
     frames = 100                    # optional limit on the number of frames
     heartbeat_frames = 5            # async: send at least every N frames  [core.trigger's: 5]
@@ -154,13 +156,14 @@ class ZenohSettings:
 class RuntimeSettings:
     mode: str = "sync"
     sync_timeout_s: float = 1.0
-    startup_timeout_s: float = 30.0
+    startup_timeout_s: float = 5.0
     fps: float = 0.0
     frames: int | None = None
     heartbeat_frames: int = _TRIGGER.heartbeat_frames
     drift_m: float = _TRIGGER.drift
     staleness_frames: int | None = None  # None: the tracker config's
     gain_nats: float = _TRIGGER.gain
+    stall_after_s: float = 5.0  # no frame completed for this long: status 'stalled'
 
 
 @dataclass(frozen=True, eq=False)
@@ -364,10 +367,11 @@ def _runtime(t: Table | None) -> RuntimeSettings:
         "drift": t.raw("drift_m", d.drift_m), "gain": t.raw("gain_nats", d.gain_nats)}, t.where),
         keys={"drift": "drift_m", "gain": "gain_nats"})
     staleness_frames = t.integer("staleness_frames", None, lo=0)
+    stall_after_s = t.number("stall_after_s", d.stall_after_s, lo=0, lo_open=True)
     t.finish()
     return RuntimeSettings(mode, sync_timeout_s, startup_timeout_s, fps, frames,
                            trigger.heartbeat_frames, float(trigger.drift), staleness_frames,
-                           gain_nats=float(trigger.gain))
+                           gain_nats=float(trigger.gain), stall_after_s=stall_after_s)
 
 
 def _source(t: Table, base: Path, node: int) -> SourceSettings:

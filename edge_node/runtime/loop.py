@@ -1,4 +1,5 @@
-"""The frame loops of one camera process (DESIGN.md, "Runtime modes").
+"""The frame loops of one camera process (``docs``: README, "A real cluster"; the runtime
+modes below).
 
 ``sync``
     for each frame ``k``: ``dets = source(k)``; ``msg = node.prepare(k, dets)``; stamp ``sent_at``,
@@ -11,11 +12,34 @@
     ``node.update(messages of frame k)``; write the tracks. With every neighbour alive and in
     time this is exactly sim_cluster's in-process reference run.
 
-Start-up: the barrier waits up to ``startup_timeout_s`` for every neighbour, then starts with
-those that are there (a camera missing at boot costs only its own view; it joins when it comes).
-A node whose neighbours were already running when it came (a late boot, a restart) starts at
-their frame. A paced node that falls more than ``SKIP_FRAMES`` behind the network (a freeze,
-an overload) skips ahead to the network's frame and paces on from there.
+Start-up: the barrier waits up to ``startup_timeout_s`` (5 s) for the node's own neighbours,
+then starts with those that are there (a camera missing at boot costs only its own view; it
+joins when it comes). A paced node's first frame waits for its neighbours' messages no longer
+than any frame (``sync_timeout_s``), and for a neighbour that has sent nothing yet no longer
+than ``BOOT_GRACE_S`` (nodes that boot together pass their barriers within milliseconds of each
+other): a neighbour still in its own barrier (waiting for a camera that is not up) does not
+hold up nodes that do not border the missing camera; it catches up when it starts, and its
+neighbours resync it. An unpaced run (an experiment: every frame counts) waits up to
+``startup_timeout_s`` at its first frame, so that its nodes start together. A node whose
+neighbours were already running when it came (a late boot, a restart) starts at their frame.
+
+Catch-up: a paced node that falls more than ``SKIP_FRAMES`` behind the network (a freeze of
+any length, an overload) skips ahead to the network's frame, as the transport hears it from its
+neighbours (``network_frame``: the least of the fresh neighbours' newest frames, so one lying
+neighbour cannot fling it ahead, and never farther than the wall clock allows since the node
+was last level with the network: ``PLAUSIBLE_RATE``), and paces on from there. A skip of at
+most ``kappa`` frames predicts the trackers through; a longer one starts the tracker core
+afresh as a restarted node does (its id counter kept), and its neighbours, seeing its frames
+jump, resync it with their trackers and galleries (``edge_node.outbox``). Status phase
+``catching up`` until it is level again.
+
+Health: the status file says ``starting``, ``running``, ``catching up``, ``degraded`` (output
+failing: the node tracks and sends on, retries its files with a backoff and logs the failure
+once per ``LOG_INTERVAL_S``), ``stalled`` (written by a watchdog thread when no frame completed
+for ``stall_after_s``; ``sim_cluster status`` also calls a node stalled whose status file has
+not been updated for that long, as a frozen process cannot write), and at exit ``finished``,
+``stopped`` or ``failed``. The status, counters and id-counter files have their disk space
+reserved (``output.ReservedJson``) so that they are written even on a full disk.
 
 ``async`` (event-triggered)
     never waits. Each frame: ``prepare``; the outbox's ``EventTrigger`` keeps the tracker
@@ -31,14 +55,15 @@ an overload) skips ahead to the network's frame and paces on from there.
     duplicates and reordered messages.
 
 Shutdown: SIGINT / SIGTERM set a flag; the current frame is finished (a sync wait is cut short),
-files are flushed, Zenoh is closed, and the process exits 0.
+files are flushed, Zenoh is closed, and the process exits 0. Every exit, an internal error
+included, closes the Zenoh session (its liveliness token withdrawn) first, then writes the exit
+files and closes the track file and the Rerun sink; no step's failure skips another.
 
 Exit codes (``edge_node run``)::
 
     0  all frames done, or stopped by SIGINT / SIGTERM (also during start-up)
     1  unexpected internal error (traceback logged)
     2  bad command line, config, or source files (one line on stderr)
-    3  (no longer used: a neighbour missing at start-up is named in a warning, not fatal)
     4  the Zenoh session could not be opened or declared (e.g. port in use, bad zenoh config)
     5  this node's id is already alive on the network (another process holds it)
 """
@@ -55,7 +80,7 @@ from pathlib import Path
 from typing import Any, Callable
 
 from edge_node.core.config import ConfigError
-from edge_node.core.node import CameraNode
+from edge_node.core.node import CameraNode, NodeStats
 from edge_node.core.trigger import EventTrigger, TriggerConfig
 from edge_node.faults import NO_FAULTS, FaultPlan
 from edge_node.formats.tracks import TrackWriter
@@ -63,8 +88,9 @@ from edge_node.outbox import Delivery, Outbox, OutboxCounters
 from edge_node.runtime import transport as tr
 from edge_node.runtime.config import NodeConfig, NodeConfigError
 from edge_node.runtime.memory import freeze_startup, heap, release_freed_memory, steady_allocator
-from edge_node.runtime.output import (StatusWriter, counters_path, latency_summary, state_path,
-                                      status_path, tracks_path, write_json_atomic)
+from edge_node.runtime.output import (ReservedJson, StatusWriter, clean_temporaries,
+                                      counters_path, latency_summary, state_path, status_path,
+                                      tracks_path, write_json_atomic)
 from edge_node.runtime.preflight import preflight
 from edge_node.viz import NullSink, SinkError, ground_points, open_node_sink
 from protocol.messages import FrameMessage
@@ -74,7 +100,12 @@ log = logging.getLogger("edge_node.loop")
 SKIP_FRAMES = 2  # a node more frames than this behind its neighbours skips ahead to them
 LATE_PACING_S = 1.0  # a paced loop this far behind its clock re-anchors instead of bursting
 
+BOOT_GRACE_S = 0.5  # a paced first frame waits this long for a neighbour that sent nothing yet
+PLAUSIBLE_RATE = 1.5  # the network's frame is believed up to this many times camera rate ...
+PLAUSIBLE_SLACK_S = 1.0  # ... plus this many seconds of frames, since the node was last level
 COUNTERS_INTERVAL_S = 10.0  # while running: the counters file rewritten, freed memory released
+LOG_INTERVAL_S = 10.0  # a failing output is logged at most once per this many seconds
+WATCHDOG_POLL_S = 0.25
 
 EXIT_OK = 0
 EXIT_FAILURE = 1
@@ -130,6 +161,9 @@ class LoopStats:
     update_s: float = 0.0
     frames_skipped_behind: int = 0  # frames skipped to catch up with the network
     catch_ups: int = 0  # times it skipped ahead
+    core_restarts: int = 0  # skips longer than kappa: the tracker core started afresh
+    implausible_frames: int = 0  # network frames heard farther ahead than the clock allows
+    output_failures: int = 0  # failed writes of the track, status, counters or state files
     cpu_at_first_frame: float | None = None  # time.process_time() when the first frame began
     thread_at_first_frame: float | None = None  # time.thread_time() then (the loop's thread)
     # CPU time of the frame loop's own thread, by step (time.thread_time): the detector or
@@ -169,6 +203,13 @@ def _sleep_until(t: float, stop: threading.Event) -> None:
         stop.wait(min(dt, 0.1))
 
 
+def fresh_core(node: CameraNode) -> CameraNode:
+    """A restarted copy of ``node``: same cameras, neighbours, configuration and network, an
+    empty state, the id counter where ``node`` left it (no id is reused)."""
+    return CameraNode(node.cameras, node.neighbours, node.cfg, node.network, node_id=node.id,
+                      first_counter=node.next_counter)
+
+
 class FrameLoop:
     """Drives one ``CameraNode`` over a source and a transport (any object with the
     ``ZenohTransport`` members ``neighbours``, ``publish``, ``collect``, ``drain``,
@@ -180,7 +221,8 @@ class FrameLoop:
                  first_frame: int = 0, status_extra: Callable[[], dict] | None = None,
                  faults: FaultPlan = NO_FAULTS, state_file: Path | None = None,
                  sink: Any = None, reopen: threading.Event | None = None,
-                 checkpoint: Callable[[], None] | None = None):
+                 checkpoint: Callable[[], None] | None = None,
+                 restart_core: Callable[[CameraNode], CameraNode] = fresh_core):
         if mode not in ("sync", "async"):
             raise ValueError(f"mode must be 'sync' or 'async', got {mode!r}")
         if mode == "async" and not supports_stale(node):
@@ -204,26 +246,47 @@ class FrameLoop:
         self._checkpoint_at = time.monotonic()
         self._dets: list = []  # this frame's detections (for the sink)
         self.faults = faults
-        self.state_file = state_file  # persists the tracker counter: a restart reuses no id
+        self.restart_core = restart_core
+        self.retired = NodeStats()  # the counters of earlier cores (restarted after long skips)
+        self.state_file = None if state_file is None else ReservedJson(state_file)
         self._saved_counter = node.next_counter
         self._prev_alive: set[int] | None = None
         self._resync: set[int] = set()  # neighbours that (re)appeared: send them everything
+        self.phase = "starting"
+        self.progress_at = time.monotonic()  # when the last frame completed (the watchdog)
+        self._catching_up = False
+        self._level = (first_frame, time.monotonic())  # (frame, when) last level with the network
+        self._output_error: dict[str, str] = {}  # file kind -> why its last write failed
+        self._logged_at: dict[str, float] = {}
+        self._last_status: dict | None = None
+        self.outbox = self._new_outbox()
+        self.stats.wire = self.outbox.counters
+
+    def _new_outbox(self, counters: OutboxCounters | None = None) -> Outbox:
         trigger = None
-        if mode == "async":
+        if self.mode == "async":
+            c = self.node.cfg
             try:
                 trigger = EventTrigger(TriggerConfig(self.rt.heartbeat_frames, self.rt.drift_m,
                                                      self.rt.gain_nats),
-                                       node.cfg.dt, node.cfg.units_per_metre, node.cfg.kappa,
-                                       node.cfg.hold_frames)
+                                       c.dt, c.units_per_metre, c.kappa, c.hold_frames)
             except ConfigError as e:
-                raise NodeConfigError(cfg.name, "runtime.heartbeat_frames", e.message) from None
-        self.outbox = Outbox(node.id, transport.neighbours, faults, trigger)
-        self.stats.wire = self.outbox.counters
+                raise NodeConfigError(self.cfg.name, "runtime.heartbeat_frames", e.message) from None
+        ob = Outbox(self.node.id, self.transport.neighbours, self.faults, trigger,
+                    rejoin_gap=self.node.cfg.kappa)
+        if counters is not None:
+            ob.counters = counters
+        return ob
+
+    @property
+    def node_stats(self) -> NodeStats:
+        """The core's counters over every core of this process (restarts after long skips)."""
+        return self.retired.add(self.node.stats)
 
     # -- one frame -----------------------------------------------------------------------------
     def _send(self, msg: FrameMessage) -> None:
         """The frame's message through the outbox (trigger, resync, faults, counting)."""
-        errors = self.outbox.counters.encode_errors
+        errors, cut = self.outbox.counters.encode_errors, self.outbox.counters.trackers_cut
         resync = self._resync & set(self.transport.neighbours)
         if resync:
             log.info("node %d: frame %d: resync for rejoined neighbour(s) %s",
@@ -234,8 +297,11 @@ class FrameLoop:
                                        covariance=self.node.covariances))
         self._resync -= resync
         if self.outbox.counters.encode_errors > errors:
-            log.error("node %d: cannot encode our message (%s): not sent", self.node.id,
-                      self.outbox.last_error)
+            self._say("encode", logging.ERROR, f"node {self.node.id}: cannot encode our message "
+                      f"({self.outbox.last_error}): not sent")
+        if self.outbox.counters.trackers_cut > cut:
+            self._say("cut", logging.WARNING, f"node {self.node.id}: frame {msg.frame}: our "
+                      f"message was over the wire's limits: {self.outbox.last_error}")
 
     def _publish(self, deliveries: list[Delivery]) -> None:
         """Hand deliveries to the transport: one call for all links when every neighbour gets
@@ -265,19 +331,29 @@ class FrameLoop:
     def _after_frame(self, k: int) -> None:
         """Persist the id counter when it moved; crash here if the fault plan says so."""
         if self.state_file is not None and self.node.next_counter != self._saved_counter:
-            write_json_atomic(self.state_file, {"node": self.node.id, "frame": k,
-                                                "next_counter": self.node.next_counter})
-            self._saved_counter = self.node.next_counter
+            if self._write("state", lambda: self.state_file.write(
+                    {"node": self.node.id, "frame": k, "next_counter": self.node.next_counter})):
+                self._saved_counter = self.node.next_counter
         if not self.faults.alive(self.node.id, k + 1):
-            self.writer.flush()
+            self.writer.flush(force=True)
             log.warning("node %d: fault plan: crashing before frame %d", self.node.id, k + 1)
             logging.shutdown()
             os.kill(os.getpid(), signal.SIGKILL)
 
     def step_sync(self, k: int, first: bool) -> list:
-        timeout = self.rt.startup_timeout_s if first else self.rt.sync_timeout_s
-        return self._step(k, lambda: list(self.transport.collect(k, timeout, self.stop).values()),
-                          stale_ok=False)
+        # the first frame of an unpaced run waits for the neighbours' start-ups (every frame
+        # counts); a paced node does not wait for a neighbour still in its own start-up
+        # (module docstring)
+        if first and self.rt.fps > 0:
+            def gather():
+                return list(self.transport.collect(k, self.rt.sync_timeout_s, self.stop,
+                                                   silent_grace=BOOT_GRACE_S).values())
+        else:
+            timeout = self.rt.startup_timeout_s if first else self.rt.sync_timeout_s
+
+            def gather():
+                return list(self.transport.collect(k, timeout, self.stop).values())
+        return self._step(k, gather, stale_ok=False)
 
     def step_async(self, k: int) -> list:
         return self._step(k, lambda: self.transport.drain(k), stale_ok=True)
@@ -298,6 +374,7 @@ class FrameLoop:
             self._send(msg)
             c3 = time.thread_time()
             inbox = gather()
+            self.outbox.heard(inbox, k, stale_ok)  # a neighbour whose frames jumped: resync it
         t2, c4 = time.perf_counter(), time.thread_time()
         tracks = self.node.update(inbox, stale_ok=stale_ok)
         t3, c5 = time.perf_counter(), time.thread_time()
@@ -309,73 +386,161 @@ class FrameLoop:
         st.cpu_send_s += c3 - c2
         return tracks
 
+    # -- output that may fail --------------------------------------------------------------------
+    def _say(self, key: str, level: int, msg: str) -> None:
+        """Log ``msg`` at most once per ``LOG_INTERVAL_S`` for ``key``."""
+        now = time.monotonic()
+        if now - self._logged_at.get(key, -float("inf")) >= LOG_INTERVAL_S:
+            self._logged_at[key] = now
+            log.log(level, "%s", msg)
+
+    def _write(self, kind: str, write: Callable[[], Any]) -> bool:
+        """Run one file write; a failure is counted, remembered (``degraded``) and logged once
+        per interval, never raised."""
+        try:
+            write()
+        except OSError as e:
+            self.stats.output_failures += 1
+            self._output_error[kind] = f"{e.strerror or e}"
+            self._say(f"out:{kind}", logging.WARNING, f"node {self.node.id}: cannot write its "
+                      f"{kind} file: {e.strerror or e}; tracking goes on (status: degraded)")
+            return False
+        if self._output_error.pop(kind, None) is not None:
+            log.warning("node %d: its %s file is written again", self.node.id, kind)
+        return True
+
+    @property
+    def output_errors(self) -> dict[str, str]:
+        """Which of the node's files fail now, and why (empty: none)."""
+        out = dict(self._output_error)
+        if self.writer.failing:
+            out["tracks"] = self.writer.error
+        return out
+
+    def _output(self, k: int, tracks: list) -> None:
+        self.writer.write(tracks)
+        if self.writer.failing:
+            self._say("out:tracks", logging.WARNING, f"node {self.node.id}: cannot write "
+                      f"{self.writer.path}: {self.writer.error}; {self.writer.pending_bytes} "
+                      f"bytes of tracks wait in memory, retried with a backoff (status: degraded)")
+        if self.sink.enabled:
+            self._log_viz(k, tracks)
+
     # -- the loop ----------------------------------------------------------------------------------
+    def current_phase(self) -> str:
+        if self._catching_up:
+            return "catching up"
+        return "degraded" if self.output_errors else "running"
+
     def run(self) -> LoopStats:
         """Frames from ``first_frame`` on, paced at ``fps`` (0: as fast as possible). A paced
-        node that fell behind its neighbours by more than ``SKIP_FRAMES`` (a freeze, an
-        overload) skips ahead to the network's frame, as a restarted node joins: the skipped
-        frames are predicted through, not processed, and the pacing restarts from there. (An
-        unpaced run, an experiment, processes every frame.)"""
+        node that fell behind its neighbours by more than ``SKIP_FRAMES`` (a freeze of any
+        length, an overload) skips ahead to the network's frame (module docstring, catch-up)
+        and paces on from there. (An unpaced run, an experiment, processes every frame.)"""
         st = self.stats
         fps = self.rt.fps
         t_start = time.monotonic()
+        self._level = (st.first_frame, t_start)
         self.write_status("running")
         k, i = st.first_frame, 0
-        while k < st.frames_total:
-            if self.stop.is_set():
-                break
-            self._before_frame(k)
-            if self.mode == "sync":
-                tracks = self.step_sync(k, first=(st.frames_done == 0))
-            else:
-                tracks = self.step_async(k)
-            self.writer.write(tracks)
-            if self.sink.enabled:
-                self._log_viz(k, tracks)
-            self._after_frame(k)
-            st.frame = k
-            st.frames_done += 1
-            st.trackers = len(tracks)
-            if self.status.due():
-                self.writer.flush()
-                self.write_status("running")
-                if time.monotonic() - self._checkpoint_at >= COUNTERS_INTERVAL_S:
-                    if self.checkpoint is not None:
-                        self.checkpoint()
-                    release_freed_memory()  # what message bursts left in the heap
-                    self._checkpoint_at = time.monotonic()
-            if self.reopen.is_set():
-                self.reopen.clear()
-                self.writer.reopen()
-                log.info("node %d: SIGHUP: reopened %s", self.node.id, self.writer.path)
-            i += 1
-            k += 1
-            ahead = self._network_frame() if fps > 0 else None  # unpaced: every frame counts
-            if ahead is not None and k + SKIP_FRAMES < ahead < st.frames_total:
-                log.warning("node %d: %d frames behind the network: skipping from frame %d to %d",
-                            self.node.id, ahead - k, k, ahead)
-                st.frames_skipped_behind += ahead - k
-                st.catch_ups += 1
-                k = ahead
-                t_start, i = time.monotonic(), 0  # pace from here on
-                continue
-            if fps > 0:
-                due = t_start + i / fps
-                if self.mode == "sync" and ahead is not None and ahead > k:
-                    # one or two frames behind the network (fewer than a skip): no pause until
-                    # level, then paced from there. Paced at camera rate a node that far behind
-                    # stayed behind for good, and its neighbours, no longer waiting for it,
-                    # dropped every message it sent as late. (Sync only: in lock-step a
-                    # neighbour is ahead only of a node it no longer waits for; async nodes'
-                    # clocks drift by a frame either way and would chase each other.)
-                    t_start, i = time.monotonic(), 0
-                elif time.monotonic() - due > LATE_PACING_S:  # fell behind the clock: re-anchor
-                    t_start, i = time.monotonic(), 0
+        with Watchdog(self):
+            while k < st.frames_total:
+                if self.stop.is_set():
+                    break
+                self._before_frame(k)
+                if self.mode == "sync":
+                    tracks = self.step_sync(k, first=(st.frames_done == 0))
                 else:
-                    _sleep_until(due, self.stop)
+                    tracks = self.step_async(k)
+                self._output(k, tracks)
+                self._after_frame(k)
+                st.frame = k
+                st.frames_done += 1
+                st.trackers = len(tracks)
+                self.progress_at = time.monotonic()
+                phase = self.current_phase()
+                if self.status.due() or phase != self.phase:
+                    self.writer.flush()
+                    self.write_status(phase)
+                    if time.monotonic() - self._checkpoint_at >= COUNTERS_INTERVAL_S:
+                        if self.checkpoint is not None:
+                            self._write("counters", self.checkpoint)
+                        release_freed_memory()  # what message bursts left in the heap
+                        self._checkpoint_at = time.monotonic()
+                if self.reopen.is_set():
+                    self.reopen.clear()
+                    self.writer.reopen()
+                    log.info("node %d: SIGHUP: reopened %s", self.node.id, self.writer.path)
+                i += 1
+                k += 1
+                ahead = self._network_frame() if fps > 0 else None  # unpaced: every frame counts
+                now = time.monotonic()
+                if ahead is not None and k + SKIP_FRAMES < ahead < st.frames_total:
+                    if self._plausible(ahead, now, fps):
+                        self._skip(k, ahead)
+                        k = ahead
+                        t_start, i = time.monotonic(), 0  # pace from here on
+                        continue
+                if ahead is not None and ahead <= k:  # (no fresh neighbour: nothing learnt)
+                    self._level = (k, now)
+                if ahead is None or ahead <= k:
+                    if self._catching_up:
+                        self._catching_up = False
+                        log.info("node %d: level with the network again at frame %d",
+                                 self.node.id, k)
+                if fps > 0:
+                    due = t_start + i / fps
+                    if self.mode == "sync" and ahead is not None and ahead > k:
+                        # one or two frames behind the network (fewer than a skip): no pause until
+                        # level, then paced from there. Paced at camera rate a node that far behind
+                        # stayed behind for good, and its neighbours, no longer waiting for it,
+                        # dropped every message it sent as late. (Sync only: in lock-step a
+                        # neighbour is ahead only of a node it no longer waits for; async nodes'
+                        # clocks drift by a frame either way and would chase each other.)
+                        t_start, i = time.monotonic(), 0
+                    elif time.monotonic() - due > LATE_PACING_S:  # fell behind the clock: re-anchor
+                        t_start, i = time.monotonic(), 0
+                    else:
+                        _sleep_until(due, self.stop)
         st.stopped = self.stop.is_set() and k < st.frames_total
-        self.writer.flush()
+        self.writer.flush(force=True)
         return st
+
+    def _plausible(self, ahead: int, now: float, fps: float) -> bool:
+        """Whether the network can be at frame ``ahead``: no farther than ``PLAUSIBLE_RATE``
+        times camera rate (plus ``PLAUSIBLE_SLACK_S``) from where this node was last level
+        with it. A frame beyond is a lie or a broken clock: counted, not followed."""
+        frame, at = self._level
+        limit = frame + (now - at + PLAUSIBLE_SLACK_S) * fps * PLAUSIBLE_RATE
+        if ahead <= limit:
+            return True
+        self.stats.implausible_frames += 1
+        self._say("implausible", logging.WARNING, f"node {self.node.id}: a neighbour says the "
+                  f"network is at frame {ahead}, farther than the clock allows ({limit:.0f}): "
+                  "not followed")
+        return False
+
+    def _skip(self, k: int, ahead: int) -> None:
+        """Skip from frame ``k`` to the network's frame ``ahead`` (module docstring)."""
+        st = self.stats
+        gap = ahead - k
+        restart = gap > self.node.cfg.kappa
+        log.warning("node %d: %d frames behind the network: skipping from frame %d to %d%s",
+                    self.node.id, gap, k, ahead,
+                    " (the tracker core starts afresh; the neighbours resync it)" if restart else "")
+        st.frames_skipped_behind += gap
+        st.catch_ups += 1
+        if restart:
+            self.retired = self.retired.add(self.node.stats)
+            self.node = self.restart_core(self.node)
+            self.outbox = self._new_outbox(self.outbox.counters)
+            st.core_restarts += 1
+        skip_to = getattr(self.transport, "skip_to", None)
+        if skip_to is not None:
+            skip_to(ahead)
+        self._catching_up = True
+        if self.phase != "catching up":
+            self.write_status("catching up")
 
     def _network_frame(self) -> int | None:
         f = getattr(self.transport, "network_frame", None)
@@ -411,10 +576,16 @@ class FrameLoop:
             "bytes_sent": c.get("bytes_sent", 0),
             "messages_sent": c.get("messages_sent", 0),
             "messages_received": c.get("messages_received", 0),
-            "rejected": rejected(c, self.node),
+            "rejected": rejected(c, self.node_stats),
             "late": sum(c.get("late", {}).values()),
             "timeouts": sum(c.get("timeouts", {}).values()),
             "frames_skipped": st.frames_skipped,
+            "catch_ups": st.catch_ups,
+            "frames_skipped_behind": st.frames_skipped_behind,
+            "core_restarts": st.core_restarts,
+            "output_errors": self.output_errors,
+            "output_failures": st.output_failures,
+            "stall_after_s": self.rt.stall_after_s,
             "started_at": self.started_at,
             "updated_at": time.time(),
             "finished": phase in ("finished", "stopped"),
@@ -424,18 +595,73 @@ class FrameLoop:
             d.update(self._status_extra())
         return d
 
-    def write_status(self, phase: str) -> None:
-        try:
-            self.status.write(self.status_dict(phase))
-        except OSError as e:
-            log.warning("cannot write status: %s", e)
+    def write_status(self, phase: str, **extra) -> None:
+        """The status file now, in ``phase`` (a failure: counted and logged, never raised)."""
+        d = self.status_dict(phase)
+        d.update(extra)
+        self.phase = phase
+        self._last_status = d
+        self._write("status", lambda: self.status.write(d))
+
+    def stalled_status(self, since: float) -> dict | None:
+        """The last status written, as ``stalled`` since ``since`` (monotonic): what the
+        watchdog writes from its thread (it must not read the core while the loop runs it)."""
+        if self._last_status is None:
+            return None
+        d = dict(self._last_status)
+        d.update(phase="stalled", updated_at=time.time(),
+                 stalled_for_s=round(time.monotonic() - since, 1))
+        return d
 
 
-def rejected(transport_counters: dict, node: CameraNode) -> dict[str, int]:
+class Watchdog:
+    """A thread that writes status ``stalled`` when the loop completed no frame for
+    ``stall_after_s`` (an overload, a hang inside a frame), and nothing else. A frozen process
+    (SIGSTOP) cannot write at all: ``sim_cluster status`` judges its status file's age."""
+
+    def __init__(self, loop: FrameLoop):
+        self.loop = loop
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._run, name="watchdog", daemon=True)
+
+    def __enter__(self) -> "Watchdog":
+        if self.loop.status.path is not None:
+            self._thread.start()
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self._stop.set()
+        if self._thread.is_alive():
+            self._thread.join(timeout=5.0)
+
+    def _run(self) -> None:
+        loop, after = self.loop, self.loop.rt.stall_after_s
+        said_at = None
+        while not self._stop.wait(WATCHDOG_POLL_S):
+            since = loop.progress_at
+            if time.monotonic() - since < after or loop.stop.is_set():
+                said_at = None
+                continue
+            if said_at == since:
+                continue  # said for this stall; the loop says 'running' when it moves again
+            d = loop.stalled_status(since)
+            if d is None:
+                continue
+            try:
+                loop.status.write(d)
+                said_at = since
+                log.warning("node %d: stalled: no frame completed for %.1f s (frame %s)",
+                            loop.node.id, time.monotonic() - since, d.get("frame"))
+                loop.phase = "stalled"
+            except OSError:
+                pass
+
+
+def rejected(transport_counters: dict, node_stats: NodeStats) -> dict[str, int]:
     """What this node refused, by reason: messages its transport's codec rejected (form) and
     tracker entries and merges its core's screen rejected (meaning, ``core/screen.py``)."""
     out = dict(transport_counters.get("rejected", {}))
-    for reason, n in node.stats.rejected.items():
+    for reason, n in node_stats.rejected.items():
         out[reason] = out.get(reason, 0) + n
     return dict(sorted(out.items()))
 
@@ -446,7 +672,8 @@ def wire_counters(outbox: Outbox) -> dict:
     return {"frames_sent": w.frames_sent, "frames_skipped": w.frames_skipped,
             "tracker_entries": w.tracker_entries, "appearance_entries": w.appearance_entries,
             "appearance_bytes": w.appearance_bytes, "bytes_saved": w.bytes_saved,
-            "encode_errors": w.encode_errors,
+            "encode_errors": w.encode_errors, "trackers_cut": w.trackers_cut,
+            "resyncs": w.resyncs,
             "tracker_entries_sent": trig.entries_sent if trig else None,
             "tracker_entries_skipped": trig.entries_skipped if trig else None}
 
@@ -457,6 +684,14 @@ class RunReport:
     stats: LoopStats | None
     counters: dict
     tracks_file: Path | None = None
+
+
+def _continue_at(writer: TrackWriter, k0: int | None, total: int) -> int | None:
+    """Where a node that continues its track file starts: the network's frame ``k0`` (a join),
+    but never at a frame the file already holds; ``None``: from frame 0."""
+    if writer.last_frame is None:
+        return k0
+    return max(k0 or 0, writer.last_frame + 1)
 
 
 def run_node(cfg: NodeConfig, *, frames: int | None = None, mode: str | None = None,
@@ -470,10 +705,17 @@ def run_node(cfg: NodeConfig, *, frames: int | None = None, mode: str | None = N
     neighbours that are there.
 
     ``join``: this process replaces one that died (or joins a running network): it starts at
-    the frame its neighbours are at, not at 0; they see its liveliness come back and resync it
-    with all their trackers and galleries. Without ``join`` the same happens when a neighbour
-    reports at start-up that it is already running (a late boot). The id counter persists in the output folder
-    (``state_node<id>.json``), so a restarted node never reuses an id."""
+    the frame its neighbours are at, not at 0, and never at a frame its track file already
+    holds (a node restarted after its run ended has nothing to do); its neighbours see its
+    liveliness come back and resync it with all their trackers and galleries. Without ``join``
+    the same happens when a neighbour reports at start-up that it is already running (a late
+    boot). The id counter persists in the output folder (``state_node<id>.json``), so a
+    restarted node never reuses an id.
+
+    Every way out (the end, a signal, an internal error) closes the transport first (the
+    liveliness token goes: the node is not 'alive' while it writes its exit files), then writes
+    the status and counters files, closes the track file and the Rerun sink; a failure of one
+    step is logged and the next steps run (module docstring)."""
     if mode is not None or frames is not None:
         changes = {}
         if mode is not None:
@@ -489,6 +731,9 @@ def run_node(cfg: NodeConfig, *, frames: int | None = None, mode: str | None = N
     source, tcfg = ready.source, ready.tracker
     total = source.frames if rt.frames is None else min(source.frames, rt.frames)
     out = cfg.output.dir
+    if out is not None:
+        for tmp in clean_temporaries(out, cfg.node):
+            log.info("node %d: removed %s (a write an earlier life left)", cfg.node, tmp.name)
     state_file = state_path(out, cfg.node) if out else None
     node = CameraNode(source.camera, cfg.neighbours, tcfg, cfg.network, node_id=cfg.node,
                       first_counter=ready.first_counter)
@@ -510,41 +755,69 @@ def run_node(cfg: NodeConfig, *, frames: int | None = None, mode: str | None = N
         except tr.TransportError as e:
             # an id already alive: its status file belongs to the process that holds the id
             if status.path is not None and not isinstance(e, tr.DuplicateNodeError):
-                write_json_atomic(status.path, {
-                    "pid": os.getpid(), "node": cfg.node, "network": cfg.network, "mode": mode,
-                    "phase": "failed", "finished": False, "exit_code": EXIT_TRANSPORT,
-                    "error": str(e), "updated_at": time.time()})
+                try:
+                    write_json_atomic(status.path, {
+                        "pid": os.getpid(), "node": cfg.node, "network": cfg.network,
+                        "mode": mode, "phase": "failed", "finished": False,
+                        "exit_code": EXIT_TRANSPORT, "error": str(e), "updated_at": time.time()})
+                except OSError as e2:
+                    log.warning("cannot write the status file: %s", e2)
             raise
-        writer = None
-        loop = None
-        sink = NullSink()
-        code = EXIT_FAILURE
-        error: str | None = None
+        run = _Run(cfg, node, transport, status, join)
+        try:
+            return run.go(source, total, faults, state_file, shutdown, freeze_gc)
+        finally:
+            run.close(shutdown)
+
+
+class _Run:
+    """One run of a node inside its Zenoh session: the parts ``run_node``'s way out must close,
+    each closed on its own (``close``)."""
+
+    def __init__(self, cfg: NodeConfig, node: CameraNode, transport, status: StatusWriter,
+                 join: bool):
+        self.cfg, self.node, self.transport, self.status, self.join = cfg, node, transport, status, join
+        self.writer: TrackWriter | None = None
+        self.loop: FrameLoop | None = None
+        self.sink: Any = NullSink()
+        self.code = EXIT_FAILURE
+        self.error: str | None = None
+
+    def go(self, source, total: int, faults: FaultPlan, state_file: Path | None,
+           shutdown: Shutdown, freeze_gc: bool) -> RunReport:
+        cfg, rt, transport, out = self.cfg, self.cfg.runtime, self.transport, self.cfg.output.dir
         try:
             try:
-                sink = open_node_sink(cfg, source.camera, source.units_per_metre,
-                                      keep_existing=join)
+                self.sink = open_node_sink(cfg, source.camera, source.units_per_metre,
+                                           keep_existing=self.join)
             except SinkError as e:
                 raise NodeConfigError(cfg.name, "viz.rerun", str(e)) from None
             o = cfg.output
-            writer = TrackWriter(tracks_path(out, cfg.node) if out else None, append=join,
-                                 camera=source.camera.id, keep=o.keep,
-                                 rotate_bytes=None if o.rotate_mb is None
-                                 else int(o.rotate_mb * 1e6))
-            loop = FrameLoop(cfg, node, source, transport, mode=mode, frames=total,
-                             writer=writer, status=status, stop=shutdown.event,
-                             faults=faults, state_file=state_file, sink=sink,
-                             reopen=shutdown.reopen,
-                             checkpoint=(lambda: write_counters(cfg, loop, node, transport, None))
-                             if out is not None else None)
+            self.writer = writer = TrackWriter(
+                tracks_path(out, cfg.node) if out else None, append=self.join,
+                camera=source.camera.id, keep=o.keep,
+                rotate_bytes=None if o.rotate_mb is None else int(o.rotate_mb * 1e6))
+            self.loop = loop = FrameLoop(
+                cfg, self.node, source, transport, mode=rt.mode, frames=total, writer=writer,
+                status=self.status, stop=shutdown.event, faults=faults, state_file=state_file,
+                sink=self.sink, reopen=shutdown.reopen,
+                checkpoint=(lambda: write_counters(cfg, loop, transport, None))
+                if out is not None else None)
             loop.write_status("starting")
+            if writer.last_frame is not None and writer.last_frame + 1 >= total:
+                log.warning("node %d: nothing to do: its track file already holds the run's "
+                            "last frame (%d)", cfg.node, total - 1)
+                loop.stats.first_frame = total
+                self.code = EXIT_OK
+                return RunReport(EXIT_OK, loop.stats, transport.counters(), writer.path)
+            k0 = None
             if cfg.neighbours:
                 try:
                     waited = transport.wait_ready(rt.startup_timeout_s, shutdown.event,
                                                   partial=True)
                 except tr.StartupError:  # only when interrupted (partial: never a timeout)
                     loop.stats.stopped = True
-                    code = EXIT_OK
+                    self.code = EXIT_OK
                     return RunReport(EXIT_OK, loop.stats, transport.counters(), writer.path)
                 loop.stats.startup_s = waited
                 missing = transport.not_ready() if hasattr(transport, "not_ready") else {}
@@ -557,55 +830,75 @@ def run_node(cfg: NodeConfig, *, frames: int | None = None, mode: str | None = N
                 # a network that ran before this node came (a restart, a late boot): start at
                 # its frame, not at 0; at a common boot every neighbour is still at no frame
                 running = getattr(transport, "running_at_start", {})
-                k0 = None
-                if join or running:
+                if self.join or running:
                     k0 = transport.wait_first_frame(rt.startup_timeout_s, shutdown.event)
-                if k0:
-                    loop.stats.first_frame = min(k0, total)
-                    log.info("node %d: joining the network at frame %d", cfg.node, k0)
+            k0 = _continue_at(writer, k0, total)
+            if k0:
+                loop.stats.first_frame = min(k0, total)
+                log.info("node %d: joining the network at frame %d", cfg.node, k0)
             if freeze_gc:  # a camera process: its start-up objects out of the collector's way
                 freeze_startup()
             try:
                 stats = loop.run()
             except Exception as e:
-                error = f"{type(e).__name__}: {e}"
+                self.error = f"{type(e).__name__}: {e}"
                 raise
-            code = EXIT_OK
+            self.code = EXIT_OK
             log.info("node %d: %s after %d frames (prepare %.2f s, wait %.2f s, update %.2f s)",
                      cfg.node, "stopped" if stats.stopped else "finished", stats.frames_done,
                      stats.prepare_s, stats.wait_s, stats.update_s)
             return RunReport(EXIT_OK, stats, transport.counters(), writer.path)
-        finally:
-            if writer is not None:
-                writer.close()
-            counters = {}
+        except BaseException as e:
+            if self.error is None and not isinstance(e, (NodeConfigError, KeyboardInterrupt)):
+                self.error = f"{type(e).__name__}: {e}"
+            raise
+
+    def close(self, shutdown: Shutdown) -> None:
+        """The way out, each step on its own: the transport (liveliness withdrawn), the exit
+        files, the track file, the Rerun sink. A step that fails is logged; none is skipped."""
+        counters: dict = {}
+        lat = latency_summary([])
+        steps: list[tuple[str, Callable[[], Any]]] = []
+
+        def snapshot() -> None:
+            nonlocal counters, lat
+            counters = self.transport.counters()
+            lat = latency_summary(self.transport.latency_samples())
+
+        steps.append(("read the wire counters", snapshot))
+        steps.append(("close the Zenoh session", self.transport.close))
+        if self.writer is not None:
+            steps.append(("close the track file", self._close_writer))
+        if self.loop is not None:
+            steps.append(("write the exit files", lambda: self._exit_files(counters, lat)))
+        steps.append(("close the Rerun sink", self.sink.close))
+        for what, step in steps:
             try:
-                counters = transport.counters()
-                lat = latency_summary(transport.latency_samples())
-            except Exception:  # noqa: BLE001 - best effort on the way out
-                lat = latency_summary([])
-            transport.close()
-            if loop is not None:
-                phase = ("stopped" if loop.stats.stopped else "finished") if code == EXIT_OK else "failed"
-                extra = {"exit_code": code, "error": error}
-                try:
-                    d = loop.status_dict(phase)
-                    d.update(extra)
-                    if status.path is not None:
-                        write_json_atomic(status.path, d)
-                    if out is not None:
-                        write_counters(cfg, loop, node, None, code, counters, lat)
-                except OSError as e:
-                    log.warning("cannot write the exit files: %s", e)
-            # the node's own files first: a viewer that cannot be reached holds the close up to
-            # FLUSH_TIMEOUT_S, longer than a launcher's SIGTERM grace may wait
-            sink.close()
-            if sink.url and code == EXIT_OK:  # --rerun serve: keep serving until Ctrl-C
-                log.warning("node %d: Rerun web viewer at %s until Ctrl-C", cfg.node, sink.url)
-                shutdown.event.wait()
+                step()
+            except Exception as e:  # noqa: BLE001 - one failing step must not skip the others
+                log.warning("node %d: cannot %s: %s: %s", self.cfg.node, what,
+                            type(e).__name__, e)
+        # --rerun serve: keep serving until Ctrl-C
+        if getattr(self.sink, "url", None) and self.code == EXIT_OK:
+            log.warning("node %d: Rerun web viewer at %s until Ctrl-C", self.cfg.node, self.sink.url)
+            shutdown.event.wait()
+
+    def _close_writer(self) -> None:
+        if not self.writer.close() and self.loop is not None:
+            self.loop.stats.output_failures += 1
+
+    def _exit_files(self, counters: dict, lat: dict) -> None:
+        loop = self.loop
+        code = self.code
+        phase = ("stopped" if loop.stats.stopped else "finished") if code == EXIT_OK else "failed"
+        try:
+            loop.write_status(phase, exit_code=code, error=self.error)
+        finally:
+            if self.cfg.output.dir is not None:
+                write_counters(self.cfg, loop, None, code, counters, lat)
 
 
-def write_counters(cfg: NodeConfig, loop: FrameLoop, node: CameraNode, transport, code: int | None,
+def write_counters(cfg: NodeConfig, loop: FrameLoop, transport, code: int | None,
                    counters: dict | None = None, lat: dict | None = None) -> None:
     """``counters_node<id>.json``: rewritten while running (``exit_code`` null) and at exit.
     ``counters`` / ``lat``: the transport's, when it is already closed."""
@@ -613,12 +906,13 @@ def write_counters(cfg: NodeConfig, loop: FrameLoop, node: CameraNode, transport
         counters = transport.counters()
         lat = latency_summary(transport.latency_samples())
     st = loop.stats
-    write_json_atomic(counters_path(cfg.output.dir, cfg.node), {
+    node_stats = loop.node_stats
+    ReservedJson(counters_path(cfg.output.dir, cfg.node)).write({
         "node": cfg.node, "network": cfg.network, "mode": loop.mode,
         "exit_code": code, "frames_done": st.frames_done,
         "frames_total": st.frames_total, "stopped": st.stopped,
         "startup_s": st.startup_s, "latency": lat, **counters,
-        "rejected": rejected(counters, node),
+        "rejected": rejected(counters, node_stats),
         **wire_counters(loop.outbox),
         "viz_dropped": getattr(loop.sink, "dropped", 0),  # Rerun calls a stuck viewer cost
         "timing_s": {"prepare": st.prepare_s, "wait": st.wait_s, "update": st.update_s},
@@ -631,6 +925,13 @@ def write_counters(cfg: NodeConfig, loop: FrameLoop, node: CameraNode, transport
                   else time.thread_time() - st.thread_at_first_frame,
                   "source": st.cpu_source_s, "core": st.cpu_core_s, "send": st.cpu_send_s},
         "rotations": loop.writer.rotations,
+        "catch_up": {"catch_ups": st.catch_ups, "frames_skipped": st.frames_skipped_behind,
+                     "core_restarts": st.core_restarts,
+                     "implausible_frames": st.implausible_frames},
+        "output": {"failures": st.output_failures + loop.writer.failures,
+                   "errors": loop.output_errors,
+                   "track_frames_dropped": loop.writer.frames_dropped,
+                   "track_write_failures": loop.writer.failures},
         "heap": heap(),  # glibc's in-use and free heap, MB (null elsewhere)
-        "node_stats": dict(vars(node.stats)),
+        "node_stats": dict(vars(node_stats)),
     })

@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import json
 import os
+import threading
 import time
 from collections.abc import Sequence
 from pathlib import Path
@@ -40,32 +41,125 @@ def counters_path(out_dir: Path, node: int) -> Path:
     return Path(out_dir) / f"counters_node{node}.json"
 
 
+def _json_bytes(obj: Any) -> bytes:
+    return (json.dumps(obj, indent=1, sort_keys=True) + "\n").encode()
+
+
 def write_json_atomic(path: Path, obj: Any) -> None:
-    """Write ``obj`` as JSON to ``path`` so that a reader never sees a half-written file."""
+    """Write ``obj`` as JSON to ``path`` so that a reader never sees a half-written file. A
+    write that fails (a full disk) removes its temporary file and raises ``OSError``."""
     path.parent.mkdir(parents=True, exist_ok=True)
     tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
-    with open(tmp, "w", encoding="utf-8") as f:
-        json.dump(obj, f, indent=1, sort_keys=True)
-        f.write("\n")
-    os.replace(tmp, path)
+    try:
+        with open(tmp, "wb") as f:
+            f.write(_json_bytes(obj))
+        os.replace(tmp, path)
+    except BaseException:
+        tmp.unlink(missing_ok=True)
+        raise
+
+
+def clean_temporaries(out_dir: Path, node: int) -> list[Path]:
+    """Remove the temporaries that writes of node ``node``'s files left in ``out_dir`` (a
+    process killed between writing one and renaming it); returns what was removed."""
+    gone = []
+    for name in (f"status_node{node}.json", f"counters_node{node}.json", f"state_node{node}.json"):
+        for tmp in Path(out_dir).glob(f".{name}.*.tmp"):
+            try:
+                tmp.unlink()
+                gone.append(tmp)
+            except OSError:
+                pass
+    return gone
+
+
+class ReservedJson:
+    """A small JSON file replaced atomically whose disk space is reserved while there is some,
+    so that it can still be written when the disk is full: a node's status, counters and id
+    counter must say ``degraded`` (and keep its ids) exactly when its other output fails.
+
+    Two inodes of ``reserve`` bytes take turns: the new content, padded with spaces to
+    ``reserve`` bytes (JSON allows trailing white space), overwrites the spare's reserved blocks
+    in place, the spare is renamed over ``path`` (atomic), and the inode it replaced, kept by a
+    hard link, becomes the next spare. Content longer than ``reserve``, or a file system
+    without hard links or ``posix_fallocate``, falls back to :func:`write_json_atomic`."""
+
+    def __init__(self, path: Path, reserve: int = 16 * 1024):
+        self.path = Path(path)
+        self.reserve = reserve
+        self.spare = self.path.with_name(f".{self.path.name}.spare")
+        self._prev = self.path.with_name(f".{self.path.name}.prev")
+
+    def _ensure_spare(self) -> bool:
+        try:
+            if self.spare.exists() and self.spare.stat().st_size >= self.reserve:
+                return True
+            fd = os.open(self.spare, os.O_WRONLY | os.O_CREAT, 0o644)
+            try:
+                os.posix_fallocate(fd, 0, self.reserve)
+            finally:
+                os.close(fd)
+            return True
+        except (OSError, AttributeError):
+            self.spare.unlink(missing_ok=True)
+            return False
+
+    def write(self, obj: Any) -> None:
+        """Replace the file's content by ``obj``; ``OSError`` when it cannot be written."""
+        data = _json_bytes(obj)
+        self.path.parent.mkdir(parents=True, exist_ok=True)
+        if len(data) > self.reserve or not self._ensure_spare():
+            write_json_atomic(self.path, obj)
+            return
+        fd = os.open(self.spare, os.O_WRONLY)
+        try:
+            os.pwrite(fd, data + b" " * (self.reserve - len(data)), 0)
+        finally:
+            os.close(fd)
+        kept = False
+        if self.path.exists():
+            try:
+                self._prev.unlink(missing_ok=True)
+                os.link(self.path, self._prev)
+                kept = True
+            except OSError:
+                pass
+        os.replace(self.spare, self.path)
+        if kept:
+            os.replace(self._prev, self.spare)
+        else:
+            self._ensure_spare()
+
+    def remove_spare(self) -> None:
+        """Give the reserved space back (the node is done with the file)."""
+        for p in (self.spare, self._prev):
+            try:
+                p.unlink(missing_ok=True)
+            except OSError:
+                pass
 
 
 class StatusWriter:
-    """Rate-limited ``status_node<id>.json``: ``maybe(obj)`` writes at most every ``interval`` s."""
+    """Rate-limited ``status_node<id>.json``: :meth:`due` says when the interval has passed,
+    :meth:`write` writes (reserved space: :class:`ReservedJson`) and raises ``OSError`` when it
+    cannot. Thread-safe: the watchdog writes ``stalled`` from its own thread."""
 
     def __init__(self, path: Path | None, interval: float = 1.0):
         self.path = path
         self.interval = interval
         self._last = -float("inf")
+        self._file = ReservedJson(path) if path is not None else None
+        self._lock = threading.Lock()
 
     def due(self) -> bool:
         return self.path is not None and time.monotonic() - self._last >= self.interval
 
     def write(self, obj: dict) -> None:
-        if self.path is None:
+        if self._file is None:
             return
-        write_json_atomic(self.path, obj)
-        self._last = time.monotonic()
+        with self._lock:
+            self._last = time.monotonic()
+            self._file.write(obj)
 
 
 def latency_summary(samples_s: Sequence[float]) -> dict:

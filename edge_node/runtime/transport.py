@@ -8,9 +8,9 @@ Key expressions (protocol/keys.py): the node publishes frame messages on
 Received bytes are validated by ``protocol.decode`` against the key they arrived on (network,
 link source = payload sender, sender among the configured neighbours). A bad message is counted by
 ``ProtocolError.reason`` and logged (rate-limited), never raised: nothing a peer sends can stop
-the node. Valid messages go into a thread-safe inbox keyed by ``(sender, frame)``, read by
-:meth:`ZenohTransport.collect` (sync mode: exactly frame ``k``, waiting for live neighbours) or
-:meth:`ZenohTransport.drain` (async mode: whatever arrived, up to frame ``k``, never waiting).
+the node. Valid messages go into the node's inbox (``edge_node/runtime/inbox.py``: frame ``k``
+for sync mode, whatever arrived for async mode, and where each neighbour is however far ahead:
+``network_frame``).
 
 Zenoh is peer-to-peer with explicit endpoints: multicast scouting off, gossip off unless asked,
 ``scouting/delay`` 0 (else ``open`` waits 500 ms when a neighbour is not listening yet). Peers do
@@ -42,6 +42,7 @@ from protocol import codec
 from protocol.errors import ProtocolError
 from protocol.keys import (alive_key, alive_pattern, inbox_key, link_key, parse_alive_key,
                            parse_link_key, peers_key, peers_pattern)
+from edge_node.runtime.inbox import FrameInbox
 from protocol.messages import FrameMessage
 
 log = logging.getLogger("edge_node.transport")
@@ -52,7 +53,6 @@ LATENCY_SAMPLES = 200_000  # newest one-hop latency samples kept for the summary
 ID_SETTLE_S = 0.5  # how long a starting node listens for its own id before it takes it
 ID_MISSES = 3  # ... and in how many polls in a row nobody may say the id is alive
 ID_QUERY_TIMEOUT_S = 1.0  # a poll's wait for replies (returns as soon as every peer replied)
-GONE_GRACE_S = 0.25  # how long frame k still waits for a neighbour whose liveliness just ended
 
 
 class LatencyRing:
@@ -161,17 +161,10 @@ class ZenohTransport:
         self._cond = threading.Condition()
         self._closed = False
         self._rlog = RateLimitedLog(log)
-        # inbox and its bookkeeping (all under _cond)
-        self._inbox: dict[tuple[int, int], FrameMessage] = {}
-        self._pending: dict[int, int] = defaultdict(int)  # sender -> entries in _inbox
-        self._floor = -1  # sync: frames below this are late
-        self._alive: set[int] = set()  # alive neighbours
-        self._gone_at: dict[int, float] = {}  # neighbour -> when its liveliness went away
+        self.inbox = FrameInbox(self.node, self.neighbours, max_pending_frames, cond=self._cond,
+                                warn=self._rlog.warning)
         self._alive_any: set[int] = set()  # every alive node seen (direct connections only)
         self._self_seen = False  # start-up: our own id's token seen from another process
-        self._lagging: set[int] = set()  # sync: neighbours that missed a frame and are behind
-        self._newest: dict[int, int] = {}  # sender -> newest frame received from it
-        self._frame_now: int | None = None  # the frame this node is at (collect / drain)
         self.running_at_start: dict[int, int] = {}  # neighbours already running when we came
         # counters
         self.bytes_sent: dict[int, int] = defaultdict(int)
@@ -181,11 +174,6 @@ class ZenohTransport:
         self.bytes_received: dict[int, int] = defaultdict(int)
         self.messages_received: dict[int, int] = defaultdict(int)
         self.rejected: dict[str, int] = defaultdict(int)
-        self.late: dict[int, int] = defaultdict(int)
-        self.lost: dict[int, int] = defaultdict(int)  # sync: frames a newer message showed lost
-        self.duplicates: dict[int, int] = defaultdict(int)
-        self.overflow: dict[int, int] = defaultdict(int)
-        self.timeouts: dict[int, int] = defaultdict(int)  # sync: frames a live neighbour missed
         self.liveliness_events: list[tuple[float, int, str]] = []
         self._latency = LatencyRing(LATENCY_SAMPLES)
 
@@ -285,7 +273,7 @@ class ZenohTransport:
             with self._cond:
                 alive = sorted(self._alive_any)
             query.reply(query.key_expr, json.dumps({"node": self.node, "alive": alive,
-                                                    "frame": self._frame_now}))
+                                                    "frame": self.inbox.frame_now}))
         except Exception as e:  # noqa: BLE001 - a callback must never raise into Zenoh
             self._rlog.warning("peers", f"node {self.node}: peers query failed: {e}")
 
@@ -340,29 +328,7 @@ class ZenohTransport:
             self.bytes_received[src] += nbytes
             if msg.sent_at > 0:
                 self._latency.append(now - msg.sent_at)
-            k = msg.frame
-            if k <= max(self._floor, self._frame_now or 0) + self.max_pending_frames:
-                # how far ahead the network is (a node behind skips there); no further than the
-                # inbox keeps frames ahead, so one forged frame number cannot fling a node away
-                self._newest[src] = max(k, self._newest.get(src, k))
-            if k < self._floor:
-                self.late[src] += 1
-                return
-            self._lagging.discard(src)  # in time again: waited for from the next frame on
-            key = (src, k)
-            if key in self._inbox:
-                self.duplicates[src] += 1
-                return
-            self._inbox[key] = msg
-            self._pending[src] += 1
-            if self._pending[src] > self.max_pending_frames:
-                # drop the frame farthest ahead, not the one needed next: a flood of (forged)
-                # future frames must not push out the message this node is waiting for
-                newest = max(f for (s, f) in self._inbox if s == src)
-                del self._inbox[(src, newest)]
-                self._pending[src] -= 1
-                self.overflow[src] += 1
-            self._cond.notify_all()
+        self.inbox.accept(src, msg)
 
     def _on_alive(self, sample) -> None:
         try:
@@ -376,20 +342,13 @@ class ZenohTransport:
             if net != self.network or n == self.node:
                 return
             with self._cond:
-                self._lagging.discard(n)
-                self._newest.pop(n, None)
                 if gone:
                     self._alive_any.discard(n)
-                    if n in self._alive:
-                        self._gone_at[n] = time.monotonic()
-                    self._alive.discard(n)
                 else:
                     self._alive_any.add(n)
-                    if n in self._neigh:
-                        self._alive.add(n)
                 self.liveliness_events.append((time.time(), n, "gone" if gone else "alive"))
                 del self.liveliness_events[:-1000]
-                self._cond.notify_all()
+                self.inbox.liveliness(n, gone)
             if n in self._neigh:
                 log.info("node %d: neighbour %d %s", self.node, n, "gone" if gone else "alive")
         except Exception as e:  # noqa: BLE001
@@ -415,25 +374,12 @@ class ZenohTransport:
         return len(payload)
 
     def wait_first_frame(self, timeout: float, stop: threading.Event | None = None) -> int | None:
-        """The newest frame any neighbour has sent us, waiting up to ``timeout`` s for one: how
-        a restarted node learns where the running network is."""
-        deadline = time.monotonic() + timeout
-        with self._cond:
-            while not self._inbox:
-                remaining = deadline - time.monotonic()
-                if remaining <= 0 or (stop is not None and stop.is_set()):
-                    return None
-                self._cond.wait(min(remaining, 0.1))
-            # Each sender's newest frame; the smallest of those: one key (forged, without the
-            # access-control config) cannot make a restarting node jump far ahead.
-            newest: dict[int, int] = {}
-            for (src, f) in self._inbox:
-                newest[src] = max(f, newest.get(src, -1))
-            return min(newest.values())
+        """The newest frame any neighbour has sent us (``FrameInbox.wait_first_frame``)."""
+        return self.inbox.wait_first_frame(timeout, stop)
 
     def alive_neighbours(self) -> set[int]:
         with self._cond:
-            return set(self._alive)
+            return set(self.inbox.alive)
 
     def alive_nodes(self) -> set[int]:
         """Every other node whose token is visible (with gossip off: directly connected ones)."""
@@ -443,7 +389,7 @@ class ZenohTransport:
     def not_ready(self) -> dict[int, list[str]]:
         """Neighbours that are not alive or have no subscriber matching our link to them."""
         with self._cond:
-            alive = set(self._alive)
+            alive = set(self.inbox.alive)
         out: dict[int, list[str]] = {}
         for n in self.neighbours:
             why = []
@@ -478,84 +424,21 @@ class ZenohTransport:
                 self._cond.wait(min(0.01, deadline - now))
 
     def network_frame(self) -> int | None:
-        """The frame the running network is at, as this node hears it: the newest frame any
-        alive neighbour sent, counting only frames up to ``max_pending_frames`` ahead of this
-        node (``None`` before any). A node that fell behind (a freeze, an overload, a timeout on
-        a lost link) skips ahead to it, so the network converges on its front-runner, which
-        runs at camera rate; farther behind, it gets there in several skips."""
-        with self._cond:
-            frames = [f for n, f in self._newest.items() if n in self._alive]
-        return max(frames) if frames else None
+        """Where the running network is (``FrameInbox.network_frame``)."""
+        return self.inbox.network_frame()
 
-    def collect(self, frame: int, timeout: float, stop: threading.Event | None = None
-                ) -> dict[int, FrameMessage]:
-        """Sync mode: frame ``frame``'s messages, waiting up to ``timeout`` s for every neighbour
-        that is alive (one whose liveliness is lost is not waited for). A neighbour that misses
-        the timeout is lagging: it is not waited for again until one of its messages arrives in
-        time, so one slow or frozen box costs its neighbours one timeout, not one per frame.
-        A neighbour whose later frame has arrived is not waited for either: a link delivers in
-        order, so its frame-``frame`` message was lost (counted in ``lost``), and a lossy link
-        costs a frame period, not the timeout. Messages of earlier frames are discarded
-        (counted as late), now and when they arrive."""
-        deadline = time.monotonic() + timeout
-        with self._cond:
-            self._frame_now = frame
-            self._floor = frame
-            for key in [key for key in self._inbox if key[1] < frame]:
-                del self._inbox[key]
-                self._pending[key[0]] -= 1
-                self.late[key[0]] += 1
-            lost: set[int] = set()
-            while True:
-                have = {s for s in self.neighbours if (s, frame) in self._inbox}
-                # A neighbour that just left (its last frame done) may have its last message
-                # still in flight behind the liveliness DELETE: wait for it a moment longer.
-                now = time.monotonic()
-                leaving = {s for s, t in self._gone_at.items() if now - t < GONE_GRACE_S}
-                missing = (self._alive | leaving) - have - self._lagging
-                gone = {s for s in missing if self._newest.get(s, -1) > frame}
-                for s in gone - lost:
-                    self.lost[s] += 1
-                lost |= gone
-                missing -= gone
-                if not missing or (stop is not None and stop.is_set()):
-                    break
-                remaining = deadline - time.monotonic()
-                if remaining <= 0:
-                    for s in missing:
-                        self.timeouts[s] += 1
-                    # behind (frozen, overloaded): not waited for again until one of its
-                    # messages arrives in time; until then its messages count as late
-                    self._lagging |= missing
-                    self._rlog.warning("timeout", f"node {self.node}: frame {frame}: no message "
-                                       f"from neighbour(s) {sorted(missing)} within {timeout:g} s; "
-                                       "not waiting for them until they catch up")
-                    break
-                self._cond.wait(min(remaining, 0.1))
-            for s in lost & have:  # shown lost, then it came while another was waited for
-                self.lost[s] -= 1
-                if not self.lost[s]:
-                    del self.lost[s]
-            out = {}
-            for s in sorted(have):
-                out[s] = self._inbox.pop((s, frame))
-                self._pending[s] -= 1
-            self._floor = frame + 1
-            return out
+    def skip_to(self, frame: int) -> None:
+        """This node skips ahead to ``frame`` (``FrameInbox.skip_to``)."""
+        self.inbox.skip_to(frame)
+
+    def collect(self, frame: int, timeout: float, stop: threading.Event | None = None, *,
+                silent_grace: float | None = None) -> dict[int, FrameMessage]:
+        """Sync mode: frame ``frame``'s messages (``FrameInbox.collect``)."""
+        return self.inbox.collect(frame, timeout, stop, silent_grace=silent_grace)
 
     def drain(self, frame: int) -> list[FrameMessage]:
-        """Async mode: every message received since the last call with frame ``<= frame``, each
-        once, sorted by ``(sender, frame)``, never waiting. Messages of later frames (a neighbour
-        ahead of us) stay until ``frame`` reaches them. The core keeps each neighbour's newest
-        entry per tracker, so late, duplicated and reordered deliveries are harmless."""
-        with self._cond:
-            self._frame_now = frame
-            keys = sorted(key for key in self._inbox if key[1] <= frame)
-            out = []
-            for key in keys:
-                out.append(self._inbox.pop(key))
-                self._pending[key[0]] -= 1
-            return out
+        """Async mode: what arrived up to frame ``frame`` (``FrameInbox.drain``)."""
+        return self.inbox.drain(frame)
 
     def counters(self) -> dict:
         """A JSON-serialisable snapshot of the wire counters (bytes, messages, rejections...)."""
@@ -579,12 +462,7 @@ class ZenohTransport:
                 "messages_received": sum(self.messages_received.values()),
                 "received_per_link": links_in(self.messages_received),
                 "rejected": dict(sorted(self.rejected.items())),
-                "late": links_in(self.late),
-                "lost": links_in(self.lost),
-                "duplicates": links_in(self.duplicates),
-                "overflow": links_in(self.overflow),
-                "timeouts": links_in(self.timeouts),
-                "alive_neighbours": sorted(self._alive),
+                **self.inbox.counters(),
             }
 
     def latency_samples(self) -> np.ndarray:
@@ -599,7 +477,7 @@ class ZenohTransport:
             if self._closed:
                 return
             self._closed = True
-            self._cond.notify_all()
+        self.inbox.close()
         for obj in [self._token, self._peers_q, *self._pubs.values(), self._alive_sub, self._sub]:
             if obj is None:
                 continue

@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import json
 import os
+import time
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
@@ -80,12 +81,28 @@ def node_counters(state: ClusterState, node: int) -> dict:
         return {}
 
 
+def health(st: dict, running: bool, now: float | None = None) -> str:
+    """A node's phase as ``status`` shows it: what its status file says, but ``stalled`` for a
+    running node whose file has not been rewritten for its ``stall_after_s`` (a frozen process
+    cannot say so itself) and ``exited`` for a node that is gone without saying it finished."""
+    phase = st.get("phase", "-")
+    if not running:
+        return phase if phase in ("finished", "stopped", "failed") else ("exited" if st else "-")
+    if phase in ("finished", "stopped", "failed"):
+        return phase
+    updated = st.get("updated_at")
+    after = st.get("stall_after_s") or 5.0
+    if updated is not None and (time.time() if now is None else now) - updated > after:
+        return "stalled"
+    return phase
+
+
 def status_table(state: ClusterState) -> str:
     """``sim_cluster status``: one row per node, then the reasons of rejected messages."""
     rows = [f"cluster {state.out}: {len(state.nodes)} nodes, {state.topology}, {state.mode}, "
             f"scenario {state.scenario} seed {state.seed}",
             f"{'node':>4} {'pid':>7} {'alive':>5} {'frame':>6} {'trackers':>8} {'bytes sent':>11} "
-            f"{'rejected':>8} {'late':>5} {'timeouts':>8} {'phase':>9}"]
+            f"{'rejected':>8} {'late':>5} {'timeouts':>8}  phase"]
     reasons = []  # hostile or broken input, by ProtocolError reason (protocol/errors.py)
     for key, p in sorted(state.nodes.items(), key=lambda kv: int(kv[0])):
         st = node_status(state, p.node)
@@ -94,8 +111,13 @@ def status_table(state: ClusterState) -> str:
             reasons.append(f"node {p.node} rejected: " + ", ".join(
                 f"{r} {n}" for r, n in sorted(st["rejected"].items())))
         frame = st.get("frame")
-        rows.append(f"{p.node:>4} {p.pid or '-':>7} {'yes' if alive(p.pid) else 'no':>5} "
+        running = alive(p.pid)
+        phase = health(st, running)
+        if st.get("output_errors") and running:
+            reasons.append(f"node {p.node} output failing: " + ", ".join(
+                f"{k} ({v})" for k, v in sorted(st["output_errors"].items())))
+        rows.append(f"{p.node:>4} {p.pid or '-':>7} {'yes' if running else 'no':>5} "
                     f"{'-' if frame is None else frame:>6} {st.get('trackers', '-'):>8} "
                     f"{st.get('bytes_sent', '-'):>11} {rejected:>8} {st.get('late', '-'):>5} "
-                    f"{st.get('timeouts', '-'):>8} {st.get('phase', '-'):>9}")
+                    f"{st.get('timeouts', '-'):>8}  {phase}")
     return "\n".join(rows + reasons)
