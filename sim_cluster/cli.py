@@ -28,7 +28,7 @@ from protocol.keys import is_valid_network
 from sim_cluster.cluster import commands as cluster
 from sim_cluster.cluster.state import ClusterError
 from sim_cluster.experiments import (ablation, bandwidth, bench, bench_cluster, faultreport,
-                                     fuzz, reid_sweep, run, soak)
+                                     fuzz, probe, reid_sweep, run, soak)
 from sim_cluster.experiments.ablation import AblationError
 from sim_cluster.network.topology import TopologyError
 from sim_cluster.scenarios import commands as scenarios
@@ -293,6 +293,22 @@ def build_parser() -> argparse.ArgumentParser:
     sk.add_argument("--out", default="runs/soak")
     sk.add_argument("--quiet", action="store_true")
     sk.set_defaults(func=soak.main)
+
+    pr = sub.add_parser("probe", help="the zombie probes (freeze, full disk, kill -9 and "
+                        "restarts, a phantom flood, a camera absent at boot) on real processes, "
+                        "each against its goal (README, Faults)")
+    pr.add_argument("kind", choices=probe.KINDS)
+    pr.add_argument("--out", default="runs/probe")
+    pr.add_argument("--nodes", type=integer(2), default=4)
+    pr.add_argument("--fps", type=number(0, above=True), default=25.0)
+    pr.add_argument("--seconds", default="5,30,120,600",
+                    help="freeze: how long to freeze, comma-separated seconds")
+    pr.add_argument("--modes", default="sync,async", help="freeze: runtime modes")
+    pr.add_argument("--kills", type=integer(1), default=30, help="restarts: how many kill -9")
+    pr.add_argument("--phantoms", type=integer(1), default=4096, help="flood: trackers in it")
+    pr.add_argument("--seed", type=int, default=0)
+    pr.add_argument("--quiet", action="store_true")
+    pr.set_defaults(func=probe.main)
 
     e = sub.add_parser("export-detections",
                        help="write a scenario's detections (det.txt + .npy), truth and calibration")

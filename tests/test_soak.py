@@ -16,10 +16,12 @@ def test_chaos_schedule_is_seeded_spaced_and_a_valid_fault_plan():
     a = chaos_schedule(7, 30, 4)
     assert a == chaos_schedule(7, 30, 4) and a != chaos_schedule(8, 30, 4)
     assert [int(f.at_s // 60) for f in a] == list(range(2, 30, 3))  # one every 3 min from min 2
-    assert {f.kind for f in a} == {"kill", "freeze", "loss", "partition"}
+    assert {f.kind for f in a} == {"kill", "freeze", "loss", "partition", "long_freeze",
+                                   "disk_full", "flood"}
     for f in a:
         assert 5 <= f.at_s % 60 <= 20
-        assert f.kind == "partition" or 0 <= f.node < 4
+        assert f.kind in ("partition", "disk_full") or 0 <= f.node < 4
+    assert {f.duration_s for f in a if f.kind == "long_freeze"} <= {30.0, 120.0}
     adjacency = build("ring", 4)
     plan = fault_plan(a, adjacency, 25.0, 7)
     FaultPlan.from_dict(plan, Network(adjacency, 30 * 60 * 25 + 1))  # the nodes' own check

@@ -22,11 +22,13 @@ def _toml_str(v: str) -> str:
 def node_config(i: int, state: ClusterState, ports: dict[int, int], *, config: str,
                 sync_timeout_s: float, startup_timeout_s: float, fps: float = 0.0,
                 faults: Path | None = None, source_toml: str | None = None,
-                connect_first: Sequence[str] = (), tracker: dict | None = None) -> str:
+                connect_first: Sequence[str] = (), tracker: dict | None = None,
+                status_interval_s: float = 0.5) -> str:
     """The TOML of node ``i`` (schema: ``edge_node/runtime/config.py``). ``source_toml``: its
     ``[source]`` body and further tables (frames rendered for its camera), instead of the
     scenario; ``connect_first``: endpoints connected before the neighbours' (a monitor);
-    ``tracker``: ``TrackerConfig`` fields set beside the ablation (e.g. ``scope_hops``)."""
+    ``tracker``: ``TrackerConfig`` fields set beside the ablation (e.g. ``scope_hops``);
+    ``status_interval_s``: how often the node rewrites its status file."""
     neighbours = state.adjacency[str(i)]
     listen = [f"tcp/127.0.0.1:{ports[i]}"]
     connect = [*connect_first, *(f"tcp/127.0.0.1:{ports[j]}" for j in neighbours)]
@@ -69,7 +71,8 @@ def node_config(i: int, state: ClusterState, ports: dict[int, int], *, config: s
         lines += ["", "[faults]", f"file = {_toml_str(str(faults))}"]
     lines += ["", "[tracker]", f"ablation = {_toml_str(config)}",
               *(f"{k} = {json.dumps(v)}" for k, v in sorted((tracker or {}).items())), "", "[output]",
-              f"dir = {_toml_str(str(Path(state.out) / 'nodes'))}", "status_interval_s = 0.5", ""]
+              f"dir = {_toml_str(str(Path(state.out) / 'nodes'))}",
+              f"status_interval_s = {float(status_interval_s)}", ""]
     return "\n".join(lines)
 
 

@@ -106,7 +106,8 @@ class Cluster:
                      extra: Callable[[int], str] | None = None,
                      connect_first: Sequence[str] = (),
                      ports: Sequence[int] | None = None,
-                     tracker: dict | None = None) -> dict[int, str]:
+                     tracker: dict | None = None,
+                     status_interval_s: float = 0.5) -> dict[int, str]:
         """Every node's config (``configs.node_config``) on free ports (or ``ports``): the
         tracker ``config``, timeouts, pacing, a fault plan, per-node ``sources`` (rendered
         video), ``extra`` tables per node (Rerun), endpoints ``connect_first`` and ``tracker``
@@ -122,7 +123,7 @@ class Cluster:
                                     sync_timeout_s=sync_timeout_s,
                                     startup_timeout_s=startup_timeout_s, fps=fps, faults=faults,
                                     source_toml=sources.get(i), connect_first=connect_first,
-                                    tracker=tracker)
+                                    tracker=tracker, status_interval_s=status_interval_s)
                         + (extra(i) if extra is not None else ""))
             parse_node_config(tomllib.loads(texts[i]), cfg)
             self.state.nodes[str(i)] = NodeProc(i, str(cfg), str(self.out / "logs" / f"node{i}.log"),
@@ -230,8 +231,19 @@ class Cluster:
 
     def restart_node(self, node: int) -> int:
         """Start node ``node`` again (ending it first if it runs) with ``--join``: it rejoins
-        the running network at its neighbours' frame. Returns its new pid."""
+        the running network at its neighbours' frame. Returns its new pid. Refused (a
+        :class:`ClusterError`) when there is nothing to rejoin: the node finished its run, or
+        no other node of the cluster runs ('sim_cluster up' starts a new run)."""
         p = self.node(node)
+        st = node_status(self.state, node)
+        if st.get("phase") == "finished" and not alive(p.pid):
+            raise ClusterError(f"node {node} finished its run (frame {st.get('frame')} of "
+                               f"{st.get('frames_total')}): nothing to restart; 'sim_cluster up' "
+                               "starts a new run")
+        others = [i for i in self.running() if i != node]
+        if self.size > 1 and not others:
+            raise ClusterError(f"no other node of the cluster in {self.out} runs: node {node} "
+                               "would have no network to rejoin; 'sim_cluster up' starts a new run")
         if alive(p.pid):
             terminate([p.pid])
         self._spawn(p, join=True)

@@ -5,10 +5,17 @@ per camera of a streaming scenario long enough never to end during the soak), pa
 scenario's frame rate, and keeps them running for M minutes. With ``--chaos SEED`` it injects a
 seeded schedule of faults (:func:`chaos_schedule`), one every ``--every`` minutes from minute 2:
 
-``kill``       SIGKILL a node, restart it 5-20 s later (``--join``, as a supervisor would)
-``freeze``     SIGSTOP a node for 2-8 s, then SIGCONT (a box that hangs)
-``loss``       20-50 % of the messages on every link of one node lost for 20-40 s
-``partition``  the network cut in two halves for 10-30 s
+``kill``         SIGKILL a node, restart it 5-20 s later (``--join``, as a supervisor would)
+``freeze``       SIGSTOP a node for 2-8 s, then SIGCONT (a box that hangs)
+``loss``         20-50 % of the messages on every link of one node lost for 20-40 s
+``partition``    the network cut in two halves for 10-30 s
+``long_freeze``  SIGSTOP a node for 30 s or 2 min (longer than its inbox window: it must learn
+                 the network's frame and skip there)
+``disk_full``    the nodes' output disk full for 20-40 s (the output folder is a tmpfs of the
+                 soak's own, so it needs root; without, the fault is skipped and said so): every
+                 node must say ``degraded`` within 2 s and go on tracking
+``flood``        one message of 4,096 plausible phantom trackers to a node, as one of its
+                 neighbours (``sim_cluster probe flood``)
 
 Kills and freezes are signals from this driver at wall-clock times; loss and partitions are the
 nodes' own fault layer (``edge_node/faults.py``), written as a fault plan in frames (the frame a
@@ -27,13 +34,15 @@ least 0.9 x the reference's; minutes with a planned fault and the minute after a
 """
 from __future__ import annotations
 
-import csv
 import json
 import math
 import multiprocessing
 import os
+import shutil
 import signal
+import subprocess
 import sys
+import tempfile
 import time
 from collections.abc import Callable, Iterator
 from dataclasses import asdict, dataclass
@@ -44,15 +53,20 @@ import numpy as np
 
 from edge_node.core.config import TrackerConfig
 from edge_node.faults import FaultPlan, Network
-from edge_node.formats.tracks import ID_BASE
+from edge_node.formats.tracks import ID_BASE, iter_tracks
 from edge_node.runtime.output import tracks_path
+from protocol import codec
+from protocol.keys import link_key
 from sim_cluster.cluster.launcher import Cluster
 from sim_cluster.cluster.state import ClusterError, node_status
 from sim_cluster.evaluation.metrics import ground_distances, summarize
+from sim_cluster.experiments.chaos import fill, phantom_message, publish_once, rss_kb
 from sim_cluster.network.inprocess import run_network
 from sim_cluster.scenarios.loader import open_scenario
 
-KINDS = ("kill", "freeze", "loss", "partition")
+KINDS = ("kill", "freeze", "loss", "partition", "long_freeze", "disk_full", "flood")
+DISK_MB = 1024  # the soak's output tmpfs (RAM-backed: only what the nodes write lives there)
+DEGRADED_WITHIN_S = 2.0  # a full disk: every node says so within this long
 RATIO = 0.9  # survivors' ground MOTA >= RATIO x the fault-free run's, outside exempt minutes
 
 
@@ -92,6 +106,12 @@ def chaos_schedule(seed: int, minutes: int, nodes: int, every: int = 3, first: i
             out.append(Fault(kind, at, u * float(rng.uniform(5, 20)), node=node))
         elif kind == "freeze":
             out.append(Fault(kind, at, u * float(rng.uniform(2, 8)), node=node))
+        elif kind == "long_freeze":
+            out.append(Fault(kind, at, u * float(rng.choice([30.0, 120.0])), node=node))
+        elif kind == "disk_full":
+            out.append(Fault(kind, at, u * float(rng.uniform(20, 40))))
+        elif kind == "flood":
+            out.append(Fault(kind, at, 0.0, node=node))
         elif kind == "loss":
             out.append(Fault(kind, at, u * float(rng.uniform(20, 40)), node=node,
                              loss=round(float(rng.uniform(0.2, 0.5)), 2)))
@@ -100,6 +120,11 @@ def chaos_schedule(seed: int, minutes: int, nodes: int, every: int = 3, first: i
             out.append(Fault(kind, at, u * float(rng.uniform(10, 30)),
                              groups=(tuple(range(half)), tuple(range(half, nodes)))))
     return out
+
+
+def stops_node(kind: str) -> bool:
+    """Whether a fault of ``kind`` takes its node out for its duration (not a survivor)."""
+    return kind in ("kill", "freeze", "long_freeze")
 
 
 def fault_plan(faults: list[Fault], adjacency: dict[int, list[int]], fps: float,
@@ -122,18 +147,6 @@ def fault_plan(faults: list[Fault], adjacency: dict[int, list[int]], fps: float,
     return plan
 
 
-def rss_kb(pid: int | None) -> int | None:
-    """Resident set size of a process (kB), from /proc; ``None`` when it is gone."""
-    try:
-        with open(f"/proc/{pid}/status") as f:
-            for line in f:
-                if line.startswith("VmRSS:"):
-                    return int(line.split()[1])
-    except (OSError, TypeError, ValueError):
-        return None
-    return None
-
-
 def default_scenario(nodes: int) -> str:
     if nodes <= 4:
         return "terrace-sim"
@@ -147,16 +160,19 @@ class Soak:
     """Drives one soak: the cluster, the schedule, the per-minute samples."""
 
     def __init__(self, cluster: Cluster, faults: list[Fault], fps: float,
-                 say: Callable[[str], None], minute_s: float = 60.0):
+                 say: Callable[[str], None], minute_s: float = 60.0, disk: Path | None = None):
         self.cluster, self.faults, self.fps, self.say = cluster, faults, fps, say
         self.minute_s = minute_s
+        self.disk = disk  # the nodes' output tmpfs (a disk_full fault fills it), or None
+        self._filler: Path | None = None
+        self._full: tuple[float, float, dict[int, float]] | None = None  # (from, until, degraded)
         self.events: list[dict] = []  # what happened, when (s after frame 0)
         self.unplanned: list[dict] = []
         self.samples: list[dict] = []
         self._dead: dict[int, float] = {}  # killed by the plan -> restart time
         self._frozen: dict[int, float] = {}  # frozen -> thaw time
         self._last: dict[int, dict] = {}
-        self._todo = sorted((f for f in faults if f.kind in ("kill", "freeze")),
+        self._todo = sorted((f for f in faults if f.kind not in ("loss", "partition")),
                             key=lambda f: f.at_s)
 
     def run(self, seconds: float) -> None:
@@ -182,6 +198,8 @@ class Soak:
         finally:
             for node in list(self._frozen):
                 self._signal(node, signal.SIGCONT)
+            if self._filler is not None:
+                self._filler.unlink(missing_ok=True)
             c.stop()
 
     def _wait_frame0(self, timeout_s: float = 60.0) -> float:
@@ -210,11 +228,25 @@ class Soak:
         c = self.cluster
         while self._todo and self._todo[0].at_s <= now:
             f = self._todo.pop(0)
-            if f.node in self._dead or f.node in self._frozen:
+            if f.node is not None and (f.node in self._dead or f.node in self._frozen):
                 continue
-            self.events.append({"t_s": round(now, 2), "kind": f.kind, "node": f.node,
-                                "duration_s": round(f.duration_s, 2)})
-            self.say(f"{now:7.1f} s: {f.kind} node {f.node} for {f.duration_s:.1f} s")
+            event = {"t_s": round(now, 2), "kind": f.kind, "node": f.node,
+                     "duration_s": round(f.duration_s, 2)}
+            self.events.append(event)
+            self.say(f"{now:7.1f} s: {f.kind}" + (f" node {f.node}" if f.node is not None else "")
+                     + f" for {f.duration_s:.1f} s")
+            if f.kind == "disk_full":
+                if self.disk is None or self._filler is not None:
+                    event["skipped"] = "no tmpfs of its own (it needs root)"
+                    self.say(f"{now:7.1f} s: disk_full skipped: {event['skipped']}")
+                else:
+                    self._filler = fill(self.disk)
+                    self._full = (now, now + f.duration_s, {})
+                    event["degraded_after_s"] = self._full[2]
+                continue
+            if f.kind == "flood":
+                event["sent_as"] = self._flood(f.node)
+                continue
             if f.kind == "kill":
                 c.kill(f.node)
                 pr = c.procs.pop(f.node, None)
@@ -234,6 +266,27 @@ class Soak:
             if now >= at:
                 self._signal(node, signal.SIGCONT)
                 self.events.append({"t_s": round(now, 2), "kind": "thaw", "node": node})
+        if self._full is not None:
+            start, until, degraded = self._full
+            for i in range(c.size):
+                if i not in degraded and node_status(c.state, i).get("phase") == "degraded":
+                    degraded[i] = round(now - start, 2)
+            if now >= until:
+                self._filler.unlink(missing_ok=True)
+                self._filler, self._full = None, None
+                self.events.append({"t_s": round(now, 2), "kind": "disk_freed", "node": None})
+                self.say(f"{now:7.1f} s: disk freed; degraded after {degraded} s")
+
+    def _flood(self, node: int) -> int:
+        """One message of 4,096 phantoms to ``node`` as its first neighbour; returns that
+        neighbour's id."""
+        c = self.cluster
+        src = sorted(c.state.adjacency[str(node)])[0]
+        k = max(c.frame(node), 0) + int(self.fps)  # it waits in the inbox for its frame
+        payload = codec.encode(phantom_message(c.state.network, src, k, 4096))
+        publish_once(c.state.network, [f"tcp/127.0.0.1:{c.state.nodes[str(node)].port}"],
+                     link_key(c.state.network, src, node), payload)
+        return src
 
     def _check_exits(self, now: float) -> None:
         c = self.cluster
@@ -284,17 +337,15 @@ def frames_of(path: Path) -> Iterator[tuple[int, list[tuple[int, float, float]]]
     node: a restarted one appends from a later frame)."""
     if not path.exists():
         return
-    with open(path, newline="") as f:
-        k, rows = None, []
-        for row in csv.DictReader(f):
-            kr = int(row["frame"])
-            if kr != k and rows:
-                yield k, rows
-                rows = []
-            k = kr
-            rows.append((int(row["id"]), float(row["x"]), float(row["y"])))
-        if rows:
+    k, rows = None, []
+    for t in iter_tracks(path):  # a torn or stray row is skipped and reported
+        if t.frame != k and rows:
             yield k, rows
+            rows = []
+        k = t.frame
+        rows.append((t.id[0] * ID_BASE + t.id[1], float(t.x[0]), float(t.x[1])))
+    if rows:
+        yield k, rows
 
 
 class MinuteScore:
@@ -355,16 +406,17 @@ def score_reference(stream, adjacency: dict[int, list[int]], config: str, frames
 
 def verdict(minutes: int, faults: list[Fault], nodes: dict[int, dict[int, dict]],
             reference: dict[int, dict[int, dict]] | None, samples: list[dict], unplanned: int,
-            minute_s: float = 60.0) -> dict:
+            minute_s: float = 60.0, events: list[dict] = ()) -> dict:
     """Per minute: survivors' mean ground MOTA / IDF1 against the reference, exempt minutes;
     overall: pass when no unplanned exit, every process's RSS after its first minute within 10 %
     of its value then (a restarted process is a new one: its own first minute is its warm-up),
-    and every non-exempt minute's MOTA ratio >= ``RATIO``."""
+    every non-exempt minute's MOTA ratio >= ``RATIO``, and at every full disk every node said
+    ``degraded`` within ``DEGRADED_WITHIN_S`` (``events``)."""
     exempt: set[int] = set()
     hit: dict[int, set[int]] = {}
     for f in faults:
         exempt |= f.minutes(minute_s)
-        if f.kind in ("kill", "freeze"):
+        if stops_node(f.kind):
             for m in f.minutes(minute_s):
                 hit.setdefault(m, set()).add(f.node)
     per_minute = []
@@ -397,9 +449,13 @@ def verdict(minutes: int, faults: list[Fault], nodes: dict[int, dict[int, dict]]
         if len(rss) >= 2:  # against its first sample a minute or more into its life
             drift[n] = max(drift.get(n, 0.0), max(abs(r / rss[0] - 1.0) for r in rss))
     rss_ok = bool(drift) and all(d <= 0.10 for d in drift.values())
+    nodes_n = len(samples[0]["nodes"]) if samples else 0
+    disk = [e for e in events if e["kind"] == "disk_full" and "skipped" not in e]
+    disk_ok = all(len(e["degraded_after_s"]) == nodes_n
+                  and max(e["degraded_after_s"].values()) <= DEGRADED_WITHIN_S for e in disk)
     return {"minutes": per_minute, "rss_drift_after_warmup": drift, "rss_flat": rss_ok,
-            "unplanned_exits": unplanned,
-            "pass": bool(ok and rss_ok and unplanned == 0 and reference is not None)}
+            "unplanned_exits": unplanned, "degraded_in_time": disk_ok,
+            "pass": bool(ok and rss_ok and disk_ok and unplanned == 0 and reference is not None)}
 
 
 # -- the plot -----------------------------------------------------------------------------------
@@ -433,7 +489,7 @@ def plot(report: dict, path: Path) -> None:
     ax[3].set_xlabel("minutes (a minute's scores are plotted at its end)")
     ax[3].legend(fontsize=7)
     for e in report["events"]:
-        if e["kind"] in ("kill", "freeze"):
+        if stops_node(e["kind"]) or e["kind"] == "disk_full":
             for a in ax:
                 a.axvspan(e["t_s"] / ms, (e["t_s"] + e["duration_s"]) / ms, color="red",
                           alpha=0.15)
@@ -443,7 +499,8 @@ def plot(report: dict, path: Path) -> None:
                 a.axvspan(f["at_s"] / ms, (f["at_s"] + f["duration_s"]) / ms, color="orange",
                           alpha=0.15)
     fig.suptitle(f"soak: {report['nodes']} nodes, {report['topology']}, {report['minutes']} min, "
-                 f"chaos seed {report['chaos']} (red: kill / freeze, orange: loss / partition)",
+                 f"chaos seed {report['chaos']} (red: kill / freeze / full disk, orange: loss / "
+                 "partition)",
                  fontsize=9)
     fig.tight_layout()
     fig.savefig(path, dpi=110)
@@ -481,7 +538,8 @@ def soak(minutes: int, nodes: int, out: str | Path, *, chaos: int | None = None,
                           fps=fps, faults=fault_file)
     say(f"soak: {nodes} nodes ({topology}, sync, {fps:g} fps, scenario {scenario}) for "
         f"{minutes} min in {out}; {len(faults)} planned faults")
-    driver = Soak(cluster, faults, fps, say, minute_s)
+    disk = _own_disk(out / "nodes", say) if any(f.kind == "disk_full" for f in faults) else None
+    driver = Soak(cluster, faults, fps, say, minute_s, disk=disk)
     done = minutes * fpm
     ref_file = out / "reference.json"
     ref_file.unlink(missing_ok=True)
@@ -492,7 +550,11 @@ def soak(minutes: int, nodes: int, out: str | Path, *, chaos: int | None = None,
             target=_reference_job, args=(ref_file, scenario, seed, frames, nodes, adjacency,
                                          config, done, fpm), daemon=True)
         background.start()
-    driver.run(minutes * minute_s)
+    try:
+        driver.run(minutes * minute_s)
+    finally:
+        if disk is not None:
+            _leave_disk(disk)
     stream = open_scenario(scenario, seed=seed, frames=frames).first_cameras(nodes)
     say("scoring the nodes' tracks per minute")
     node_scores = score_nodes(out, stream, nodes, done, fpm)
@@ -513,11 +575,34 @@ def soak(minutes: int, nodes: int, out: str | Path, *, chaos: int | None = None,
         "reference": ({str(m): {str(n): v for n, v in row.items()}
                        for m, row in ref_scores.items()} if ref_scores else None),
         "verdict": verdict(minutes, faults, node_scores, ref_scores, driver.samples,
-                           len(driver.unplanned), minute_s),
+                           len(driver.unplanned), minute_s, driver.events),
     }
     (out / "soak.json").write_text(json.dumps(report, indent=1))
     plot(report, out / "soak.png")
     return report
+
+
+def _own_disk(where: Path, say: Callable[[str], None]) -> Path | None:
+    """Mount a tmpfs of ``DISK_MB`` at ``where`` (the nodes' output folder) for the disk_full
+    faults to fill; ``None`` when it cannot (not root)."""
+    r = subprocess.run(["mount", "-t", "tmpfs", "-o", f"size={DISK_MB}m", "tmpfs", str(where)],
+                       capture_output=True, text=True)
+    if r.returncode != 0:
+        say(f"no tmpfs for the disk_full faults ({r.stderr.strip() or 'mount failed'}): skipped")
+        return None
+    return where
+
+
+def _leave_disk(where: Path) -> None:
+    """Unmount the soak's tmpfs, its files kept in the folder beneath."""
+    keep = Path(tempfile.mkdtemp(prefix="soak-nodes-", dir=where.parent))
+    for f in where.iterdir():
+        if not f.name.startswith(".filler"):
+            shutil.move(str(f), keep / f.name)
+    subprocess.run(["umount", "-l", str(where)], capture_output=True)
+    for f in keep.iterdir():
+        shutil.move(str(f), where / f.name)
+    keep.rmdir()
 
 
 def _reference_job(path: Path, scenario: str, seed: int, frames: int, nodes: int,
@@ -555,8 +640,9 @@ def summary_lines(report: dict) -> list[str]:
         rej = sum(n["rejected"] or 0 for n in nodes.values())
         f = lambda x: "-" if x is None else f"{x:.3f}"  # noqa: E731
         ms = report.get("minute_s", 60.0)
-        events = [f"{e['kind']} {e.get('node', '')}".strip() for e in report["events"]
-                  if int(e["t_s"] // ms) == m["minute"] and e["kind"] in ("kill", "freeze")]
+        events = [f"{e['kind']} {'' if e.get('node') is None else e['node']}".strip()
+                  for e in report["events"] if int(e["t_s"] // ms) == m["minute"]
+                  and (stops_node(e["kind"]) or e["kind"] in ("disk_full", "flood"))]
         events += [f["kind"] for f in report["faults"]
                    if f["kind"] in ("loss", "partition") and int(f["at_s"] // ms) == m["minute"]]
         note = ", ".join(events) + (" (exempt)" if m["exempt"] else "")
