@@ -217,3 +217,23 @@ def test_a_nan_box_in_a_scenario_folder_is_exit_2_naming_the_line(tmp_path, caps
     assert err == [f"sim_cluster: error: {det}:3: det.txt field 'w' must be a finite number, "
                    "got nan"]
     assert not (tmp_path / "out").exists()
+
+
+GARBAGE = b"\xff\xfe\x00garbage\x80\x81"
+NOT_UTF8 = "not UTF-8 text: byte 0x{:02x} at offset {} (a binary file, or another encoding)"
+
+
+@pytest.mark.parametrize("name, open_file", [
+    ("det.txt", lambda p: open_det(p)),
+    ("gt.txt", lambda p: open_gt(p, 5)),
+    ("gt_ground.csv", lambda p: open_gt_ground(p, 5)),
+])
+def test_binary_bytes_in_a_det_or_truth_file_name_the_line_and_offset(tmp_path, name, open_file):
+    """Binary garbage in a det.txt, gt.txt or gt_ground.csv was a UnicodeDecodeError traceback
+    (from the text file's decoder, whose offset is within its 8 KiB block, not the file)."""
+    f = tmp_path / name
+    good = f"{GOOD_ROW}\n".encode() * 1000  # past the decoder's first block
+    f.write_bytes(good + GARBAGE + b"\n" + good)
+    with pytest.raises(DetFilesError) as e:
+        open_file(f)
+    assert str(e.value) == f"{f}:1001: " + NOT_UTF8.format(0xff, len(good))

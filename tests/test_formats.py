@@ -147,3 +147,18 @@ def test_homographies_cameras_of_a_sequence_and_errors(tmp_path):
         sequence_cameras({}, "campus", path, fps=25.0)
     with pytest.raises(HomographiesError, match=r"terrace.H\[0\]"):
         sequence_cameras({"H": [[[1, 0], [0, 1]]]}, "terrace", path, fps=25.0)
+
+
+def test_binary_calibration_or_homographies_json_names_the_line_and_offset(tmp_path):
+    """A calibration.json or homographies.json of binary bytes was a UnicodeDecodeError
+    traceback; it is the reader's error naming the file, the line and the byte offset."""
+    bad = b'{"cameras": [\n\xff\xfe\x00garbage\x80\x81]}'
+    problem = "2: not UTF-8 text: byte 0xff at offset 14 (a binary file, or another encoding)"
+    (tmp_path / CALIBRATION).write_bytes(bad)
+    with pytest.raises(DetFilesError) as e:
+        read_calibration(tmp_path)
+    assert str(e.value) == f"{tmp_path / CALIBRATION}:{problem}"
+    (tmp_path / "homographies.json").write_bytes(bad)
+    with pytest.raises(HomographiesError) as e:
+        read_homographies(tmp_path / "homographies.json")
+    assert str(e.value) == f"{tmp_path / 'homographies.json'}:{problem}"

@@ -35,6 +35,7 @@ from typing import Any
 import numpy as np
 
 from edge_node.formats.detfile import DetFilesError, last_frame
+from edge_node.formats.text import read_text
 from edge_node.geometry import Camera, GeometryError
 
 CALIBRATION = "calibration.json"
@@ -107,7 +108,7 @@ def read_calibration(path: str | os.PathLike[str]) -> Calibration:
     if not cal.is_file():
         raise DetFilesError(f"calibration file not found: {cal}")
     try:
-        doc = json.loads(cal.read_text(encoding="utf-8"))
+        doc = json.loads(read_text(cal, lambda e: DetFilesError(str(e))))
     except json.JSONDecodeError as exc:
         raise DetFilesError(f"{cal}: not valid JSON ({exc})") from exc
     except OSError as exc:

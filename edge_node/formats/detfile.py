@@ -25,7 +25,8 @@ Every row's first six fields must be finite numbers, ``frame`` a whole number >=
 whole number; a ``det.txt`` box must have ``w > 0`` and ``h > 0``; a descriptor row is all finite
 or all NaN. Anything else is a :class:`DetFilesError` naming the file, the line and the field
 (a NaN box would otherwise reach the tracker's assignment and stop the node). Fields after the
-sixth may be NaN (a NaN confidence reads as 1.0).
+sixth may be NaN (a NaN confidence reads as 1.0). Bytes that are not UTF-8 (a binary file) are
+a :class:`DetFilesError` too, naming the line and the byte offset.
 """
 from __future__ import annotations
 
@@ -37,6 +38,7 @@ from pathlib import Path
 import numpy as np
 
 from edge_node.core.types import Detection
+from edge_node.formats.text import text_lines
 
 BOX_FMT = "%.4f"  # 1e-4 px: round trips well inside 1e-3 px
 
@@ -103,23 +105,22 @@ def _parsed_blocks(path: Path, columns: tuple[str, ...], what: str
     (each block NaN-padded to its widest row)."""
     rows: list[list[float]] = []
     lines: list[int] = []
-    with path.open(encoding="utf-8") as fh:
-        for i, line in enumerate(fh, start=1):
-            s = line.strip()
-            if not s or s.startswith("#"):
-                continue
-            f = [x.strip() for x in s.split(",")]
-            if len(f) < len(columns):
-                raise DetFilesError(f"{path}:{i}: {what} row needs at least {len(columns)} "
-                                    f"fields ({','.join(columns)}), got {len(f)}")
-            try:
-                rows.append([float(x) for x in f])
-            except ValueError as exc:
-                raise DetFilesError(f"{path}:{i}: non-numeric field in {what} row: {s!r}") from exc
-            lines.append(i)
-            if len(rows) == PARSE_BLOCK:
-                yield _padded(rows), np.array(lines, dtype=np.int64)
-                rows, lines = [], []
+    for i, line in text_lines(path, lambda e: DetFilesError(str(e))):
+        s = line.strip()
+        if not s or s.startswith("#"):
+            continue
+        f = [x.strip() for x in s.split(",")]
+        if len(f) < len(columns):
+            raise DetFilesError(f"{path}:{i}: {what} row needs at least {len(columns)} "
+                                f"fields ({','.join(columns)}), got {len(f)}")
+        try:
+            rows.append([float(x) for x in f])
+        except ValueError as exc:
+            raise DetFilesError(f"{path}:{i}: non-numeric field in {what} row: {s!r}") from exc
+        lines.append(i)
+        if len(rows) == PARSE_BLOCK:
+            yield _padded(rows), np.array(lines, dtype=np.int64)
+            rows, lines = [], []
     if rows:
         yield _padded(rows), np.array(lines, dtype=np.int64)
 
