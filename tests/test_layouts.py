@@ -302,3 +302,17 @@ def test_binary_bytes_in_a_layout_file_name_it_with_line_and_offset(tmp_path, ca
         f"sim_cluster: error: {d / name}:2: not UTF-8 text: byte 0xff at offset 17 (a binary "
         "file, or another encoding)"]
     assert not (tmp_path / "o").exists()
+
+
+@pytest.mark.parametrize("name", ["cam1.txt", "gt_ground.csv"])
+def test_a_frame_number_of_1e12_is_refused_naming_the_line_and_field(tmp_path, capsys, name):
+    """import-detections took a det file's (or the ground truth's) frame 1e12 as the length of
+    the sequence: it wrote nothing for minutes while its memory grew past 13 GB."""
+    d = _tiny(tmp_path / "tiny")
+    (d / name).write_text("1,-1,10,10,20,50\n1e12,-1,10,10,20,50\n")
+    assert cli.main(["import-detections", str(d), "--image-size", "100x100",
+                     "--out", str(tmp_path / "o")]) == 2
+    assert capsys.readouterr().err.splitlines() == [  # found by the frame count's first read
+        f"sim_cluster: error: {d / name}:2: {name} field 'frame' must be <= 1000000000 "
+        "(MAX_FRAME: the source states no number of frames), got 1000000000000"]
+    assert not (tmp_path / "o").exists()

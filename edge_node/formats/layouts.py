@@ -404,10 +404,10 @@ def read_layout(directory: str | os.PathLike[str], options: ImportOptions | None
     elif not Path(gpath).is_file():
         raise LayoutError(f"ground truth file not found: {gpath}")
     cal = Calibration(path=d / CALIBRATION, cameras=cameras, files=files, fps=float(fps),
-                      units_per_metre=float(upm), frames=frames,
+                      units_per_metre=float(upm), frames=None,  # no file states a length
                       gt_ground=Path(gpath) if gpath is not None else d / GROUND_FILES[0],
                       name=d.name)
-    n = cal.frame_count()
+    n = cal.frame_count() if frames is None else frames
     if n <= 0:
         raise LayoutError(f"{d}: no frames in the det files")
     wh = (PERSON_WH_M[0] * upm, PERSON_WH_M[1] * upm)
