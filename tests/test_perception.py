@@ -300,6 +300,23 @@ def test_calibrate_recovers_a_known_homography(tmp_path):
     assert bad.returncode == 2 and "at least 4" in bad.stderr
 
 
+
+def test_calibrate_with_a_binary_points_file_is_one_line_and_exit_2(tmp_path):
+    """A point pairs file of binary bytes was a UnicodeDecodeError traceback (exit 1)."""
+    from edge_node.perception.calibrate import read_pairs
+
+    f = tmp_path / "pairs.csv"
+    f.write_bytes(b"u,v,x,y\n\xff\xfe\x00garbage\x80\x81\n")
+    message = (f"{f}:2: not UTF-8 text: byte 0xff at offset 8 (a binary file, or another "
+               "encoding)")
+    with pytest.raises(PerceptionError) as e:
+        read_pairs(f)
+    assert str(e.value) == message
+    out = subprocess.run([sys.executable, "-m", "edge_node.cli", "calibrate", "--points", str(f)],
+                         capture_output=True, text=True)
+    assert (out.returncode, out.stderr) == (2, f"edge_node: error: {message}\n")
+
+
 # -- frame sources and configs ---------------------------------------------------------------------------
 def test_frame_sources(tmp_path):
     from edge_node.perception.frames import EpflLayout, ImageFolder, VideoFile, open_frames
