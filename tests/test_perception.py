@@ -317,6 +317,19 @@ def test_calibrate_with_a_binary_points_file_is_one_line_and_exit_2(tmp_path):
     assert (out.returncode, out.stderr) == (2, f"edge_node: error: {message}\n")
 
 
+
+@pytest.mark.parametrize("bad", [b"[]", b"\xff\xfe\x00garbage\x80\x81"])
+def test_a_render_json_that_cannot_be_read_renders_again(tmp_path, bad):
+    """``up --source video`` reuses a folder's videos when its render.json says they are this
+    scenario's; a render.json of other JSON ended it in an AttributeError traceback."""
+    from sim_cluster.scenarios.synthetic.render import ensure_rendered
+
+    (tmp_path / "render.json").write_bytes(bad)
+    done = ensure_rendered("lab-sim", tmp_path, 0, 2, cameras=[0])
+    assert done["frames"] == 2 and Path(done["cameras"]["0"]["frames"]).is_file()
+    assert ensure_rendered("lab-sim", tmp_path, 0, 2, cameras=[0]) == done  # reused now
+
+
 # -- frame sources and configs ---------------------------------------------------------------------------
 def test_frame_sources(tmp_path):
     from edge_node.perception.frames import EpflLayout, ImageFolder, VideoFile, open_frames
