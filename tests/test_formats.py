@@ -167,3 +167,23 @@ def test_binary_calibration_or_homographies_json_names_the_line_and_offset(tmp_p
     with pytest.raises(HomographiesError) as e:
         read_homographies(tmp_path / "homographies.json")
     assert str(e.value) == f"{tmp_path / 'homographies.json'}:{problem}"
+
+
+@pytest.mark.parametrize("chunk", [1, 2, 3, 7, 1 << 16])
+def test_the_first_bad_byte_is_found_across_read_blocks(tmp_path, monkeypatch, chunk):
+    """The offset and line of the first byte that is not UTF-8, whichever block of the file it
+    falls in and whether a character's bytes straddle two blocks (or the file ends inside one)."""
+    from edge_node.formats import text
+
+    monkeypatch.setattr(text, "CHUNK", chunk)
+    f = tmp_path / "t.txt"
+    good = "é,€\n𝄞 x\r\n".encode()  # 2-, 3- and 4-byte characters, CRLF
+    for tail, at in ((b"\xff", 0), (b"\xe2\x82", 0), (b"\xc3(", 0), (b"ab\xf0\x9d\x84", 2)):
+        f.write_bytes(good * 3 + tail)
+        for read in (text.read_text, lambda p, err: list(text.text_lines(p, err))):
+            with pytest.raises(text.NotText) as e:
+                read(f, lambda e: e)
+            offset = len(good) * 3 + at
+            assert (e.value.offset, e.value.line, e.value.byte) == (offset, 7, tail[at])
+    f.write_bytes(good)
+    assert text.read_text(f, lambda e: e) == "é,€\n𝄞 x\n"
