@@ -2,7 +2,7 @@
 numeric option names itself when it is wrong, and ``up`` checks its whole input before it
 touches the previous run's files in ``--out``. Every file ``sim_cluster`` and ``edge_node`` read
 is one line on stderr and exit status 2 when its bytes are not UTF-8 (the command lines run as
-processes, which stop at the file). No node process is started here."""
+processes, which stop at the file: integration tests). No node process is started here."""
 from __future__ import annotations
 
 import json
@@ -255,6 +255,7 @@ CASES = ["det.txt", "gt_ground.csv", "calibration.json", "frame 1e12", "scenario
          "det-file source (check)", "det-file source (run)", "state file", "point pairs"]
 
 
+@pytest.mark.integration  # runs each command line as a process
 @pytest.mark.parametrize("case", CASES)
 def test_binary_bytes_in_any_file_a_command_reads_are_one_line_and_exit_2(cases, case):
     """The goal of "No zombie nodes", Input: binary garbage in each file reader of both command

@@ -301,6 +301,7 @@ def test_calibrate_recovers_a_known_homography(tmp_path):
 
 
 
+@pytest.mark.integration  # runs edge_node calibrate as a process
 def test_calibrate_with_a_binary_points_file_is_one_line_and_exit_2(tmp_path):
     """A point pairs file of binary bytes was a UnicodeDecodeError traceback (exit 1)."""
     from edge_node.perception.calibrate import read_pairs
