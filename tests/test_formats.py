@@ -124,7 +124,7 @@ def test_calibration_round_trip_and_frame_count_from_the_files(tmp_path):
        '"G": [[1, 0, 0], [0, 1, 0], [0, 0, 1]]}]}' % v,
        f"frames must be a whole number in 1..1000000000 (MAX_FRAME), got {got}")
       for v, got in (("1e12", "1000000000000.0"), ("0", "0"), ("-3", "-3"), ("2.5", "2.5"),
-                     ('"ten"', "'ten'"), ("true", "True"))],
+                     ('"ten"', "'ten'"), ("true", "True"), ("1e999", "inf"), ("NaN", "nan"))],
 ])
 def test_calibration_errors_name_the_file_and_field(tmp_path, doc, message):
     (tmp_path / CALIBRATION).write_text(doc)

@@ -138,7 +138,7 @@ def read_calibration(path: str | os.PathLike[str]) -> Calibration:
         raise DetFilesError(f"{cal}: units_per_metre must be positive, got {upm}")
     frames = doc.get("frames")
     if frames is not None and (isinstance(frames, bool) or not isinstance(frames, (int, float))
-                               or frames != int(frames) or not 1 <= frames <= MAX_FRAME):
+                               or not 1 <= frames <= MAX_FRAME or frames != int(frames)):
         raise DetFilesError(f"{cal}: frames must be a whole number in 1..{MAX_FRAME} (MAX_FRAME), "
                             f"got {frames!r}")
     area = doc.get("area")
