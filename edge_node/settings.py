@@ -28,6 +28,7 @@ from typing import Any, TypeVar
 import numpy as np
 
 from edge_node.core.params import ConfigError
+from edge_node.formats.text import read_text
 
 T = TypeVar("T")
 
@@ -50,11 +51,12 @@ def read_toml(path: str | Path, error: type[SettingsError] = SettingsError, *,
               invalid: str = "not valid TOML") -> dict:
     """Parse a TOML file; a missing, unreadable or malformed file raises ``error`` naming it
     (as ``file``, default the file's name). ``what`` names the kind of file when it is missing,
-    ``invalid`` starts the message for bad TOML."""
+    ``invalid`` starts the message for bad TOML; bytes that are not UTF-8 name the line and the
+    byte offset (``cam0.toml: line 1: not UTF-8 text: byte 0xff at offset 0 ...``)."""
     path = Path(path)
     file = path.name if file is None else file
     try:
-        text = path.read_text(encoding="utf-8")
+        text = read_text(path, lambda e: error(file, None, f"line {e.line}: {e.problem}"))
     except FileNotFoundError:
         raise error(file, None, f"{what} not found: {path}") from None
     except OSError as e:

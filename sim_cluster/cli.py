@@ -20,8 +20,10 @@ import sys
 
 from edge_node.core.config import ABLATIONS, CONFIG_NAMES, ConfigError
 from edge_node.formats.detfile import DetFilesError
+from edge_node.formats.homographies import HomographiesError
 from edge_node.formats.layouts import LAYOUTS
 from edge_node.geometry import GeometryError
+from edge_node.perception import PerceptionError
 from edge_node.runtime.sources import SourceError
 from edge_node.settings import SettingsError
 from protocol.keys import is_valid_network
@@ -41,9 +43,11 @@ from sim_cluster.scenarios.synthetic.world import WorldError
 from sim_cluster.viz import VizError
 
 #: Errors that mean "your input is wrong": one line on stderr, exit status 2 (not a traceback).
+#: Every file reader's error is one (edge_node/formats/text.py: bytes that are not UTF-8 too).
 INPUT_ERRORS = (SettingsError, ConfigError, ClusterError, VizError, AblationError, GeometryError,
                 AppearanceError, DetectorParamsError, DetFilesError, EpflFormatError,
-                SourceError, TopologyError, WorldError, RenderError, OSError)
+                HomographiesError, PerceptionError, SourceError, TopologyError, WorldError,
+                RenderError, OSError)
 
 
 class _Parser(argparse.ArgumentParser):

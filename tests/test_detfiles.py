@@ -217,3 +217,63 @@ def test_a_nan_box_in_a_scenario_folder_is_exit_2_naming_the_line(tmp_path, caps
     assert err == [f"sim_cluster: error: {det}:3: det.txt field 'w' must be a finite number, "
                    "got nan"]
     assert not (tmp_path / "out").exists()
+
+
+GARBAGE = b"\xff\xfe\x00garbage\x80\x81"
+NOT_UTF8 = "not UTF-8 text: byte 0x{:02x} at offset {} (a binary file, or another encoding)"
+
+
+@pytest.mark.parametrize("name, open_file", [
+    ("det.txt", lambda p: open_det(p)),
+    ("gt.txt", lambda p: open_gt(p, 5)),
+    ("gt_ground.csv", lambda p: open_gt_ground(p, 5)),
+])
+def test_binary_bytes_in_a_det_or_truth_file_name_the_line_and_offset(tmp_path, name, open_file):
+    """Binary garbage in a det.txt, gt.txt or gt_ground.csv was a UnicodeDecodeError traceback
+    (from the text file's decoder, whose offset is within its 8 KiB block, not the file)."""
+    f = tmp_path / name
+    good = f"{GOOD_ROW}\n".encode() * 1000  # past the decoder's first block
+    f.write_bytes(good + GARBAGE + b"\n" + good)
+    with pytest.raises(DetFilesError) as e:
+        open_file(f)
+    assert str(e.value) == f"{f}:1001: " + NOT_UTF8.format(0xff, len(good))
+
+
+def test_a_frame_past_max_frame_or_the_stated_frames_is_refused_naming_line_and_field(tmp_path):
+    """A det.txt frame number of 1e12 was accepted without a word (and made the run a trillion
+    frames long); a row after the frames calibration.json states was silently never read."""
+    from edge_node.formats.detfile import MAX_FRAME, FrameBound
+
+    det = tmp_path / "det.txt"
+    det.write_text(f"{GOOD_ROW}\n1000000000000,-1,10,20,30,60,0.9,-1,-1,-1\n")
+    with pytest.raises(DetFilesError) as e:
+        open_det(det)
+    assert str(e.value) == (f"{det}:2: det.txt field 'frame' must be <= {MAX_FRAME} (MAX_FRAME: "
+                            "the source states no number of frames), got 1000000000000")
+    det.write_text(f"{GOOD_ROW}\n{MAX_FRAME},-1,10,20,30,60,0.9,-1,-1,-1\n")  # the last allowed
+    assert open_det(det, frames=2).frames == 2
+    cal = tmp_path / "calibration.json"
+    det.write_text(f"{GOOD_ROW}\n6,-1,10,20,30,60,0.9,-1,-1,-1\n")
+    for call, what in ((lambda: open_det(det, 5, bound=FrameBound(5, cal)), "det.txt"),
+                       (lambda: open_gt(det, 5, bound=FrameBound(5, cal)), "gt.txt"),
+                       (lambda: open_gt_ground(det, 5, bound=FrameBound(5, cal)), "gt_ground.csv")):
+        with pytest.raises(DetFilesError) as e:
+            call()
+        assert str(e.value) == (f"{det}:2: {what} field 'frame' must be <= 5 (the number of "
+                                f"frames {cal} states), got 6")
+
+
+def test_a_det_files_folder_with_a_row_past_its_frames_is_exit_2(tmp_path, capsys):
+    from sim_cluster import cli
+
+    export_detections(load_scenario("lab-sim", frames=5), tmp_path / "det")
+    (tmp_path / "det" / "c2" / "det.npy").unlink()  # rows and descriptors must match
+    det = tmp_path / "det" / "c2" / "det.txt"
+    det.write_text(det.read_text() + "6,-1,10,20,30,60,0.9,-1,-1,-1\n")
+    assert cli.main(["run", "--scenario", str(tmp_path / "det"), "--quiet",
+                     "--out", str(tmp_path / "out")]) == 2
+    lines = det.read_text().count("\n")
+    assert capsys.readouterr().err.splitlines() == [
+        f"sim_cluster: error: {det}:{lines}: det.txt field 'frame' must be <= 5 (the number of "
+        f"frames {tmp_path / 'det' / 'calibration.json'} states), got 6"]
+    assert not (tmp_path / "out").exists()

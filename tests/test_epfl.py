@@ -49,6 +49,42 @@ def test_format_errors_name_file_and_line(tmp_path):
         read_annotations(tmp_path / "nope.csv")
 
 
+
+def test_binary_bytes_in_an_annotation_file_name_the_line_and_offset(tmp_path):
+    """Binary bytes in an EPFL annotation file were a UnicodeDecodeError traceback."""
+    p = tmp_path / "c0.gt.csv"
+    p.write_bytes(b"1,0,1,2,3,4,0,0,0,0\n\xff\xfe\x00garbage\x80\x81\n")
+    message = (f"{p}:2: not UTF-8 text: byte 0xff at offset 20 (a binary file, or another "
+               "encoding)")
+    for read in (read_mot_csv, read_vatic, read_annotations):
+        with pytest.raises(EpflFormatError) as e:
+            read(p)
+        assert str(e.value) == message
+    p.write_bytes(b"\xff\xfe\x00garbage\x80\x81\n")  # auto-detection reads the first row
+    with pytest.raises(EpflFormatError, match=r"c0.gt.csv:1: not UTF-8 text: byte 0xff at "
+                                              r"offset 0"):
+        read_annotations(p)
+
+
+@pytest.mark.parametrize("row, got", [
+    ("1e12,0,1,2,3,4,0,0,0,0", "'1e12'"),  # was the length of the sequence
+    ("-1,0,1,2,3,4,0,0,0,0", "'-1'"),  # was "negative frame index", no line
+    ("2.5,0,1,2,3,4,0,0,0,0", "'2.5'"),  # was frame 2
+    ("nan,0,1,2,3,4,0,0,0,0", "'nan'"),
+])
+def test_a_bad_frame_number_names_the_file_line_and_field(tmp_path, row, got):
+    p = tmp_path / "c0.gt.csv"
+    p.write_text(f"1,0,1,2,3,4,0,0,0,0\n{row}\n")
+    with pytest.raises(EpflFormatError) as e:
+        read_mot_csv(p)
+    assert str(e.value) == (f"{p}:2: field 'frame' must be a whole number in 0..999999999 "
+                            f"(0-based, MAX_FRAME), got {got}")
+    v = tmp_path / "c0.txt"
+    v.write_text(f'0 10 20 40 60 7 0 0 1 "PERSON"\n0 10 20 40 60 {row.split(",")[0]} 0 0 1 "P"\n')
+    with pytest.raises(EpflFormatError, match=r"c0.txt:2: field 'frame' must be a whole number"):
+        read_vatic(v)
+
+
 # --- data root -------------------------------------------------------------------------------------
 def test_data_root_resolution_order(tmp_path, monkeypatch):
     a, b = tmp_path / "a", tmp_path / "b"

@@ -120,6 +120,11 @@ def test_calibration_round_trip_and_frame_count_from_the_files(tmp_path):
     ('{"cameras": [{"G": [[1, 0, 0], [0, 1, 0], [0, 0, 1]]}]}', "cameras[0].image_size"),
     ('{"units_per_metre": 0, "cameras": [{"image_size": [4, 4], '
      '"G": [[1, 0, 0], [0, 1, 0], [0, 0, 1]]}]}', "units_per_metre must be positive"),
+    *[('{"frames": %s, "cameras": [{"image_size": [4, 4], '
+       '"G": [[1, 0, 0], [0, 1, 0], [0, 0, 1]]}]}' % v,
+       f"frames must be a whole number in 1..1000000000 (MAX_FRAME), got {got}")
+      for v, got in (("1e12", "1000000000000.0"), ("0", "0"), ("-3", "-3"), ("2.5", "2.5"),
+                     ('"ten"', "'ten'"), ("true", "True"), ("1e999", "inf"), ("NaN", "nan"))],
 ])
 def test_calibration_errors_name_the_file_and_field(tmp_path, doc, message):
     (tmp_path / CALIBRATION).write_text(doc)
@@ -147,3 +152,38 @@ def test_homographies_cameras_of_a_sequence_and_errors(tmp_path):
         sequence_cameras({}, "campus", path, fps=25.0)
     with pytest.raises(HomographiesError, match=r"terrace.H\[0\]"):
         sequence_cameras({"H": [[[1, 0], [0, 1]]]}, "terrace", path, fps=25.0)
+
+
+def test_binary_calibration_or_homographies_json_names_the_line_and_offset(tmp_path):
+    """A calibration.json or homographies.json of binary bytes was a UnicodeDecodeError
+    traceback; it is the reader's error naming the file, the line and the byte offset."""
+    bad = b'{"cameras": [\n\xff\xfe\x00garbage\x80\x81]}'
+    problem = "2: not UTF-8 text: byte 0xff at offset 14 (a binary file, or another encoding)"
+    (tmp_path / CALIBRATION).write_bytes(bad)
+    with pytest.raises(DetFilesError) as e:
+        read_calibration(tmp_path)
+    assert str(e.value) == f"{tmp_path / CALIBRATION}:{problem}"
+    (tmp_path / "homographies.json").write_bytes(bad)
+    with pytest.raises(HomographiesError) as e:
+        read_homographies(tmp_path / "homographies.json")
+    assert str(e.value) == f"{tmp_path / 'homographies.json'}:{problem}"
+
+
+@pytest.mark.parametrize("chunk", [1, 2, 3, 7, 1 << 16])
+def test_the_first_bad_byte_is_found_across_read_blocks(tmp_path, monkeypatch, chunk):
+    """The offset and line of the first byte that is not UTF-8, whichever block of the file it
+    falls in and whether a character's bytes straddle two blocks (or the file ends inside one)."""
+    from edge_node.formats import text
+
+    monkeypatch.setattr(text, "CHUNK", chunk)
+    f = tmp_path / "t.txt"
+    good = "é,€\n𝄞 x\r\n".encode()  # 2-, 3- and 4-byte characters, CRLF
+    for tail, at in ((b"\xff", 0), (b"\xe2\x82", 0), (b"\xc3(", 0), (b"ab\xf0\x9d\x84", 2)):
+        f.write_bytes(good * 3 + tail)
+        for read in (text.read_text, lambda p, err: list(text.text_lines(p, err))):
+            with pytest.raises(text.NotText) as e:
+                read(f, lambda e: e)
+            offset = len(good) * 3 + at
+            assert (e.value.offset, e.value.line, e.value.byte) == (offset, 7, tail[at])
+    f.write_bytes(good)
+    assert text.read_text(f, lambda e: e) == "é,€\n𝄞 x\n"

@@ -277,3 +277,42 @@ def test_det_files_loader_reads_the_imported_layout_like_run(exported, tmp_path)
     data = load_det_files(d, options=ImportOptions(image_size=(360, 288)))
     assert data.num_cameras == 4 and data.frames == FRAMES and not data.has_descriptors()
     assert data.notes and data.notes[0].startswith("flat: 4 camera(s)")
+
+
+@pytest.mark.parametrize("name", ["cam1.txt", "homographies.json", "gt_ground.csv",
+                                  "cam0/seqinfo.ini"])
+def test_binary_bytes_in_a_layout_file_name_it_with_line_and_offset(tmp_path, capsys, name):
+    """Binary bytes in another tool's det file, homographies JSON or ground truth were a
+    UnicodeDecodeError traceback (seqinfo.ini: Python's decoder message); each is one line
+    naming the file, the line and the byte offset, exit status 2."""
+    d = tmp_path / "tiny"
+    if name.startswith("cam0/"):  # MOTChallenge sequence folders, one per camera
+        for c in range(2):
+            (d / f"cam{c}" / "det").mkdir(parents=True)
+            (d / f"cam{c}" / "det" / "det.txt").write_text("1,-1,10,10,20,50,0.9,-1,-1,-1\n")
+        np.save(d / "homographies.npy", np.stack([np.eye(3)] * 2))
+    else:
+        _tiny(d)
+    if name.endswith(".json"):
+        (d / "homographies.npy").unlink()
+    (d / name).write_bytes(b"1,-1,10,10,20,50\n\xff\xfe\x00garbage\x80\x81\n")
+    assert cli.main(["import-detections", str(d), "--image-size", "100x100",
+                     "--out", str(tmp_path / "o")]) == 2
+    assert capsys.readouterr().err.splitlines() == [
+        f"sim_cluster: error: {d / name}:2: not UTF-8 text: byte 0xff at offset 17 (a binary "
+        "file, or another encoding)"]
+    assert not (tmp_path / "o").exists()
+
+
+@pytest.mark.parametrize("name", ["cam1.txt", "gt_ground.csv"])
+def test_a_frame_number_of_1e12_is_refused_naming_the_line_and_field(tmp_path, capsys, name):
+    """import-detections took a det file's (or the ground truth's) frame 1e12 as the length of
+    the sequence: it wrote nothing for minutes while its memory grew past 13 GB."""
+    d = _tiny(tmp_path / "tiny")
+    (d / name).write_text("1,-1,10,10,20,50\n1e12,-1,10,10,20,50\n")
+    assert cli.main(["import-detections", str(d), "--image-size", "100x100",
+                     "--out", str(tmp_path / "o")]) == 2
+    assert capsys.readouterr().err.splitlines() == [  # found by the frame count's first read
+        f"sim_cluster: error: {d / name}:2: {name} field 'frame' must be <= 1000000000 "
+        "(MAX_FRAME: the source states no number of frames), got 1000000000000"]
+    assert not (tmp_path / "o").exists()

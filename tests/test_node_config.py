@@ -172,3 +172,27 @@ def test_async_heartbeat_as_long_as_kappa_is_refused_by_check_and_run(tmp_path, 
     assert "runtime.heartbeat_frames must be at most tracker.hold_frames (5)" in capsys.readouterr().err
     p.write_text(p.read_text().replace("kappa = 15", "kappa = 15\nhold_frames = 14"))
     assert main(["check", "--config", str(p)]) == 0
+
+
+@pytest.mark.parametrize("state, why", [
+    (b"\xff\xfe\x00garbage\x80\x81", "STATE:1: not UTF-8 text: byte 0xff at offset 0 (a binary "
+                                     "file, or another encoding)"),
+    (b'{"next_counter": -3}', "next_counter must be a whole number in 0..2**63-1, got -3"),
+    (b'{"next_counter": 2.5}', "next_counter must be a whole number in 0..2**63-1, got 2.5"),
+])
+def test_a_corrupt_state_file_is_one_line_naming_it(tmp_path, export_dir, capsys, state, why):
+    """A restarted node resumes its id counter from state_node<id>.json: one of binary bytes
+    was refused with Python's decoder message; a negative counter was taken (the message
+    encoder refuses the id of the node's first new tracker) and 2.5 read as 2."""
+    from edge_node.cli import main
+
+    out = tmp_path / "out"
+    out.mkdir()
+    (out / "state_node0.json").write_bytes(state)
+    p = tmp_path / "cam0.toml"
+    p.write_text(BASE.replace("EXPORT", str(export_dir)) + f'[output]\ndir = "{out}"\n')
+    assert main(["check", "--config", str(p)]) == 2
+    why = why.replace("STATE", str(out / "state_node0.json"))
+    assert capsys.readouterr().err.splitlines() == [
+        f"edge_node: error: cam0.toml: output.dir has an unreadable state_node0.json ({why}); "
+        "remove it to start the id counter at 0"]

@@ -300,6 +300,37 @@ def test_calibrate_recovers_a_known_homography(tmp_path):
     assert bad.returncode == 2 and "at least 4" in bad.stderr
 
 
+
+@pytest.mark.integration  # runs edge_node calibrate as a process
+def test_calibrate_with_a_binary_points_file_is_one_line_and_exit_2(tmp_path):
+    """A point pairs file of binary bytes was a UnicodeDecodeError traceback (exit 1)."""
+    from edge_node.perception.calibrate import read_pairs
+
+    f = tmp_path / "pairs.csv"
+    f.write_bytes(b"u,v,x,y\n\xff\xfe\x00garbage\x80\x81\n")
+    message = (f"{f}:2: not UTF-8 text: byte 0xff at offset 8 (a binary file, or another "
+               "encoding)")
+    with pytest.raises(PerceptionError) as e:
+        read_pairs(f)
+    assert str(e.value) == message
+    out = subprocess.run([sys.executable, "-m", "edge_node.cli", "calibrate", "--points", str(f)],
+                         capture_output=True, text=True)
+    assert (out.returncode, out.stderr) == (2, f"edge_node: error: {message}\n")
+
+
+
+@pytest.mark.parametrize("bad", [b"[]", b"\xff\xfe\x00garbage\x80\x81"])
+def test_a_render_json_that_cannot_be_read_renders_again(tmp_path, bad):
+    """``up --source video`` reuses a folder's videos when its render.json says they are this
+    scenario's; a render.json of other JSON ended it in an AttributeError traceback."""
+    from sim_cluster.scenarios.synthetic.render import ensure_rendered
+
+    (tmp_path / "render.json").write_bytes(bad)
+    done = ensure_rendered("lab-sim", tmp_path, 0, 2, cameras=[0])
+    assert done["frames"] == 2 and Path(done["cameras"]["0"]["frames"]).is_file()
+    assert ensure_rendered("lab-sim", tmp_path, 0, 2, cameras=[0]) == done  # reused now
+
+
 # -- frame sources and configs ---------------------------------------------------------------------------
 def test_frame_sources(tmp_path):
     from edge_node.perception.frames import EpflLayout, ImageFolder, VideoFile, open_frames

@@ -97,3 +97,25 @@ def test_tracker_file_over_an_ablation(tmp_path):
     f.write_text("kapa = 9\n")
     with pytest.raises(SettingsError, match=f"^{f}: tracker: unknown parameter"):
         tracker_config("dkf", f)
+
+
+GARBAGE = b"\xff\xfe\x00garbage\x80\x81"
+
+
+def test_binary_bytes_in_any_settings_file_are_its_error_naming_line_and_offset(tmp_path):
+    """Bytes that are not UTF-8 in a camera config, fault plan, scenario or tracker file used
+    to end in a UnicodeDecodeError traceback; they are the file's own error now, naming the
+    line and the byte offset of the first bad byte."""
+    from edge_node.runtime.config import load_node_config
+    from sim_cluster.scenarios.loader import load_scenario
+
+    f = tmp_path / "x.toml"
+    f.write_bytes(b"# fine\nnode = 0\n" + GARBAGE)
+    problem = "line 3: not UTF-8 text: byte 0xff at offset 16 (a binary file, or another encoding)"
+    for call, cls, name in ((lambda: load_node_config(f), NodeConfigError, "x.toml"),
+                            (lambda: FaultPlan.load(f), FaultPlanError, str(f)),
+                            (lambda: load_scenario(f), ScenarioError, "x.toml"),
+                            (lambda: tracker_config("dkf", f), SettingsError, str(f))):
+        with pytest.raises(cls) as e:
+            call()
+        assert str(e.value) == f"{name}: {problem}"

@@ -41,3 +41,14 @@ def test_a_self_loop_on_the_command_line_is_exit_2(tmp_path, capsys):
     assert capsys.readouterr().err.splitlines() == [
         f"sim_cluster: error: {p}:2: edge 0-0 joins node 0 to itself"]
     assert not (tmp_path / "out").exists()
+
+
+def test_binary_bytes_in_an_edge_list_name_the_line_and_offset(tmp_path):
+    """An edge list of binary bytes was a UnicodeDecodeError traceback (and was decoded in the
+    locale's encoding, not UTF-8)."""
+    p = tmp_path / "edges.txt"
+    p.write_bytes(b"0 1\n\xff\xfe\x00garbage\x80\x81\n")
+    with pytest.raises(TopologyError) as e:
+        build(str(p), 4)
+    assert str(e.value) == (f"{p}:2: not UTF-8 text: byte 0xff at offset 4 (a binary file, or "
+                            "another encoding)")

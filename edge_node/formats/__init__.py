@@ -12,4 +12,6 @@ file one of them writes is read by the other with the same code:
 ``layouts``      other tools' folders of detection files (MOTChallenge ``det.txt`` per camera,
                  flat or in sequence folders; homographies as JSON / NumPy; ground truth as
                  ground points or derived from the cameras' boxes), read as a calibration
+``text``         every text file of the project read as UTF-8: bytes that are not are the
+                 reader's own error naming the file, the line and the byte offset
 """

@@ -21,8 +21,10 @@ detector)::
                   "det": "c0/det.txt", "descriptors": "c0/det.npy", "gt": "c0/gt.txt"}]}
 
 Paths are relative to ``calibration.json``; the per-camera file entries default to the layout
-above. ``frames`` defaults to the last frame in any det, gt or gt_ground file. A camera process
-reads one camera of it, the simulator all of them: both through :func:`read_calibration`.
+above. ``frames`` defaults to the last frame in any det, gt or gt_ground file; when given, no file
+may hold a later frame (:attr:`Calibration.bound`), and without it no frame may pass
+``detfile.MAX_FRAME``. A camera process reads one camera of it, the simulator all of them: both
+through :func:`read_calibration`.
 """
 from __future__ import annotations
 
@@ -34,7 +36,8 @@ from typing import Any
 
 import numpy as np
 
-from edge_node.formats.detfile import DetFilesError, last_frame
+from edge_node.formats.detfile import MAX_FRAME, DetFilesError, FrameBound, last_frame
+from edge_node.formats.text import read_text
 from edge_node.geometry import Camera, GeometryError
 
 CALIBRATION = "calibration.json"
@@ -66,6 +69,12 @@ class Calibration:
     name: str | None = None
     area: tuple[float, float, float, float] | None = None
     seed: int | None = None
+
+    @property
+    def bound(self) -> FrameBound | None:
+        """The frames the file states, which no det, gt or gt_ground row may pass (None when
+        it states none)."""
+        return None if self.frames is None else FrameBound(int(self.frames), self.path)
 
     def frame_count(self) -> int:
         """``frames`` from the file, else the last frame in any det, gt or gt_ground file."""
@@ -107,7 +116,7 @@ def read_calibration(path: str | os.PathLike[str]) -> Calibration:
     if not cal.is_file():
         raise DetFilesError(f"calibration file not found: {cal}")
     try:
-        doc = json.loads(cal.read_text(encoding="utf-8"))
+        doc = json.loads(read_text(cal, lambda e: DetFilesError(str(e))))
     except json.JSONDecodeError as exc:
         raise DetFilesError(f"{cal}: not valid JSON ({exc})") from exc
     except OSError as exc:
@@ -127,10 +136,16 @@ def read_calibration(path: str | os.PathLike[str]) -> Calibration:
     upm = float(doc.get("units_per_metre", 1.0))
     if upm <= 0:
         raise DetFilesError(f"{cal}: units_per_metre must be positive, got {upm}")
+    frames = doc.get("frames")
+    if frames is not None and (isinstance(frames, bool) or not isinstance(frames, (int, float))
+                               or not 1 <= frames <= MAX_FRAME or frames != int(frames)):
+        raise DetFilesError(f"{cal}: frames must be a whole number in 1..{MAX_FRAME} (MAX_FRAME), "
+                            f"got {frames!r}")
     area = doc.get("area")
     return Calibration(
         path=cal, cameras=cams, files=files, fps=fps, units_per_metre=upm,
-        frames=doc.get("frames"), gt_ground=base / doc.get("gt_ground", GT_GROUND),
+        frames=None if frames is None else int(frames),
+        gt_ground=base / doc.get("gt_ground", GT_GROUND),
         name=doc.get("name"), area=None if area is None else tuple(float(v) for v in area),
         seed=doc.get("seed"))
 

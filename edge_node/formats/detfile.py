@@ -23,9 +23,12 @@ process replaying 100,000 frames holds its det file's table, not 100,000 lists o
 
 Every row's first six fields must be finite numbers, ``frame`` a whole number >= 1 and ``id`` a
 whole number; a ``det.txt`` box must have ``w > 0`` and ``h > 0``; a descriptor row is all finite
-or all NaN. Anything else is a :class:`DetFilesError` naming the file, the line and the field
-(a NaN box would otherwise reach the tracker's assignment and stop the node). Fields after the
-sixth may be NaN (a NaN confidence reads as 1.0).
+or all NaN; ``frame`` is at most the source's length where a file states it (the ``frames`` of
+its ``calibration.json``: a :class:`FrameBound`), else at most :data:`MAX_FRAME`. Anything else is
+a :class:`DetFilesError` naming the file, the line and the field (a NaN box would otherwise reach
+the tracker's assignment and stop the node). Fields after the sixth may be NaN (a NaN confidence
+reads as 1.0). Bytes that are not UTF-8 (a binary file) are a :class:`DetFilesError` too, naming
+the line and the byte offset.
 """
 from __future__ import annotations
 
@@ -33,16 +36,33 @@ import os
 from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
+from typing import NamedTuple
 
 import numpy as np
 
 from edge_node.core.types import Detection
+from edge_node.formats.text import text_lines
 
 BOX_FMT = "%.4f"  # 1e-4 px: round trips well inside 1e-3 px
+
+#: The largest frame number of a file whose source states no length (a ``calibration.json``
+#: without ``frames``, another tool's files). 10**9 frames is over a year of video at 30 frames/s
+#: (385 days; 463 at 25), longer than any recording a run replays, and exact in the float64
+#: tables hold; anything larger is a typo or garbage, which was accepted (a frame number of 1e12
+#: made the run, or an import, a trillion frames long).
+MAX_FRAME = 10**9
 
 
 class DetFilesError(ValueError):
     """A det-files directory or file that cannot be read; the message names the file and field."""
+
+
+class FrameBound(NamedTuple):
+    """The number of frames a source has, as ``stated_by`` (its ``calibration.json``) states
+    it: no file of the source holds a later frame."""
+
+    frames: int
+    stated_by: Path
 
 
 # -- text tables ------------------------------------------------------------------------------------
@@ -50,10 +70,14 @@ DET_COLUMNS = ("frame", "id", "x", "y", "w", "h")  # the fields every table star
 
 
 def _check_columns(path: Path, what: str, columns: tuple[str, ...], positive: tuple[str, ...],
-                   t: np.ndarray, lines: list[int]) -> None:
+                   t: np.ndarray, lines: list[int], bound: FrameBound | None = None) -> None:
     """The rules of the module docstring for the named fields of every row of ``t``
     (``lines[r]``: the file line of row ``r``); the first broken one is the error."""
     rules = []
+    if bound is None:
+        last, why = MAX_FRAME, "(MAX_FRAME: the source states no number of frames)"
+    else:
+        last, why = bound.frames, f"(the number of frames {bound.stated_by} states)"
     for c, name in enumerate(columns):
         v = t[:, c]
         rules.append((~np.isfinite(v), name, "must be a finite number"))
@@ -61,6 +85,7 @@ def _check_columns(path: Path, what: str, columns: tuple[str, ...], positive: tu
             rules.append((np.isfinite(v) & (v != np.round(v)), name, "must be a whole number"))
         if name == "frame":
             rules.append((v < 1, name, "must be >= 1 (MOTChallenge frames are 1-based)"))
+            rules.append((np.isfinite(v) & (v > last), name, f"must be <= {last} {why}"))
         if name in positive:
             rules.append((v <= 0, name, "(box size) must be > 0"))
     bad = [(int(np.argmax(m)), k) for k, (m, _, _) in enumerate(rules) if np.any(m)]
@@ -68,17 +93,18 @@ def _check_columns(path: Path, what: str, columns: tuple[str, ...], positive: tu
         r, k = min(bad)
         _, name, rule = rules[k]
         got = t[r, columns.index(name)]
-        raise DetFilesError(f"{path}:{lines[r]}: {what} field {name!r} {rule}, got {got:g}")
+        raise DetFilesError(f"{path}:{lines[r]}: {what} field {name!r} {rule}, got {got:.15g}")
 
 
 PARSE_BLOCK = 8192  # rows of a text table held as Python lists at once while parsing
 
 
 def read_table(path: Path, columns: tuple[str, ...], what: str,
-               positive: tuple[str, ...] = ()) -> np.ndarray:
+               positive: tuple[str, ...] = (), bound: FrameBound | None = None) -> np.ndarray:
     """A comma-separated numeric table (``#`` comments, blank lines and CRLF allowed) whose
-    rows start with the fields ``columns``: finite, ``frame`` / ``id`` whole, ``frame >= 1``,
-    the fields named in ``positive`` > 0. Errors name the file, the line and the field.
+    rows start with the fields ``columns``: finite, ``frame`` / ``id`` whole, ``frame >= 1`` and
+    at most ``bound.frames`` (without a bound :data:`MAX_FRAME`), the fields named in
+    ``positive`` > 0. Errors name the file, the line and the field.
 
     Rows are padded with NaN to the widest row. The file is parsed :data:`PARSE_BLOCK` rows at a
     time, so parsing holds the table's numbers and one block of Python lists, not a list per
@@ -93,7 +119,7 @@ def read_table(path: Path, columns: tuple[str, ...], what: str,
         out[r:r + len(b), :b.shape[1]] = b
         r += len(b)
     lines = np.concatenate([at for _, at in blocks]) if blocks else np.zeros(0, np.int64)
-    _check_columns(path, what, columns, positive, out, lines)
+    _check_columns(path, what, columns, positive, out, lines, bound)
     return out
 
 
@@ -103,23 +129,22 @@ def _parsed_blocks(path: Path, columns: tuple[str, ...], what: str
     (each block NaN-padded to its widest row)."""
     rows: list[list[float]] = []
     lines: list[int] = []
-    with path.open(encoding="utf-8") as fh:
-        for i, line in enumerate(fh, start=1):
-            s = line.strip()
-            if not s or s.startswith("#"):
-                continue
-            f = [x.strip() for x in s.split(",")]
-            if len(f) < len(columns):
-                raise DetFilesError(f"{path}:{i}: {what} row needs at least {len(columns)} "
-                                    f"fields ({','.join(columns)}), got {len(f)}")
-            try:
-                rows.append([float(x) for x in f])
-            except ValueError as exc:
-                raise DetFilesError(f"{path}:{i}: non-numeric field in {what} row: {s!r}") from exc
-            lines.append(i)
-            if len(rows) == PARSE_BLOCK:
-                yield _padded(rows), np.array(lines, dtype=np.int64)
-                rows, lines = [], []
+    for i, line in text_lines(path, lambda e: DetFilesError(str(e))):
+        s = line.strip()
+        if not s or s.startswith("#"):
+            continue
+        f = [x.strip() for x in s.split(",")]
+        if len(f) < len(columns):
+            raise DetFilesError(f"{path}:{i}: {what} row needs at least {len(columns)} "
+                                f"fields ({','.join(columns)}), got {len(f)}")
+        try:
+            rows.append([float(x) for x in f])
+        except ValueError as exc:
+            raise DetFilesError(f"{path}:{i}: non-numeric field in {what} row: {s!r}") from exc
+        lines.append(i)
+        if len(rows) == PARSE_BLOCK:
+            yield _padded(rows), np.array(lines, dtype=np.int64)
+            rows, lines = [], []
     if rows:
         yield _padded(rows), np.array(lines, dtype=np.int64)
 
@@ -194,16 +219,17 @@ class DetFile:
 
 
 def open_det(path: str | os.PathLike[str], frames: int | None = None,
-             descriptors: str | os.PathLike[str] | None = None, require_descriptors: bool = False
-             ) -> DetFile:
+             descriptors: str | os.PathLike[str] | None = None, require_descriptors: bool = False,
+             bound: FrameBound | None = None) -> DetFile:
     """One camera's ``det.txt`` (and its descriptors ``.npy``), frames read on demand.
 
-    ``frames`` defaults to the last frame in the file. Everything is validated here, at opening
-    (the table, and the descriptors' shape, dtype and rows, scanned in blocks); a missing
-    descriptor file is an error only when required.
+    ``frames`` (the frames to run) defaults to the last frame in the file; ``bound`` is the
+    source's stated length, which no row may pass (:func:`read_table`). Everything is validated
+    here, at opening (the table, and the descriptors' shape, dtype and rows, scanned in blocks);
+    a missing descriptor file is an error only when required.
     """
     path = Path(path)
-    t = read_table(path, DET_COLUMNS, "det.txt", positive=("w", "h"))
+    t = read_table(path, DET_COLUMNS, "det.txt", positive=("w", "h"), bound=bound)
     if descriptors is not None and require_descriptors and not Path(descriptors).is_file():
         raise DetFilesError(f"descriptor file not found: {descriptors} (named for {path})")
     desc = None
@@ -250,11 +276,13 @@ class GtFile:
         return t[r, 1].astype(np.int64), t[r, 2:6]
 
 
-def open_gt(path: str | os.PathLike[str], frames: int) -> GtFile:
-    """One camera's ``gt.txt`` for frames ``0..frames-1``: rows with ``consider = 0`` or a class
-    other than pedestrian (1, or -1 / NaN for unknown) are dropped here."""
+def open_gt(path: str | os.PathLike[str], frames: int,
+            bound: FrameBound | None = None) -> GtFile:
+    """One camera's ``gt.txt`` for frames ``0..frames-1`` (no row past ``bound``): rows with
+    ``consider = 0`` or a class other than pedestrian (1, or -1 / NaN for unknown) are dropped
+    here."""
     path = Path(path)
-    t = read_table(path, DET_COLUMNS, "gt.txt")
+    t = read_table(path, DET_COLUMNS, "gt.txt", bound=bound)
     keep = np.ones(len(t), dtype=bool)
     if t.shape[1] > 6:
         keep &= ~(t[:, 6] == 0)  # consider flag
@@ -280,10 +308,13 @@ class GroundFile:
         return t[t[:, 0] <= self.rows.frames, 2:4]
 
 
-def open_gt_ground(path: str | os.PathLike[str], frames: int) -> GroundFile:
-    """``gt_ground.csv`` (``frame,id,x,y,w,h``) for frames ``0..frames-1``."""
+def open_gt_ground(path: str | os.PathLike[str], frames: int,
+                   bound: FrameBound | None = None) -> GroundFile:
+    """``gt_ground.csv`` (``frame,id,x,y,w,h``) for frames ``0..frames-1`` (no row past
+    ``bound``)."""
     path = Path(path)
-    return GroundFile(FrameTable.of(path, read_table(path, DET_COLUMNS, "gt_ground.csv"), frames))
+    t = read_table(path, DET_COLUMNS, "gt_ground.csv", bound=bound)
+    return GroundFile(FrameTable.of(path, t, frames))
 
 
 def last_frame(path: Path) -> int:

@@ -19,6 +19,7 @@ from typing import Any
 
 import numpy as np
 
+from edge_node.formats.text import read_text
 from edge_node.geometry import Camera, GeometryError
 
 FILE = "homographies.json"
@@ -30,10 +31,11 @@ class HomographiesError(ValueError):
 
 
 def read_homographies(path: str | os.PathLike[str]) -> dict[str, Any]:
-    """The parsed file (a missing one raises ``FileNotFoundError``)."""
+    """The parsed file (a missing one raises ``FileNotFoundError``; bytes that are not UTF-8
+    are a :class:`HomographiesError` naming the line and the byte offset)."""
     path = Path(path)
     try:
-        doc = json.loads(path.read_text(encoding="utf-8"))
+        doc = json.loads(read_text(path, lambda e: HomographiesError(str(e))))
     except json.JSONDecodeError as exc:
         raise HomographiesError(f"{path}: not valid JSON ({exc})") from exc
     if not isinstance(doc, dict):

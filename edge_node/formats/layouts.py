@@ -26,6 +26,7 @@ import numpy as np
 from edge_node.formats.calibration import CALIBRATION, DEFAULT_FPS, Calibration, CameraFiles
 from edge_node.formats.detfile import (DetFilesError, FrameTable, GroundFile, open_gt,
                                        read_table)
+from edge_node.formats.text import read_text
 from edge_node.geometry import Camera, GeometryError
 
 LAYOUTS = """\
@@ -146,8 +147,8 @@ def read_seqinfo(path: Path) -> dict[str, float]:
     """``imWidth``, ``imHeight``, ``frameRate`` of a MOTChallenge ``seqinfo.ini`` (those present)."""
     cp = configparser.ConfigParser()
     try:
-        cp.read_string(path.read_text(encoding="utf-8"))
-    except (configparser.Error, UnicodeDecodeError) as exc:
+        cp.read_string(read_text(path, lambda e: LayoutError(str(e))))
+    except configparser.Error as exc:
         raise LayoutError(f"{path}: not an INI file ({exc})") from None
     if not cp.has_section("Sequence"):
         raise LayoutError(f"{path}: no [Sequence] section (MOTChallenge seqinfo.ini)")
@@ -249,7 +250,7 @@ def read_homographies(path: str | os.PathLike[str], names: list[str]) -> Homogra
     if suffix != ".json":
         raise LayoutError(f"{path}: homographies must be a .json, .npy or .npz file")
     try:
-        doc = json.loads(path.read_text(encoding="utf-8"))
+        doc = json.loads(read_text(path, lambda e: LayoutError(str(e))))
     except json.JSONDecodeError as exc:
         raise LayoutError(f"{path}: not valid JSON ({exc})") from None
     return _json_homographies(path, doc, names)
@@ -403,10 +404,10 @@ def read_layout(directory: str | os.PathLike[str], options: ImportOptions | None
     elif not Path(gpath).is_file():
         raise LayoutError(f"ground truth file not found: {gpath}")
     cal = Calibration(path=d / CALIBRATION, cameras=cameras, files=files, fps=float(fps),
-                      units_per_metre=float(upm), frames=frames,
+                      units_per_metre=float(upm), frames=None,  # no file states a length
                       gt_ground=Path(gpath) if gpath is not None else d / GROUND_FILES[0],
                       name=d.name)
-    n = cal.frame_count()
+    n = cal.frame_count() if frames is None else frames
     if n <= 0:
         raise LayoutError(f"{d}: no frames in the det files")
     wh = (PERSON_WH_M[0] * upm, PERSON_WH_M[1] * upm)

@@ -17,6 +17,7 @@ from pathlib import Path
 
 import numpy as np
 
+from edge_node.formats.text import read_text
 from edge_node.perception import PerceptionError, require_cv2
 
 
@@ -45,10 +46,11 @@ class Calibration:
 
 
 def read_pairs(path: str | Path) -> tuple[np.ndarray, np.ndarray]:
-    """``(image (n, 2), ground (n, 2))`` from a pairs file (module docstring)."""
+    """``(image (n, 2), ground (n, 2))`` from a pairs file (module docstring); errors, bytes
+    that are not UTF-8 among them, are a ``PerceptionError`` naming the file and the line."""
     path = Path(path)
     try:
-        text = path.read_text(encoding="utf-8")
+        text = read_text(path, lambda e: PerceptionError(str(e)))
     except OSError as e:
         raise PerceptionError(f"cannot read the point pairs file {path}: {e.strerror or e}") from None
     rows = []

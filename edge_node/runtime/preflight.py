@@ -20,6 +20,7 @@ from edge_node.core.config import TrackerConfig
 from edge_node.core.node import CameraNode
 from edge_node.core.params import ConfigError
 from edge_node.core.trigger import TriggerConfig, check_heartbeat
+from edge_node.formats.text import read_text
 from edge_node.runtime.config import NodeConfig, NodeConfigError
 from edge_node.runtime.output import state_path
 from edge_node.runtime.sources import Source, open_source
@@ -54,15 +55,25 @@ class Preflight:
             close()
 
 
+COUNTERS = 2**63  # the message encoder holds ids as int64 (protocol/codec.py)
+
+
 def first_counter(cfg: NodeConfig) -> int:
-    """The id counter a restarted node resumes from (0 without a state file)."""
+    """The id counter a restarted node resumes from (0 without a state file). A state file
+    that is not UTF-8 JSON holding a ``next_counter`` in ``0..2**63-1`` is a
+    ``NodeConfigError`` naming it (outside that range the message encoder would refuse the id
+    of the node's first new tracker)."""
     if cfg.output.dir is None:
         return 0
     path = state_path(cfg.output.dir, cfg.node)
     if not path.exists():
         return 0
     try:
-        return int(json.loads(path.read_text())["next_counter"])
+        counter = json.loads(read_text(path, lambda e: e))["next_counter"]
+        if isinstance(counter, bool) or not isinstance(counter, int) \
+                or not 0 <= counter < COUNTERS:
+            raise ValueError(f"next_counter must be a whole number in 0..2**63-1, got {counter!r}")
+        return counter
     except (OSError, ValueError, KeyError, TypeError) as e:
         raise NodeConfigError(cfg.name, "output.dir", f"has an unreadable {path.name} ({e}); "
                               "remove it to start the id counter at 0") from None

@@ -114,7 +114,7 @@ def load_det_file_camera(calibration: Path, index: int, node: int,
         if n <= 0:
             raise SourceError(f"source.path: {cal.path}: no frames")
         f = cal.files[index]
-        det = open_det(f.det, n, f.descriptors, f.descriptors_required)
+        det = open_det(f.det, n, f.descriptors, f.descriptors_required, cal.bound)
     except DetFilesError as e:
         raise SourceError(f"source.path: {e}") from None
     cam = replace(cal.cameras[index], id=node)

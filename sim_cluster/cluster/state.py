@@ -1,6 +1,8 @@
 """A cluster's state file (``<out>/cluster.json``: its nodes, their configs, logs, ports and
 process ids) and what its nodes write beside it (status and counters files, read back here).
-``status``, ``kill``, ``restart`` and ``down`` act on a detached cluster through this file.
+``status``, ``kill``, ``restart`` and ``down`` act on a detached cluster through this file; one
+that is not a state file (not UTF-8 JSON of the fields below) is a :class:`ClusterError` naming
+it. A node's status or counters file that cannot be read is no status yet (``{}``).
 """
 from __future__ import annotations
 
@@ -10,6 +12,7 @@ import time
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
+from edge_node.formats.text import read_text
 from edge_node.runtime.output import counters_path, status_path
 from sim_cluster.cluster.processes import alive
 
@@ -54,31 +57,39 @@ class ClusterState:
     def load(cls, out: str | Path) -> "ClusterState":
         path = Path(out) / STATE
         try:
-            d = json.loads(path.read_text())
+            d = json.loads(read_text(path, lambda e: ClusterError(str(e))))
         except FileNotFoundError:
             raise ClusterError(f"no cluster at {out} (no {STATE}); start one with "
                                f"'sim_cluster up --out {out}'") from None
         except json.JSONDecodeError as e:
             raise ClusterError(f"{path}: not a cluster state file ({e})") from None
-        d["nodes"] = {k: NodeProc(**v) for k, v in d["nodes"].items()}
-        return cls(**d)
+        try:
+            d["nodes"] = {k: NodeProc(**v) for k, v in d["nodes"].items()}
+            return cls(**d)
+        except (KeyError, TypeError, AttributeError) as e:  # JSON, but not of these fields
+            raise ClusterError(f"{path}: not a cluster state file ({type(e).__name__}: "
+                               f"{e})") from None
 
 
 # -- what the nodes write ----------------------------------------------------------------------
+def _node_file(path: Path) -> dict:
+    """A node's JSON file, ``{}`` when missing or not a JSON object (bytes that are not UTF-8,
+    a write cut short)."""
+    try:
+        d = json.loads(path.read_text(encoding="utf-8"))
+    except (OSError, ValueError):  # JSONDecodeError, UnicodeDecodeError
+        return {}
+    return d if isinstance(d, dict) else {}
+
+
 def node_status(state: ClusterState, node: int) -> dict:
     """Node ``node``'s live status file (``{}`` while it has none)."""
-    try:
-        return json.loads(status_path(Path(state.out) / "nodes", node).read_text())
-    except (OSError, json.JSONDecodeError):
-        return {}
+    return _node_file(status_path(Path(state.out) / "nodes", node))
 
 
 def node_counters(state: ClusterState, node: int) -> dict:
     """Node ``node``'s wire counters, written when it exits (``{}`` before)."""
-    try:
-        return json.loads(counters_path(Path(state.out) / "nodes", node).read_text())
-    except (OSError, json.JSONDecodeError):
-        return {}
+    return _node_file(counters_path(Path(state.out) / "nodes", node))
 
 
 def health(st: dict, running: bool, now: float | None = None) -> str:

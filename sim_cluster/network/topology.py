@@ -11,6 +11,8 @@ import re
 from collections.abc import Sequence
 from pathlib import Path
 
+from edge_node.formats.text import read_text
+
 Adjacency = dict[int, tuple[int, ...]]
 NAMES = ("complete", "ring", "chain", "disconnected", "star")
 
@@ -60,9 +62,10 @@ def from_file(path: Path, n: int) -> Adjacency:
     """An edge list: one edge per line as ``a b``, ``a-b`` or ``a,b``; ``#`` starts a comment.
 
     Each edge joins two different nodes of ``0..n-1`` and appears once (``a b`` and ``b a`` are
-    the same edge); anything else is a :class:`TopologyError` naming the file and the line."""
+    the same edge); anything else, and bytes that are not UTF-8 (their byte offset too), is a
+    :class:`TopologyError` naming the file and the line."""
     try:
-        text = Path(path).read_text()
+        text = read_text(path, lambda e: TopologyError(str(e)))
     except OSError as e:
         raise TopologyError(f"{path}: cannot read edge list ({e.strerror})") from None
     edges: dict[tuple[int, int], int] = {}  # edge -> the line it was first given on

@@ -94,15 +94,16 @@ def open_det_files(directory: str | os.PathLike[str], frames: int | None = None,
         ground = None
         frames = cal.frame_count() if frames is None else int(frames)
         if frames > 0 and cal.gt_ground.is_file():
-            ground = open_gt_ground(cal.gt_ground, frames)
+            ground = open_gt_ground(cal.gt_ground, frames, cal.bound)
     else:
         imported = read_layout(directory, options, frames)
         cal, ground, notes = imported.calibration, imported.ground, imported.notes
         frames = cal.frame_count() if frames is None else int(frames)
     if frames <= 0:
         raise DetFilesError(f"{cal.path}: no frames (frames={frames})")
-    dets = [open_det(f.det, frames, f.descriptors, f.descriptors_required) for f in cal.files]
-    gts = [open_gt(f.gt, frames) if f.gt.is_file() else None for f in cal.files]
+    dets = [open_det(f.det, frames, f.descriptors, f.descriptors_required, cal.bound)
+            for f in cal.files]
+    gts = [open_gt(f.gt, frames, cal.bound) if f.gt.is_file() else None for f in cal.files]
     area = cal.area
     if area is None:
         allxy = ground.positions() if ground is not None else np.zeros((0, 2))

@@ -9,6 +9,10 @@ Two annotation formats are read, one file per camera, with identities consistent
     ``track_id xmin ymin xmax ymax frame lost occluded generated label`` separated by spaces
     (``label`` may be quoted); ``w = xmax - xmin``, ``h = ymax - ymin``; ``lost = 1`` rows skipped.
 
+In both a frame is a whole number in ``0..MAX_FRAME - 1`` (``edge_node.formats.detfile``: the
+files state no length); anything else, and bytes that are not UTF-8, is an
+:class:`EpflFormatError` naming the file and the line (the byte offset too).
+
 Calibration is a JSON file (``epfl_pom/homographies.json``, ``edge_node/formats/homographies.py``)
 holding per sequence the image-to-ground homographies ``H`` (camera order = list order), the
 ``image_scale`` they expect (``g = H [u s, v s, 1]``, taken from the file, never assumed) and the
@@ -51,6 +55,7 @@ Data root resolution (first that applies): an explicit ``data_root`` argument (t
 from __future__ import annotations
 
 import copy
+import math
 import os
 from dataclasses import dataclass
 from pathlib import Path
@@ -58,8 +63,10 @@ from typing import Any
 
 import numpy as np
 
+from edge_node.formats.detfile import MAX_FRAME
 from edge_node.formats.homographies import (FILE, HomographiesError, read_homographies,
                                             sequence_cameras, sequence_entry)
+from edge_node.formats.text import read_text, text_lines
 from edge_node.geometry import Camera
 from sim_cluster.scenarios.data import (CHUNK_FRAMES, Frame, GroundTruth, ScenarioData,
                                         ScenarioStream)
@@ -144,7 +151,7 @@ class Annotations:
 
 def _rows(path: Path) -> list[tuple[int, str]]:
     try:
-        text = path.read_text(encoding="utf-8")
+        text = read_text(path, lambda e: EpflFormatError(str(e)))
     except FileNotFoundError as exc:
         raise DataNotFoundError(f"annotation file not found: {path}") from exc
     return [(i + 1, ln.strip()) for i, ln in enumerate(text.splitlines())
@@ -156,6 +163,15 @@ def _num(path: Path, line: int, field: str, s: str) -> float:
         return float(s)
     except ValueError as exc:
         raise EpflFormatError(f"{path}:{line}: field {field!r} is not a number: {s!r}") from exc
+
+
+def _frame(path: Path, line: int, field: str, s: str) -> float:
+    """The 0-based frame number ``s`` (module docstring)."""
+    v = _num(path, line, field, s)
+    if not (math.isfinite(v) and v == round(v) and 0 <= v < MAX_FRAME):
+        raise EpflFormatError(f"{path}:{line}: field {field!r} must be a whole number in "
+                              f"0..{MAX_FRAME - 1} (0-based, MAX_FRAME), got {s!r}")
+    return v
 
 
 def read_mot_csv(path: str | os.PathLike[str]) -> Annotations:
@@ -174,6 +190,7 @@ def read_mot_csv(path: str | os.PathLike[str]) -> Annotations:
             raise EpflFormatError(f"{path}:{line}: expected at least 6 comma-separated fields "
                                   f"({','.join(names)}), got {len(f)}")
         vals = [_num(path, line, names[i], f[i]) for i in range(min(len(f), 9))]
+        vals[0] = _frame(path, line, names[0], f[0])
         lost = vals[6] if len(vals) > 6 else 0.0
         if lost == 1:
             continue
@@ -183,15 +200,19 @@ def read_mot_csv(path: str | os.PathLike[str]) -> Annotations:
 
 
 def _read_csv_fast(path: Path) -> Annotations | None:
-    """The common case (numeric, >= 9 columns, no header) through numpy; None to parse slowly."""
+    """The common case (numeric, >= 9 columns, no header, good frames) through numpy; None to
+    parse slowly."""
     try:
         a = np.loadtxt(path, delimiter=",", dtype=float, ndmin=2, comments="#")
     except FileNotFoundError as exc:
         raise DataNotFoundError(f"annotation file not found: {path}") from exc
-    except ValueError:
+    except ValueError:  # bytes that are not UTF-8 too
         return None  # header, ragged rows or bad fields: the line parser names the culprit
     if a.shape[0] == 0 or a.shape[1] < 9:
         return None
+    f = a[:, 0]
+    if not np.all(np.isfinite(f) & (f == np.round(f)) & (f >= 0) & (f < MAX_FRAME)):
+        return None  # a bad frame: the line parser names its line
     a = a[a[:, 6] != 1]
     return _annotations(path, np.column_stack([a[:, :6], a[:, 8]]).tolist())
 
@@ -207,6 +228,7 @@ def read_vatic(path: str | os.PathLike[str]) -> Annotations:
             raise EpflFormatError(f"{path}:{line}: expected 10 space-separated fields "
                                   f"({' '.join(names)} label), got {len(f)}")
         v = [_num(path, line, names[i], f[i]) for i in range(9)]
+        v[5] = _frame(path, line, names[5], f[5])
         if v[6] == 1:
             continue
         out.append([v[5], v[0], v[1], v[2], v[3] - v[1], v[4] - v[2], v[8]])
@@ -218,18 +240,15 @@ def _annotations(path: Path, rows: list[list[float]]) -> Annotations:
     if np.any(a[:, 4:6] <= 0):
         line = int(np.argmax(np.any(a[:, 4:6] <= 0, axis=1)))
         raise EpflFormatError(f"{path}: box {line + 1} (data row) has non-positive width or height")
-    if np.any(a[:, 0] < 0):
-        raise EpflFormatError(f"{path}: negative frame index")
     return Annotations(a[:, 0].astype(np.int64), a[:, 1].astype(np.int64), a[:, 2:6].copy(),
                        a[:, 6] != 0).sorted()
 
 
 def _first_row(path: Path) -> str:
     try:
-        with path.open(encoding="utf-8") as fh:
-            for line in fh:
-                if line.strip() and not line.lstrip().startswith("#"):
-                    return line
+        for _, line in text_lines(path, lambda e: EpflFormatError(str(e))):
+            if line.strip() and not line.lstrip().startswith("#"):
+                return line
     except FileNotFoundError as exc:
         raise DataNotFoundError(f"annotation file not found: {path}") from exc
     return ""

@@ -499,11 +499,12 @@ def render_scenario(scenario: str | Path, out: str | Path, *, seed: int | None =
 def ensure_rendered(scenario: str | Path, out: str | Path, seed: int | None, frames: int | None,
                     cameras: list[int] | None = None, progress=None) -> dict:
     """``render_scenario`` into ``out`` unless ``out/render.json`` already holds this scenario,
-    seed and frame count (a re-run of a cluster reuses its videos)."""
+    seed and frame count (a re-run of a cluster reuses its videos). A ``render.json`` that
+    cannot be read (missing, not UTF-8 JSON of these fields) renders again."""
     out = Path(out)
     cfg = load_world(scenario, seed, frames)
     try:
-        done = json.loads((out / "render.json").read_text())
+        done = json.loads((out / "render.json").read_text(encoding="utf-8"))
         same = (done.get("scenario") == cfg.name and done.get("seed") == int(cfg.seed)
                 and done.get("frames") == cfg.frames and done.get("format") == "avi"
                 and all(Path(v["frames"]).is_file() and Path(v["background"]).is_file()
@@ -511,7 +512,7 @@ def ensure_rendered(scenario: str | Path, out: str | Path, seed: int | None, fra
                 and all(str(c) in done["cameras"] for c in (cameras or range(len(cfg.cameras)))))
         if same:
             return done
-    except (OSError, ValueError, KeyError, TypeError):
+    except (OSError, ValueError, KeyError, TypeError, AttributeError):  # ValueError: bad bytes too
         pass
     return render_scenario(scenario, out, seed=seed, frames=frames, cameras=cameras,
                            progress=progress)
