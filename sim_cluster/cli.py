@@ -11,6 +11,8 @@ and as real processes on loopback.
     sim_cluster ablation --scenarios terrace-sim,lab-sim --seeds 0-4 --out DIR
     sim_cluster bandwidth-sweep --out DIR     # bytes vs MOTA/IDF1 over the trigger's gain
     sim_cluster reid-sweep --scenarios terrace-sim,campus-sim --seeds 0-1 --out DIR
+    sim_cluster bench-detectors               # recall/precision of MOG2 and ssdlite, rendered
+    sim_cluster report [--check]              # the docs' tables from docs/results/*, CLI reference
 """
 from __future__ import annotations
 
@@ -31,6 +33,7 @@ from sim_cluster.cluster import commands as cluster
 from sim_cluster.cluster.state import ClusterError
 from sim_cluster.experiments import (ablation, bandwidth, bench, bench_cluster, faultreport,
                                      fuzz, probe, reid_sweep, run, soak)
+from sim_cluster.experiments import bench_detectors, report
 from sim_cluster.experiments.ablation import AblationError
 from sim_cluster.network.topology import TopologyError
 from sim_cluster.scenarios import commands as scenarios
@@ -171,7 +174,7 @@ def _source_args(sp) -> None:
     sp.add_argument("--source", default="scenario", choices=("scenario", "video"),
                     help="scenario: each node replays the scenario's simulated detections; "
                          "video: render each camera's frames, nodes run detector + re-id on them")
-    sp.add_argument("--detector", default="mog2", choices=("mog2", "hog", "onnx"),
+    sp.add_argument("--detector", default="mog2", choices=("mog2", "hog", "onnx", "ssdlite"),
                     help="--source video: the people detector (default mog2)")
     sp.add_argument("--reid", default="histogram",
                     choices=("histogram", "osnet_x1_0", "osnet_x0_25", "none"),
@@ -470,6 +473,32 @@ def build_parser() -> argparse.ArgumentParser:
     rs.add_argument("--out", default="docs/results/reid")
     rs.add_argument("--quiet", action="store_true", help="no progress")
     rs.set_defaults(func=reid_sweep.main)
+
+    bd = sub.add_parser("bench-detectors", help="recall and precision of the people detectors "
+                        "(MOG2, ssdlite) on rendered frames, their cost, and ssdlite's two "
+                        "backends timed alternately (detectors.json)")
+    bd.add_argument("--scenarios", default="terrace-sim,lab-sim,campus-sim",
+                    help="comma-separated synthetic presets (default terrace-sim,lab-sim,campus-sim)")
+    bd.add_argument("--frames", type=integer(2), default=200, help="frames rendered per camera")
+    bd.add_argument("--stride", type=integer(1), default=10, help="score every N-th frame")
+    bd.add_argument("--warmup", type=integer(0), default=20,
+                    help="frames MOG2 sees before scoring starts")
+    bd.add_argument("--iou", type=number(0, above=True), default=0.5,
+                    help="IoU for a detection to match a person (default 0.5)")
+    bd.add_argument("--rounds", type=integer(1), default=5,
+                    help="alternating rounds timing the two ssdlite backends")
+    bd.add_argument("--out", default="docs/results/perception")
+    bd.add_argument("--quiet", action="store_true")
+    bd.set_defaults(func=bench_detectors.main)
+
+    rp = sub.add_parser("report", help="render the docs' results and benchmark tables from "
+                        "their data files (docs/results/) and the CLI reference from these "
+                        "parsers; --check: change nothing, exit 1 naming what is stale")
+    rp.add_argument("--docs", default="docs", help="the docs folder (default docs)")
+    rp.add_argument("--results", default=None, help="the data files (default DOCS/results)")
+    rp.add_argument("--check", action="store_true",
+                    help="exit 1 if a generated block differs from its data")
+    rp.set_defaults(func=report.main)
     return p
 
 

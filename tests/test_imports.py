@@ -32,7 +32,8 @@ import pytest
 ROOT = Path(__file__).resolve().parent.parent
 OURS = ("protocol", "edge_node", "sim_cluster")
 CORE_BANNED = ("zenoh", "rerun", "torch", "cv2")
-HEAVY = ("torch", "torchvision", "cv2", "rerun", "rerun_cli", "matplotlib", "scipy")
+HEAVY = ("torch", "torchvision", "cv2", "onnxruntime", "rerun", "rerun_cli", "matplotlib",
+         "scipy")
 CLI_MODULES = ("sim_cluster.cli", "edge_node.cli")
 
 RULES = ("protocol", "edge_node", "core", "circle", "cli", "inner")

@@ -13,7 +13,7 @@ Schema (defaults in brackets)::
     # fps = 25.0                    # images / camera (a video has its own)         [[camera] fps]
 
     [perception]
-    detector = "mog2"               # "mog2" | "hog" | "onnx"                            ["mog2"]
+    detector = "mog2"               # "mog2" | "hog" | "onnx" | "ssdlite"                 ["mog2"]
     reid = "histogram"              # "histogram" | "osnet_x1_0" | "osnet_x0_25" | ... | "none"
     min_height_px = 0               # drop boxes shorter than this                           [0]
     foot_offset_m = 0.2             # raise each box's bottom so its ground point moves this far
@@ -47,6 +47,17 @@ Schema (defaults in brackets)::
     class_id = 0                    # the person class (COCO: 0)
     layout = "auto"                 # "auto" | "yolov8" | "yolov5" | "xyxy"
 
+    [perception.ssdlite]            # every key optional: the trained detector shipped here
+    score_threshold = 0.3           # smallest score kept                                  [0.3]
+    tiles = 1                       # 1: the whole frame; n: plus n x n overlapping tiles (small
+                                    # people; n * n + 1 network passes)                      [1]
+    tile_overlap = 0.2              # overlap of neighbouring tiles, fraction of a tile       [0.2]
+    nms_threshold = 0.45            # IoU merging the boxes of the frame and its tiles       [0.45]
+    backend = "auto"                # "opencv" (cv2.dnn) | "onnxruntime" | "auto": onnxruntime
+                                    # where installed (vision extra), else opencv      ["auto"]
+    threads = 1                     # the backend's threads                   [the backend's own]
+    model = "other.onnx"            # another file with the same four outputs [the shipped one]
+
     [perception.osnet]
     weights = "osnet_x0_25_msmt17.pth"  # required for reid = "osnet_*": a torchreid checkpoint
     batch = 32                      # boxes per forward pass
@@ -62,7 +73,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from edge_node.perception.detectors import DETECTOR_KINDS, ONNX_LAYOUTS
+from edge_node.perception.detectors import DETECTOR_KINDS, ONNX_LAYOUTS, SSDLITE_BACKENDS
 from edge_node.perception.frames import FRAME_KINDS
 from edge_node.perception.reid import REID_KINDS
 
@@ -78,11 +89,13 @@ class PerceptionSettings:
     hog: dict = field(default_factory=dict)  # HogDetector keyword arguments
     onnx: dict = field(default_factory=dict)  # OnnxDetector keyword arguments
     osnet: dict = field(default_factory=dict)  # OsnetReid: weights, batch, threads
+    ssdlite: dict = field(default_factory=dict)  # SsdliteDetector keyword arguments
 
     def to_dict(self) -> dict:
         return {"detector": self.detector, "reid": self.reid, "min_height_px": self.min_height_px,
                 "log_every": self.log_every, "foot_offset_m": self.foot_offset_m, "mog2": dict(self.mog2), "hog": dict(self.hog),
-                "onnx": dict(self.onnx), "osnet": dict(self.osnet)}
+                "onnx": dict(self.onnx), "ssdlite": dict(self.ssdlite),
+                "osnet": dict(self.osnet)}
 
 
 def _file(t, key: str, base: Path, what: str, required: bool = False) -> str | None:
@@ -171,6 +184,20 @@ def parse_perception(t, base: Path) -> PerceptionSettings:
         raise t.error("onnx", "is required for detector = \"onnx\" ([perception.onnx] model = "
                       "\"your-detector.onnx\")")
 
+    d = t.optional_table("ssdlite")
+    ssdlite: dict[str, Any] = {}
+    if d is not None:
+        ssdlite = _drop_none({
+            "model": _file(d, "model", base, "an ONNX file with the shipped model's outputs"),
+            "score_threshold": d.number("score_threshold", None, lo=0, hi=1),
+            "nms_threshold": d.number("nms_threshold", None, lo=0, hi=1),
+            "tiles": d.integer("tiles", None, lo=1, hi=4),
+            "tile_overlap": d.number("tile_overlap", None, lo=0, hi=0.5),
+            "backend": d.string("backend", None, choices=SSDLITE_BACKENDS),
+            "threads": d.integer("threads", None, lo=1),
+        })
+        d.finish()
+
     s = t.optional_table("osnet")
     osnet: dict[str, Any] = {}
     if s is not None:
@@ -187,7 +214,7 @@ def parse_perception(t, base: Path) -> PerceptionSettings:
     t.finish()
     return PerceptionSettings(detector, reid, float(min_h), int(log_every),
                               0.2 if foot_offset is None else float(foot_offset),
-                              mog2, hog, onnx, osnet)
+                              mog2, hog, onnx, osnet, ssdlite)
 
 
 def parse_frame_source(t, kind: str, base: Path) -> dict:

@@ -1,0 +1,382 @@
+"""``sim_cluster report``: every results and benchmark table of the docs, rendered from the data
+files the commands write (``docs/results/``). (The CLI reference is rendered from the argparse
+parsers by the docs build itself: ``docs/hooks/cli_reference.py``.)
+
+A generated part of a docs page is a block::
+
+    <!-- report:NAME -->
+    ... (written by sim_cluster report; edit the template, not the text) ...
+    <!-- /report -->
+
+``sim_cluster report`` rewrites every block of every page under ``docs/`` from its template and
+data; ``sim_cluster report --check`` changes nothing and exits 1 naming each block whose text
+differs from what its data gives (the test suite runs it). Under each table a line names the
+data file, the command that writes it, the commit of the code it was measured on and the
+machine (from the file's ``meta.provenance``, or for files that predate it from
+``docs/results/provenance.json``).
+
+Adding a table: a command writes a JSON file under ``docs/results/`` (with
+``meta.provenance = sim_cluster.experiments.provenance.provenance()``), a function here turns it
+into Markdown, registered with ``@table("NAME", "path/under/results.json")``, and a page gets a
+``<!-- report:NAME -->`` block.
+"""
+from __future__ import annotations
+
+import csv
+import json
+import math
+import re
+import sys
+from collections.abc import Callable
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[2]
+BLOCK = re.compile(r"(<!-- report:(?P<name>[\w.@-]+) -->\n)(?P<body>.*?)(<!-- /report -->)", re.S)
+
+
+class Table:
+    def __init__(self, name: str, source: str | None, fn: Callable[..., str]):
+        self.name, self.source, self.fn = name, source, fn
+
+
+TABLES: dict[str, Table] = {}
+
+
+def table(name: str, source: str | None = None):
+    """Register ``fn(data) -> markdown`` as block ``name``, fed the file ``source`` (relative to
+    the results folder; ``.json`` parsed, ``.csv`` as a list of dicts, else text)."""
+    def wrap(fn):
+        TABLES[name] = Table(name, source, fn)
+        return fn
+    return wrap
+
+
+# -- formatting ---------------------------------------------------------------------------------
+def f3(x) -> str:
+    """Three decimals, a real minus sign for negatives (as the tables always printed them)."""
+    if x is None or (isinstance(x, float) and math.isnan(x)):
+        return "-"
+    s = f"{x:.3f}"
+    return s.replace("-", "\u2212") if s.startswith("-") else s
+
+
+def pair(cell: dict, view: str) -> str:
+    return f"{f3(cell[f'{view}_mota']['mean'])} / {f3(cell[f'{view}_idf1']['mean'])}"
+
+
+def md(header: list[str], rows: list[list[str]], align: list[str] | None = None) -> str:
+    align = align or ["---"] * len(header)
+    out = ["| " + " | ".join(header) + " |", "| " + " | ".join(align) + " |"]
+    out += ["| " + " | ".join(r) + " |" for r in rows]
+    return "\n".join(out)
+
+
+def _load(results: Path, source: str):
+    path = results / source
+    if source.endswith(".json"):
+        return json.loads(path.read_text())
+    if source.endswith(".csv"):
+        with path.open(newline="") as f:
+            return list(csv.DictReader(f))
+    return path.read_text()
+
+
+def provenance_line(results: Path, source: str, data) -> str:
+    prov = None
+    if isinstance(data, dict):
+        prov = (data.get("meta") or {}).get("provenance")
+    if prov is None:
+        side = results / "provenance.json"
+        if side.is_file():
+            prov = json.loads(side.read_text()).get(source)
+    link = f"`docs/results/{source}`"
+    if not prov:
+        return f"*Data: {link}.*"
+    parts = [f"*Data: {link}"]
+    if prov.get("command"):
+        parts.append(f"written by `{prov['command']}`")
+    if prov.get("commit"):
+        parts.append(f"code of commit `{prov['commit']}`")
+    if prov.get("machine"):
+        parts.append(f"machine: {prov['machine']}")
+    if prov.get("load") is not None:
+        parts.append(f"load average {prov['load']}")
+    return "; ".join(parts) + ".*"
+
+
+def render(name: str, results: Path | None = None) -> str:
+    results = results or ROOT / "docs" / "results"
+    t = TABLES[name]
+    data = _load(results, t.source)
+    return t.fn(data).rstrip() + "\n\n" + provenance_line(results, t.source, data) + "\n"
+
+
+# -- the ablation (summary.json) ----------------------------------------------------------------
+#: a table's column header -> (configuration, view)
+ABLATION_COLUMNS = {
+    "dkf": ("dkf", "ground"),
+    "dkf+lda": ("dkf+lda", "ground"),
+    "dkf+lda+dtm ground": ("dkf+lda+dtm", "ground"),
+    ":noreg ground": ("dkf+lda+dtm:noreg", "ground"),
+    "dkf+dtm ground": ("dkf+dtm", "ground"),
+    "dkf+lda+dtm image": ("dkf+lda+dtm", "image"),
+    ":noreg image": ("dkf+lda+dtm:noreg", "image"),
+    "dkf+dtm image": ("dkf+dtm", "image"),
+}
+GT_COLUMNS = ["dkf+lda+dtm ground", ":noreg ground", "dkf+dtm ground", "dkf+lda+dtm image",
+              ":noreg image", "dkf+dtm image"]
+SIM_COLUMNS = ["dkf", "dkf+lda", "dkf+lda+dtm ground", ":noreg ground", "dkf+dtm ground",
+               "dkf+lda+dtm image", ":noreg image"]
+
+
+def _topologies(summary: dict, scenario: str) -> list[str]:
+    meta = summary["meta"]["scenarios"].get(scenario, {})
+    topos = [t for t in summary["meta"]["topologies"] if t in summary["cells"][scenario]]
+    if meta.get("ring_is_complete"):
+        topos = [t for t in topos if t != "ring"]
+    return topos
+
+
+def ablation_table(summary: dict, scenario: str, columns: list[str]) -> str:
+    rows = []
+    for topo in _topologies(summary, scenario):
+        cells = summary["cells"][scenario][topo]
+        rows.append([topo] + [pair(cells[ABLATION_COLUMNS[c][0]], ABLATION_COLUMNS[c][1])
+                              for c in columns])
+    return md(["topology"] + columns, rows)
+
+
+for _scn, _cols in (("terrace-gt", GT_COLUMNS), ("campus-gt", GT_COLUMNS),
+                    ("terrace-sim", SIM_COLUMNS), ("lab-sim", SIM_COLUMNS),
+                    ("campus-sim", SIM_COLUMNS)):
+    table(f"ablation-{_scn}", "summary.json")(
+        lambda s, _scn=_scn, _cols=_cols: ablation_table(s, _scn, _cols))
+
+
+@table("ablation-ratios", "summary.json")
+def ablation_ratios(s: dict) -> str:
+    """Distributed over centralized ground MOTA, the complete method, per scenario."""
+    topos = ["complete", "ring", "chain", "disconnected"]
+    rows = []
+    for scn, by in s["ratios_by_config"].items():
+        r = by.get("dkf+lda+dtm", {})
+        rows.append([scn] + [("= complete" if t == "ring" and s["meta"]["scenarios"][scn].get(
+            "ring_is_complete") else f3(r[t]["ground_mota"]["mean"]) if t in r else "-")
+            for t in topos])
+    return md(["scenario"] + topos, rows, ["---"] + ["---:"] * len(topos))
+
+
+# -- the whole Terrace sequence -----------------------------------------------------------------
+@table("terrace-full", "terrace-full/summary.json")
+def terrace_full(s: dict) -> str:
+    rows = []
+    for topo in _topologies(s, "terrace-full"):
+        c = s["cells"]["terrace-full"][topo]
+        a, b = c["dkf+lda+dtm"], c["dkf+dtm"]
+        rows.append([topo, pair(a, "ground"), pair(a, "image"), pair(b, "ground"), pair(b, "image"),
+                     f"{a['ground_track_ids']['mean']:.0f} / {b['ground_track_ids']['mean']:.0f}"])
+    return md(["topology", "with descriptors: ground MOTA / IDF1", "image MOTA / IDF1",
+               "without descriptors (`dkf+dtm`): ground", "image", "track ids (with / without)"],
+              rows)
+
+
+# -- re-id quality ------------------------------------------------------------------------------
+@table("reid-sweep", "reid/summary.json")
+def reid_sweep(s: dict) -> str:
+    scenarios = list(s["cells"])
+    header = ["stated rank-1"]
+    for scn in scenarios:
+        header += [f"{scn}: scene rank-1", "ground MOTA / IDF1", "image MOTA / IDF1", "ids/person"]
+    rows = []
+    for level in s["meta"]["levels"]:
+        label = {"1": "1 (perfect)", "none": "none (`dkf+dtm`)"}.get(level, level)
+        row = [label]
+        for scn in scenarios:
+            c = s["cells"][scn][level]
+            rank1 = c.get("scene_rank1", {}).get("mean")
+            row += ["–" if level == "none" or rank1 is None else f"{rank1:.2f}",
+                    pair(c, "ground"), pair(c, "image"),
+                    f"{c['ground_ids_per_person']['mean']:.2f}"]
+        rows.append(row)
+    return md(header, rows)
+
+
+# -- bandwidth ----------------------------------------------------------------------------------
+def _bw(rows: list[dict]) -> dict:
+    out: dict = {}
+    for r in rows:
+        scn = r["scenario"]
+        late = r["late"] == "True"
+        key = "sync" if r["mode"] == "sync" else (("late" if late else "async"), float(r["gain"]))
+        out.setdefault(scn, {})[key] = r
+    return out
+
+
+@table("bandwidth", "bandwidth/bandwidth.csv")
+def bandwidth(rows: list[dict]) -> str:
+    out = []
+    for scn, by in _bw(rows).items():
+        s, a = by["sync"], by[("async", 1.0)]
+        l0, l1 = by.get(("late", 0.0)), by.get(("late", 1.0))
+        f = lambda r, k: f3(float(r[k]))  # noqa: E731
+        out.append([scn, f"{float(s['bytes_per_frame']):.0f}",
+                    f"{float(a['bytes_per_frame']):.0f} ({float(a['bytes_ratio']):.2f})",
+                    f"{f(s, 'ground_mota')} / {f(s, 'ground_idf1')} → "
+                    f"{f(a, 'ground_mota')} / {f(a, 'ground_idf1')}",
+                    f"{f(s, 'image_mota')} → {f(a, 'image_mota')}",
+                    f"{f(l0, 'mota_ratio') if l0 else '-'} / {f(l1, 'mota_ratio') if l1 else '-'}"])
+    return md(["preset", "sync B/frame", "gain 1: B/frame (ratio to sync)",
+               "ground MOTA / IDF1 sync → gain 1", "image MOTA sync → gain 1",
+               "1-4 frames late: ground MOTA / sync, gain 0 / 1"], out,
+              ["---", "---:", "---:", "---", "---", "---"])
+
+
+@table("bandwidth-paper", "bandwidth/bandwidth.csv")
+def bandwidth_paper(rows: list[dict]) -> str:
+    by = _bw(rows)
+    per = {s: float(b["sync"]["bytes_per_tracker_frame"]) for s, b in by.items()}
+    app = [float(b["sync"]["appearance_bytes_per_new_tracker"]) for b in by.values()]
+    def frame(s):
+        return (f"{s} {float(by[s]['sync']['bytes_per_frame']) / 1000:.2f} kB sync, "
+                f"{float(by[s][('async', 1.0)]['bytes_per_frame']) / 1000:.2f} kB async at gain 1")
+    terrace = [s for s in ("terrace-gt", "terrace-sim") if s in by]
+    return md(["", "paper", "measured (sync, ring, dkf+lda+dtm, seed 0)"], [
+        ["per tracker per frame", "0.78 kB",
+         ", ".join(f"{s} {per[s]:.0f} B" for s in terrace)],
+        ["per new tracker's appearance (two 512-d descriptors)", "16.38 kB",
+         f"{min(app):.0f}-{max(app):.0f} B (int8)"],
+        ["per frame, whole network, Terrace", "28.23 kB (upper bound)",
+         "; ".join(frame(s) for s in terrace)],
+    ], ["---", "---:", "---"])
+
+
+# -- scale ----------------------------------------------------------------------------------------
+@table("scale", "scale/scale.csv")
+def scale(rows: list[dict]) -> str:
+    out = []
+    for r in sorted(rows, key=lambda r: (int(r["cameras"]), int(r["scope"]))):
+        g = lambda k: float(r[k])  # noqa: E731
+        out.append([r["cameras"], r["scope"], f"{g('people_per_frame'):.0f}",
+                    f"{g('cpu_ms_median'):.2f} / {g('cpu_ms_p90'):.2f}",
+                    f"{g('trackers_median'):.0f} / {g('trackers_max'):.0f}",
+                    f"{g('bytes_per_node_frame'):.0f}",
+                    f"{f3(g('mota'))} / {f3(g('idf1'))}",
+                    f"{f3(g('mota_region'))} / {f3(g('idf1_region'))}",
+                    f"{r['long_walkers']}; {g('id_kept'):.3f} / {g('ids_per_walk'):.2f}; "
+                    f"{g('id_kept_region'):.3f} / {g('ids_per_walk_region'):.2f}",
+                    f"{g('frames_per_s'):.3g}"])
+    return md(["cameras", "scope", "people in view", "CPU ms (median / p90)",
+               "trackers per node (median / max)", "bytes per node-frame",
+               "MOTA / IDF1 global", "MOTA / IDF1 regional",
+               "long walkers; id kept / ids per walk, global; regional", "frames/s"], out,
+              ["---:", "---:", "---:", "---:", "---:", "---:", "---", "---", "---", "---:"])
+
+
+@table("scale-ratio", "scale/scale.csv")
+def scale_ratio(rows: list[dict]) -> str:
+    cpu = {(int(r["cameras"]), int(r["scope"])): float(r["cpu_ms_median"]) for r in rows}
+    out = []
+    for scope in sorted({s for _, s in cpu}):
+        cams = sorted(c for c, s in cpu if s == scope)
+        lo = cams[0]
+        out.append([str(scope)] + [f"{cpu[(c, scope)] / cpu[(lo, scope)]:.2f}x" for c in cams[1:]])
+    cams = sorted({c for c, _ in cpu})
+    return md(["scope"] + [f"{c} / {cams[0]} cameras" for c in cams[1:]], out,
+              ["---:"] + ["---:"] * (len(cams) - 1))
+
+
+# -- faults -----------------------------------------------------------------------------------------
+@table("faults", "fault_report.md")
+def faults(text: str) -> str:
+    return "\n".join(line for line in text.splitlines() if line.startswith("|"))
+
+
+# -- detectors --------------------------------------------------------------------------------------
+DETECTOR_LABELS = {"mog2": "MOG2 (empty-scene start, camera geometry)",
+                   "ssdlite": "ssdlite, score >= 0.3",
+                   "ssdlite@0.1": "ssdlite, score >= 0.1",
+                   "ssdlite tiles 2x2": "ssdlite, 2 x 2 tiles + whole frame, score >= 0.3"}
+
+
+def render_detectors(d: dict) -> str:
+    scenarios = list(d["scenarios"])
+    names = list(next(iter(d["scenarios"].values()))["variants"])
+    header = ["detector"] + [f"{s}: recall / precision" for s in scenarios] + ["ms / frame"]
+    rows = []
+    for n in names:
+        row = [DETECTOR_LABELS.get(n, n)]
+        ms = []
+        for s in scenarios:
+            v = d["scenarios"][s]["variants"][n]
+            row.append(f"{v['recall']:.3f} / {v['precision']:.3f}")
+            ms.append(v["ms_per_frame"])
+        row.append(f"{sum(ms) / len(ms):.0f}")
+        rows.append(row)
+    people = ", ".join(f"{s} {d['scenarios'][s]['variants'][names[0]]['people']}"
+                       for s in scenarios)
+    return (md(header, rows, ["---"] + ["---:"] * (len(header) - 1)) +
+            f"\n\nVisible people scored: {people} (every {d['meta']['stride']}th frame from "
+            f"frame {d['meta']['warmup']} of {d['meta']['frames']}, every camera; IoU >= "
+            f"{d['meta']['iou']}; ssdlite backend: {d['meta']['backends'].get('ssdlite', '?')}).")
+
+
+def render_detector_backends(d: dict) -> str:
+    b = d["backends"]
+    rows = [[name, b.get(f"{name}_version", "") if name != "opencv" else b.get("opencv_version", ""),
+             f"{b[name]['ms_median']:.1f} ({b[name]['ms_min']:.1f}-{b[name]['ms_max']:.1f})"]
+            for name in ("opencv", "onnxruntime") if name in b]
+    text = md(["backend", "version", "ms / frame, one thread (median, range over rounds)"], rows,
+              ["---", "---", "---:"])
+    if "ratio_opencv_to_onnxruntime" in b:
+        text += (f"\n\nOpenCV DNN / onnxruntime: **{b['ratio_opencv_to_onnxruntime']:.2f}x** the "
+                 f"time, timed alternately in one run; largest difference between their boxes "
+                 f"{b['largest_difference_px']:.2g} px.")
+    return text
+
+
+table("detectors", "perception/detectors.json")(render_detectors)
+table("detector-backends", "perception/detectors.json")(render_detector_backends)
+
+
+# -- rewriting the pages ------------------------------------------------------------------------------
+def pages(docs: Path) -> list[Path]:
+    return sorted(p for p in docs.rglob("*.md") if "results" not in p.relative_to(docs).parts[:1])
+
+
+def update(docs: Path, results: Path, check: bool) -> tuple[list[str], list[str]]:
+    """``(stale blocks, unknown blocks)``; rewrites the pages unless ``check``."""
+    stale, unknown = [], []
+    for page in pages(docs):
+        text = page.read_text()
+
+        def sub(m):
+            name = m.group("name")
+            if name not in TABLES:
+                unknown.append(f"{page.relative_to(docs)}: {name}")
+                return m.group(0)
+            body = render(name, results)
+            if body != m.group("body"):
+                stale.append(f"{page.relative_to(docs)}: {name}")
+            return m.group(1) + body + m.group(4)
+
+        new = BLOCK.sub(sub, text)
+        if new != text and not check:
+            page.write_text(new)
+    return stale, unknown
+
+
+def main(args) -> int:
+    docs = Path(args.docs)
+    results = Path(args.results) if args.results else docs / "results"
+    stale, unknown = update(docs, results, args.check)
+    for u in unknown:
+        print(f"sim_cluster report: unknown block {u} (known: {', '.join(sorted(TABLES))})",
+              file=sys.stderr)
+    if args.check:
+        for s in stale:
+            print(f"stale: {s} (its data file says otherwise; run sim_cluster report)")
+        if not stale and not unknown:
+            print(f"every generated block of {docs} matches its data")
+        return 1 if stale or unknown else 0
+    print(f"rewrote {len(stale)} block(s) of {docs}" + (": " + ", ".join(stale) if stale else ""))
+    return 1 if unknown else 0
