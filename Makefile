@@ -6,7 +6,7 @@ VENV := .venv
 BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed
 
-.PHONY: setup run test bench clean
+.PHONY: setup run test bench docs clean
 
 setup: $(STAMP)
 
@@ -15,7 +15,7 @@ $(STAMP): pyproject.toml
 	$(BIN)/pip install --quiet --upgrade pip
 	# torch first, pinned: the CPU wheel on local disk (a looser pin pulls a multi-GB CUDA build)
 	$(BIN)/pip install --quiet torch==2.13.0
-	$(BIN)/pip install --quiet -e '.[dev,vision,viz,reid]'
+	$(BIN)/pip install --quiet -e '.[dev,vision,viz,reid,docs]'
 	touch $(STAMP)
 
 # The main job: one edge_node process per camera of the embedded default scenario (terrace-sim,
@@ -30,5 +30,11 @@ test: setup
 bench: setup
 	$(BIN)/sim_cluster bench
 
+# The documentation site (mkdocs-material + mkdocstrings) into site/; --strict: a broken link or
+# reference fails. The tables are rendered from docs/results/ first (sim_cluster report).
+docs: setup
+	$(BIN)/sim_cluster report
+	$(BIN)/mkdocs build --strict --site-dir site
+
 clean:
-	rm -rf $(VENV) runs .pytest_cache
+	rm -rf $(VENV) runs site .pytest_cache
