@@ -34,7 +34,7 @@ bench: setup
 # reference fails. The tables are rendered from docs/results/ first (sim_cluster report).
 docs: setup
 	$(BIN)/sim_cluster report
-	$(BIN)/mkdocs build --strict --site-dir site
+	NO_MKDOCS_2_WARNING=1 $(BIN)/mkdocs build --strict --site-dir site
 
 clean:
 	rm -rf $(VENV) runs site .pytest_cache

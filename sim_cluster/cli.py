@@ -384,6 +384,9 @@ def build_parser() -> argparse.ArgumentParser:
     b.add_argument("--long-walk-cameras", type=integer(1), default=4,
                    help="--cameras: a long walk crosses at least this many cameras' views")
     b.add_argument("--out", default="runs/bench-scale", help="--cameras: scale.json, scale.csv, scale.png")
+    b.add_argument("--json", default=None, metavar="FILE",
+                   help="without --cameras: also write the figures, the machine and the commit "
+                        "to FILE (docs/results/bench/core.json is what the docs render)")
     b.add_argument("--quiet", action="store_true", help="no progress")
     b.set_defaults(func=bench.main)
 

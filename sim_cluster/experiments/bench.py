@@ -15,11 +15,13 @@ code that builds messages one tracker at a time pays: the block is made first).
 """
 from __future__ import annotations
 
+import json
 import statistics
 import time
 from collections.abc import Callable
 from dataclasses import replace
 from functools import partial
+from pathlib import Path
 from typing import TypeVar
 
 import numpy as np
@@ -30,6 +32,7 @@ from edge_node.core.types import Detection
 from edge_node.geometry import Camera
 from protocol import FrameMessage, codec
 from sim_cluster.experiments import bench_scale
+from sim_cluster.experiments.provenance import provenance
 from sim_cluster.experiments.run import tracker_config
 
 AREA = 20.0
@@ -183,9 +186,13 @@ def main(args) -> int:
           f"{args.frames} frames, median of {args.repeats} repeats")
     print(f"{'targets':>7} {'trackers':>8} {'core ms':>8} {'p90 ms':>7} {'codec ms':>8} "
           f"{'B/tracker':>9} {'B/appearance':>12}")
+    rows = []
     for t in targets:
         runs = [bench_targets(t, args.neighbours, args.frames, seed=r) for r in range(args.repeats)]
         med = {k: statistics.median(r[k] for r in runs) for k in runs[0]}
+        rows.append({"targets": t, **med,
+                     "core_ms_runs": sorted(r["core_ms_median"] for r in runs),
+                     "codec_node_frame_us_runs": sorted(r["codec_node_frame_block_us"] for r in runs)})
         print(f"{t:>7} {med['trackers_per_node']:>8.0f} {med['core_ms_median']:>8.2f} "
               f"{med['core_ms_p90']:>7.2f} {med['codec_ms_median']:>8.3f} "
               f"{med['bytes_per_tracker']:>9.1f} {med['appearance_bytes_per_new_tracker']:>12.0f}")
@@ -194,4 +201,11 @@ def main(args) -> int:
               f"{args.neighbours} decodes) {med['codec_node_frame_block_us']:.1f}; "
               f"{med['codec_bytes']:.0f} bytes per message (encode from TrackerInfo objects "
               f"{med['codec_encode_us']:.1f})")
+    if getattr(args, "json", None):  # the data file the docs' benchmark table is rendered from
+        out = Path(args.json)
+        out.parent.mkdir(parents=True, exist_ok=True)
+        meta = {"provenance": provenance(), "neighbours": args.neighbours, "frames": args.frames,
+                "repeats": args.repeats}
+        out.write_text(json.dumps({"meta": meta, "rows": rows}, indent=2, sort_keys=True) + "\n")
+        print(f"wrote {out}")
     return 0

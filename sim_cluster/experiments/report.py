@@ -285,6 +285,29 @@ def scale_ratio(rows: list[dict]) -> str:
               ["---:"] + ["---:"] * (len(cams) - 1))
 
 
+# -- the tracker core and the codec (sim_cluster bench --json) -----------------------------------
+@table("core-bench", "bench/core.json")
+def core_bench(d: dict) -> str:
+    m = d["meta"]
+    rows = []
+    for r in d["rows"]:
+        runs = r["core_ms_runs"]
+        codec = r["codec_node_frame_us_runs"]
+        rows.append([str(r["targets"]), f"{r['trackers_per_node']:.0f}",
+                     f"{r['core_ms_median']:.2f} ({runs[0]:.2f}-{runs[-1]:.2f})",
+                     f"{r['core_ms_p90']:.2f}",
+                     f"{r['codec_node_frame_block_us']:.0f} ({codec[0]:.0f}-{codec[-1]:.0f})",
+                     f"{r['codec_encode_block_us']:.0f} / {r['codec_decode_us']:.0f}",
+                     f"{r['codec_bytes']:.0f}", f"{r['bytes_per_tracker']:.1f}",
+                     f"{r['appearance_bytes_per_new_tracker']:.0f}"])
+    return md(["targets", "trackers per node", "core ms per node-frame (median of runs; range)",
+               "p90 ms", f"codec µs per node-frame (1 encode + {m['neighbours']} decodes)",
+               "encode / decode µs", "bytes per message", "bytes per tracker",
+               "bytes per appearance"], rows, ["---:"] * 9) + (
+        f"\n\n{m['frames']} frames, {m['neighbours']} neighbours, {m['repeats']} runs; CPU time of "
+        "the process (`time.process_time`).")
+
+
 # -- faults -----------------------------------------------------------------------------------------
 @table("faults", "fault_report.md")
 def faults(text: str) -> str:
