@@ -340,7 +340,9 @@ def render_detectors(d: dict) -> str:
     return (md(header, rows, ["---"] + ["---:"] * (len(header) - 1)) +
             f"\n\nVisible people scored: {people} (every {d['meta']['stride']}th frame from "
             f"frame {d['meta']['warmup']} of {d['meta']['frames']}, every camera; IoU >= "
-            f"{d['meta']['iou']}; ssdlite backend: {d['meta']['backends'].get('ssdlite', '?')}).")
+            f"{d['meta']['iou']}; ssdlite backend: {d['meta']['backends'].get('ssdlite', '?')}). "
+            "Recall counts the visible people found; precision the detections on anyone in the "
+            "image, a half-hidden person included.")
 
 
 def render_detector_backends(d: dict) -> str:
