@@ -303,7 +303,7 @@ def build_parser() -> argparse.ArgumentParser:
 
     pr = sub.add_parser("probe", help="the zombie probes (freeze, full disk, kill -9 and "
                         "restarts, a phantom flood, a camera absent at boot) on real processes, "
-                        "each against its goal (README, Faults)")
+                        "each against its goal (docs/faults.md)")
     pr.add_argument("kind", choices=probe.KINDS)
     pr.add_argument("--out", default="runs/probe")
     pr.add_argument("--nodes", type=integer(2), default=4)

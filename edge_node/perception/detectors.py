@@ -583,7 +583,7 @@ class SsdliteDetector:
             raise PerceptionError("ssdlite: tiles >= 1 and tile_overlap in [0, 1) are required")
         if backend == "auto":
             try:  # optional (the vision extra), heavy: imported only for this detector
-                import onnxruntime  # noqa: F401
+                import onnxruntime  # noqa: F401  (optional, heavy: only "auto" asks for it)
                 backend = "onnxruntime"
             except ImportError:
                 backend = "opencv"
@@ -596,7 +596,7 @@ class SsdliteDetector:
         self.cv2 = require_cv2()
         if backend == "onnxruntime":
             try:  # optional (the vision extra), heavy: imported only for this backend
-                import onnxruntime as ort
+                import onnxruntime as ort  # optional, heavy: only this backend needs it
             except ImportError:
                 raise PerceptionError("ssdlite: backend = \"onnxruntime\" needs the onnxruntime "
                                       "package (pip install onnxruntime), or use the default "

@@ -159,7 +159,7 @@ class OsnetReid:
                  threads: int | None = None, seed: int = 0):
         if weights is None and not random_init:
             raise PerceptionError("OSNet needs a weights file (a torchreid checkpoint); "
-                                  "see docs/real-cameras.md, or use reid = \"histogram\"")
+                                  "see docs/perception.md, or use reid = \"histogram\"")
         if weights is not None and not Path(weights).is_file():
             raise PerceptionError(f"OSNet weights file not found: {weights}")
         try:

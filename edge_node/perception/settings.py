@@ -210,7 +210,7 @@ def parse_perception(t, base: Path) -> PerceptionSettings:
         s.finish()
     elif reid.startswith("osnet_"):
         raise t.error("osnet", f"is required for reid = {reid!r} ([perception.osnet] weights = "
-                      "\"...pth\", a torchreid checkpoint; see docs/real-cameras.md)")
+                      "\"...pth\", a torchreid checkpoint; see docs/perception.md)")
     t.finish()
     return PerceptionSettings(detector, reid, float(min_h), int(log_every),
                               0.2 if foot_offset is None else float(foot_offset),

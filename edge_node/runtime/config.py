@@ -487,7 +487,7 @@ def _perception(t: Table | None, base: Path, source: SourceSettings,
     if camera is None and source.kind != "epfl":
         raise NodeConfigError(file, "camera", f"is required for source "
                               f"kind {source.kind!r}: the image-to-ground homography (see "
-                              "docs/real-cameras.md, edge_node calibrate)")
+                              "docs/perception.md, edge_node calibrate)")
     return parse_perception(t, base) if t is not None else PerceptionSettings()
 
 

@@ -206,8 +206,8 @@ class ZenohTransport:
                 self.close()
                 raise DuplicateNodeError(
                     f"node {node}: id {node} is already alive on network {network!r} (seen by "
-                    f"{holders}); every camera needs its own node id (README, 'Running on real "
-                    f"camera boxes')")
+                    f"{holders}); every camera needs its own node id (docs/deploy.md, 'Setting up the "
+                    f"boxes')")
             self._token = self.session.liveliness().declare_token(alive_key(network, self.node))
         except zenoh.ZError as e:
             self.close()

@@ -160,7 +160,7 @@ def backend_speed(frames: list[np.ndarray], rounds: int) -> dict:
     import cv2  # an optional extra (vision): only the perception commands need it
     res["opencv_version"] = cv2.__version__
     try:  # optional (vision extra): its version beside its timing
-        import onnxruntime
+        import onnxruntime  # optional (vision extra): its version beside its timing
         res["onnxruntime_version"] = onnxruntime.__version__
     except ImportError:
         pass

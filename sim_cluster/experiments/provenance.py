@@ -54,7 +54,8 @@ def provenance(command: str | None = None) -> dict:
         load = round(os.getloadavg()[0], 1)
     except OSError:
         load = None
+    prog = Path(sys.argv[0])
+    name = prog.parent.name if prog.name in ("cli.py", "__main__.py") else prog.name  # -m runs
     return {"commit": _commit(), "machine": machine(),
             "date": datetime.date.today().isoformat(),
-            "command": command or " ".join([Path(sys.argv[0]).name] + sys.argv[1:]),
-            "load": load}
+            "command": command or " ".join([name] + sys.argv[1:]), "load": load}

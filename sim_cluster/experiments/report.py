@@ -324,7 +324,7 @@ DETECTOR_LABELS = {"mog2": "MOG2 (empty-scene start, camera geometry)",
 def render_detectors(d: dict) -> str:
     scenarios = list(d["scenarios"])
     names = list(next(iter(d["scenarios"].values()))["variants"])
-    header = ["detector"] + [f"{s}: recall / precision" for s in scenarios] + ["ms / frame"]
+    header = ["detector"] + [f"{s}: recall / precision" for s in scenarios] + ["ms / frame (default threads)"]
     rows = []
     for n in names:
         row = [DETECTOR_LABELS.get(n, n)]
