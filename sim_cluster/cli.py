@@ -305,7 +305,9 @@ def build_parser() -> argparse.ArgumentParser:
                         "restarts, a phantom flood, a camera absent at boot) on real processes, "
                         "each against its goal (docs/faults.md)")
     pr.add_argument("kind", choices=probe.KINDS)
-    pr.add_argument("--out", default="runs/probe")
+    pr.add_argument("--out", default="runs/probe", help="where probe_<kind>.json goes")
+    pr.add_argument("--work", default=None,
+                    help="where the probe's clusters run (default: --out)")
     pr.add_argument("--nodes", type=integer(2), default=4)
     pr.add_argument("--fps", type=number(0, above=True), default=25.0)
     pr.add_argument("--seconds", default="5,30,120,600",

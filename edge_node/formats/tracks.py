@@ -50,7 +50,7 @@ OLD_HEADER_LINE = (",".join(HEADER[:-4]) + "\r\n").encode()
 CHUNK_BYTES = 64 * 1024  # rows waiting in memory are written once they reach this much
 MAX_PENDING_BYTES = 64 * 1024 * 1024  # rows kept while the file fails (about 10 h of 9 people)
 RETRY_S = 0.5  # first wait after a failed write ...
-RETRY_MAX_S = 30.0  # ... doubling up to this
+RETRY_MAX_S = 5.0  # ... doubling up to this (space freed: written again within seconds)
 
 log = logging.getLogger("edge_node.formats")
 

@@ -98,7 +98,7 @@ from protocol.messages import FrameMessage
 log = logging.getLogger("edge_node.loop")
 
 SKIP_FRAMES = 2  # a node more frames than this behind its neighbours skips ahead to them
-LATE_PACING_S = 1.0  # a paced loop this far behind its clock re-anchors instead of bursting
+LATE_PACING_S = 2.0  # a paced loop this far behind its clock re-anchors instead of bursting
 
 BOOT_GRACE_S = 0.5  # a paced first frame waits this long for a neighbour that sent nothing yet
 PLAUSIBLE_RATE = 1.5  # the network's frame is believed up to this many times camera rate ...

@@ -50,6 +50,7 @@ from sim_cluster.cluster.launcher import Cluster
 from sim_cluster.cluster.processes import spawn, terminate
 from sim_cluster.cluster.state import ClusterError, node_counters, node_status
 from sim_cluster.experiments.chaos import fill, phantom_message, publish_once, rss_kb
+from sim_cluster.experiments.provenance import provenance
 
 KINDS = ("freeze", "disk-full", "restarts", "flood", "boot")
 SCENARIO = "terrace-sim"
@@ -164,10 +165,30 @@ def probe_freeze(out: Path, seconds: list[float], modes: list[str], *, nodes: in
                 c.down()
             rows.append(_freeze_row(s, mode, d, node, neigh, fps, t_stop, t_cont, t_end,
                                     node_counters(c.state, node)))
+            rows[-1]["world_walk_s"] = _world_walk_s(node, s.frame_at(node, t_stop),
+                                                   s.frame_at(node, t_end))
             say(f"  caught up in {rows[-1]['catch_up_s']} s; neighbours at "
                 f"{rows[-1]['neighbour_rate']} of camera rate (worst second "
                 f"{rows[-1]['neighbour_worst_second']})")
     return rows
+
+
+def _world_walk_s(node: int, before: int | None, frame: int | None) -> float | None:
+    """CPU seconds the scenario source takes to make ``frame`` once it made ``before`` (where
+    the node froze): part of a skip's catch-up time that only a simulated camera has (the
+    synthetic world walks its people frame by frame to get there; a camera serves its current
+    frame)."""
+    if frame is None or before is None:
+        return None
+    from sim_cluster.scenarios.loader import open_scenario
+    spent = []
+    for _ in range(2):  # the first pass pays one-off imports and caches the node had paid
+        camera = open_scenario(SCENARIO, seed=0, frames=frame + 1).camera(node)  # node n: camera n
+        camera(before)
+        t0 = time.process_time()
+        camera(frame)
+        spent.append(time.process_time() - t0)
+    return round(spent[-1], 2)
 
 
 def _freeze_row(s: Sampler, mode: str, d: float, node: int, neigh: list[int], fps: float,
@@ -241,7 +262,7 @@ def probe_disk_full(out: Path, *, nodes: int = 4, topology: str = "ring", fps: f
             t_free = time.monotonic()
             filler.unlink()
             say("  space freed")
-            time.sleep(10.0)
+            time.sleep(15.0)
             t_end = time.monotonic()
     finally:
         try:
@@ -260,16 +281,17 @@ def _disk_rows(c: Cluster, s: Sampler, t_full: float, t_free: float, t_end: floa
                          if t >= t_full and st == "degraded"), None)
         recovered = next((round(t - t_free, 2) for t, st in s.series(i, "phase")
                           if t >= t_free and st == "running"), None)
-        frames_full = [f for t, f in s.series(i, "frame") if t_full <= t <= t_free]
-        sent = [m for t, m in s.series(i, "messages_sent") if t_full <= t <= t_free]
+        frames_full = [f for t, f in s.series(i, "frame")
+                       if t_full <= t <= t_free and f is not None]
+        sent = [m for t, m in s.series(i, "messages_sent") if t_full <= t <= t_free and m is not None]
         bad, twice, whole = _file_rows(c.out, i)
-        rows.append({"node": i, "degraded_after_s": degraded, "running_again_after_s": recovered,
+        rows.append({"node": i, "degraded_after_s": degraded, "running_after_freed_s": recovered,
                      "frames_while_full": (max(frames_full) - min(frames_full)) if frames_full else 0,
                      "messages_while_full": (max(sent) - min(sent)) if sent else 0,
                      "unreadable_rows": bad, "rows_twice": twice, "file_whole": whole,
                      "pass": (degraded is not None and degraded <= 2.0 and bool(frames_full)
                               and max(frames_full) > min(frames_full) and bad == 0
-                              and twice == 0 and whole)})
+                              and twice == 0 and whole and recovered is not None)})
     return rows
 
 
@@ -410,6 +432,8 @@ def _table(kind: str, rows: list[dict]) -> str:
 def main(args) -> int:
     out = Path(args.out).resolve()
     out.mkdir(parents=True, exist_ok=True)
+    work = Path(args.work).resolve() if args.work else out  # where the probes' clusters run
+    work.mkdir(parents=True, exist_ok=True)
 
     def say(text: str) -> None:
         if not args.quiet:
@@ -417,20 +441,19 @@ def main(args) -> int:
 
     kind = args.kind
     if kind == "freeze":
-        rows = probe_freeze(out, [float(x) for x in args.seconds.split(",")],
+        rows = probe_freeze(work, [float(x) for x in args.seconds.split(",")],
                             args.modes.split(","), nodes=args.nodes, fps=args.fps, say=say)
     elif kind == "disk-full":
-        rows = probe_disk_full(out, nodes=args.nodes, fps=args.fps, say=say)
+        rows = probe_disk_full(work, nodes=args.nodes, fps=args.fps, say=say)
     elif kind == "restarts":
-        rows = probe_restarts(out, kills=args.kills, nodes=args.nodes, fps=args.fps,
+        rows = probe_restarts(work, kills=args.kills, nodes=args.nodes, fps=args.fps,
                               seed=args.seed, say=say)
     elif kind == "flood":
-        rows = probe_flood(out, phantoms=args.phantoms, nodes=args.nodes, fps=args.fps, say=say)
+        rows = probe_flood(work, phantoms=args.phantoms, nodes=args.nodes, fps=args.fps, say=say)
     else:
-        rows = probe_boot(out, nodes=args.nodes, fps=args.fps, say=say)
+        rows = probe_boot(work, nodes=args.nodes, fps=args.fps, say=say)
     report = {"kind": kind, "rows": rows, "pass": all(r["pass"] for r in rows),
-              "when": time.strftime("%Y-%m-%d %H:%M:%S"), "machine": os.uname().nodename,
-              "cpus": os.cpu_count()}
+              "meta": {"provenance": provenance()}}
     (out / f"probe_{kind}.json").write_text(json.dumps(report, indent=1))
     print(_table(kind, rows))
     print(f"{'PASS' if report['pass'] else 'FAIL'}; wrote {out / f'probe_{kind}.json'}")

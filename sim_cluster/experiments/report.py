@@ -308,6 +308,31 @@ def core_bench(d: dict) -> str:
         "the process (`time.process_time`).")
 
 
+# -- the zombie probes (sim_cluster probe KIND --out docs/results/probe) -----------------------------
+PROBE_GOALS = {
+    "freeze": "frozen node within one frame of its neighbours within 2 s of SIGCONT; neighbours at "
+              ">= 0.95 of camera rate",
+    "disk-full": "every node `degraded` within 2 s, tracking and sending on; no unreadable row, no "
+                 "(frame, id) row twice",
+    "restarts": "every track file reads whole; no (frame, id) row twice",
+    "flood": "honest nodes at camera rate, resident memory within +10 %, every node still sending",
+    "boot": "nodes not bordering the absent camera start within 1 s, its neighbour within 5 s",
+}
+
+
+def probe_table(d: dict) -> str:
+    rows = d["rows"]
+    keys = [k for k in rows[0] if k != "pass"]
+    body = md([k.replace("_", " ") for k in keys] + ["goal met"],
+              [[("-" if r[k] is None else str(r[k])) for k in keys] + ["yes" if r["pass"] else "no"]
+               for r in rows])
+    return f"Goal: {PROBE_GOALS[d['kind']]}.\n\n{body}"
+
+
+for _kind in PROBE_GOALS:
+    table(f"probe-{_kind}", f"probe/probe_{_kind}.json")(probe_table)
+
+
 # -- faults -----------------------------------------------------------------------------------------
 @table("faults", "fault_report.md")
 def faults(text: str) -> str:
