@@ -6,10 +6,21 @@ import time
 from pathlib import Path
 
 
+_HANDED_OUT: set[int] = set()
+
+
 def free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
+    """A free TCP port on 127.0.0.1, never one this session handed out before: a test takes its
+    ports one call at a time and binds them only later (a node listens once it has started), so
+    the kernel could otherwise give the same still-unbound port to two calls."""
+    for _ in range(1000):
+        with socket.socket() as s:
+            s.bind(("127.0.0.1", 0))
+            port = s.getsockname()[1]
+        if port not in _HANDED_OUT:
+            _HANDED_OUT.add(port)
+            return port
+    raise RuntimeError("no free loopback port left that this session has not handed out")
 
 
 def ep(port: int, proto: str = "tcp") -> str:

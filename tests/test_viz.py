@@ -238,9 +238,9 @@ def test_cluster_up_streams_to_a_running_viewer(tmp_path):
 
     import rerun_cli
 
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        port = s.getsockname()[1]
+    from tests.loopback import free_port
+
+    port = free_port()
     got = tmp_path / "received.rrd"
     server = subprocess.Popen([str(Path(rerun_cli.__file__).parent / "rerun"), "--bind",
                                "127.0.0.1", "--port", str(port), "--save", str(got)],
@@ -282,11 +282,9 @@ def test_cluster_up_streams_to_a_running_viewer(tmp_path):
 
 
 def _unused_port() -> int:
-    import socket
+    from tests.loopback import free_port
 
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
+    return free_port()
 
 
 def test_closing_a_sink_whose_viewer_cannot_be_reached_is_bounded_and_does_not_raise(monkeypatch):
