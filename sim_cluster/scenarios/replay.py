@@ -51,5 +51,10 @@ def open(options: dict[str, Any], camera: int, node: int) -> Source:  # noqa: A0
         raise SourceError(f"source.camera is {camera}, but scenario {data.name} has "
                           f"{data.num_cameras} cameras (0..{data.num_cameras - 1})")
     cam = replace(data.cameras[camera], id=node)
-    return Source(cam, data.frames, data.fps, data.units_per_metre, data.camera(camera),
+    read = data.camera(camera)
+    # the first chunk now, at start-up, before the node joins the network: made at frame 0 it
+    # held the node's first message back while its neighbours, past the start-up barrier, waited
+    # (on a busy machine long enough to time out on frame 0)
+    read(0)
+    return Source(cam, data.frames, data.fps, data.units_per_metre, read,
                   f"scenario {data.name} seed {data.seed} camera {camera}")
