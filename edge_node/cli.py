@@ -117,7 +117,7 @@ def _check(args) -> int:
     return 0
 
 
-def _run(args) -> int:
+def _run(args, warming: threading.Thread | None = None) -> int:
     logging.basicConfig(level=args.log_level.upper(), stream=sys.stderr,
                         format="%(asctime)s %(name)s %(levelname)s: %(message)s")
     if args.frames is not None and args.frames < 1:
@@ -136,7 +136,8 @@ def _run(args) -> int:
         cfg = replace(cfg, viz=viz)
     try:
         report = loop.run_node(cfg, frames=args.frames, mode=args.mode, join=args.join,
-                               freeze_gc=True)
+                               freeze_gc=True,
+                               before_network=warming.join if warming is not None else None)
     except (NodeConfigError, SourceError) as e:
         return _fail(str(e), loop.EXIT_USAGE)
     except DuplicateNodeError as e:
@@ -153,8 +154,10 @@ def _run(args) -> int:
 
 def warm_up(modules: tuple[str, ...] = ("scipy.optimize",)) -> threading.Thread:
     """Import the heavy libraries the first frame needs in the background, while the process
-    reads its config, opens its source and waits for Zenoh and its neighbours (start-up time is
-    spawn to frame 0; the core imports them on first use)."""
+    reads its config and opens its source (start-up time is spawn to frame 0; the core imports
+    them on first use). ``run`` waits for it before it opens Zenoh: a node whose neighbours
+    already wait for its frame 0 must not still be importing (on a busy machine that took
+    seconds, and the neighbours timed out)."""
     t = threading.Thread(target=lambda: [importlib.import_module(m) for m in modules],
                          name="warm-up", daemon=True)
     t.start()
@@ -163,15 +166,14 @@ def warm_up(modules: tuple[str, ...] = ("scipy.optimize",)) -> threading.Thread:
 
 def main(argv: list[str] | None = None) -> int:
     args = _parser().parse_args(argv)
-    if args.command == "run":
-        warm_up()
+    warming = warm_up() if args.command == "run" else None
     if args.command == "check":
         return _check(args)
     if args.command == "calibrate":
         return _calibrate(args)
     if args.command == "router":
         return _router(args)
-    return _run(args)
+    return _run(args, warming)
 
 
 if __name__ == "__main__":

@@ -697,7 +697,8 @@ def _continue_at(writer: TrackWriter, k0: int | None, total: int) -> int | None:
 def run_node(cfg: NodeConfig, *, frames: int | None = None, mode: str | None = None,
              transport_factory: Callable[..., Any] | None = None,
              install_signals: bool = True, join: bool = False,
-             freeze_gc: bool = False) -> RunReport:
+             freeze_gc: bool = False,
+             before_network: Callable[[], Any] | None = None) -> RunReport:
     """Run one camera process to completion. Raises ``NodeConfigError`` / ``SourceError`` for
     bad inputs, ``TransportError`` when Zenoh cannot start and ``DuplicateNodeError`` when its
     id is already alive (the CLI maps them to exit codes); returns a report otherwise. The
@@ -711,6 +712,9 @@ def run_node(cfg: NodeConfig, *, frames: int | None = None, mode: str | None = N
     the same happens when a neighbour reports at start-up that it is already running (a late
     boot). The id counter persists in the output folder (``state_node<id>.json``), so a
     restarted node never reuses an id.
+
+    ``before_network``: called once the source is open and before Zenoh is (the CLI waits there
+    for its warm-up imports), so the node joins the network ready to run its first frame.
 
     Every way out (the end, a signal, an internal error) closes the transport first (the
     liveliness token goes: the node is not 'alive' while it writes its exit files), then writes
@@ -743,6 +747,8 @@ def run_node(cfg: NodeConfig, *, frames: int | None = None, mode: str | None = N
                               "CameraNode.update accepts stale_ok=True; this one does not")
     status = StatusWriter(status_path(out, cfg.node) if out else None, cfg.output.status_interval_s)
     factory = transport_factory or tr.ZenohTransport
+    if before_network is not None:
+        before_network()
     z = cfg.zenoh
     log.info("node %d (%s, network %s): %d frames from %s; neighbours %s; listen %s connect %s",
              cfg.node, mode, cfg.network, total, source.description, list(cfg.neighbours),
