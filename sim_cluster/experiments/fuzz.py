@@ -251,13 +251,13 @@ class Node2:
 
 
 def _victim_config(out: Path, node: int, ports: dict[int, int], network: str, scenario: str,
-                   frames: int, fps: float) -> Path:
+                   frames: int, fps: float, sync_timeout_s: float) -> Path:
     neighbours = {0: [1], 1: [0, ATTACKER]}[node]
     connect = [f"tcp/127.0.0.1:{ports[n]}" for n in neighbours]
     text = "\n".join([
         f"node = {node}", f'network = "{network}"', f"neighbours = {neighbours}",
         "[zenoh]", f'listen = ["tcp/127.0.0.1:{ports[node]}"]', f"connect = {json.dumps(connect)}",
-        "[runtime]", f"fps = {fps}", "startup_timeout_s = 30", "sync_timeout_s = 2",
+        "[runtime]", f"fps = {fps}", "startup_timeout_s = 30", f"sync_timeout_s = {sync_timeout_s}",
         "[source]", 'kind = "scenario"', f'scenario = "{scenario}"', f"camera = {node}",
         f"frames = {frames}", "[output]", f'dir = "{out}"', ""])
     path = out / f"node{node}.toml"
@@ -266,7 +266,7 @@ def _victim_config(out: Path, node: int, ports: dict[int, int], network: str, sc
 
 
 def _run_once(out: Path, hostile: Hostile | None, *, scenario: str, frames: int, fps: float,
-              per_frame: int, network: str) -> tuple[Node2, list[int]]:
+              per_frame: int, network: str, sync_timeout_s: float) -> tuple[Node2, list[int]]:
     out.mkdir(parents=True, exist_ok=True)
     ports = dict(zip((0, 1, ATTACKER), free_ports(3)))
     node2 = Node2(network, f"tcp/127.0.0.1:{ports[ATTACKER]}",
@@ -275,12 +275,12 @@ def _run_once(out: Path, hostile: Hostile | None, *, scenario: str, frames: int,
     try:
         env = dict(os.environ, PYTHONUNBUFFERED="1")
         for n in VICTIMS:
-            cfg = _victim_config(out, n, ports, network, scenario, frames, fps)
+            cfg = _victim_config(out, n, ports, network, scenario, frames, fps, sync_timeout_s)
             log = open(out / f"node{n}.log", "w")
             procs.append(subprocess.Popen([sys.executable, "-m", "edge_node.cli", "run",
                                            "--config", str(cfg), "--log-level", "WARNING"],
                                           env=env, stdout=log, stderr=subprocess.STDOUT))
-        node2.serve(procs, timeout=60 + 3 * frames / max(fps, 1.0))
+        node2.serve(procs, timeout=60 + 3 * frames / max(fps, 1.0) + 2 * sync_timeout_s)
         codes = []
         for p in procs:
             try:
@@ -298,8 +298,11 @@ def _run_once(out: Path, hostile: Hostile | None, *, scenario: str, frames: int,
 
 def run(messages: int = 10_000, out: str | Path = "runs/fuzz", *, scenario: str = "lab-sim",
         fps: float = 50.0, per_frame: int = 40, entries: int = 4, merges: int = 2,
-        seed: int = 0, progress=None) -> FuzzReport:
-    """The reference and the attack run; the report (see the module docstring)."""
+        seed: int = 0, sync_timeout_s: float = 2.0, progress=None) -> FuzzReport:
+    """The reference and the attack run; the report (see the module docstring). ``fps`` 0: as
+    fast as the nodes go; ``sync_timeout_s``: how long a victim waits for a neighbour's frame
+    (the test runs unpaced with a long one, so a victim starved of CPU on a busy machine does not
+    time out its neighbour and make the two runs' tracks differ)."""
     t0 = time.monotonic()
     out = Path(out)
     # a tenth more frames than ``messages`` needs: a victim that falls behind under the attack
@@ -314,7 +317,8 @@ def run(messages: int = 10_000, out: str | Path = "runs/fuzz", *, scenario: str 
         if progress:
             progress(f"{name}: {frames} frames at {fps:g} fps")
         node2, codes = _run_once(out / name, hostile, scenario=scenario, frames=frames, fps=fps,
-                                 per_frame=per_frame, network=f"{network}{name[0]}")
+                                 per_frame=per_frame, network=f"{network}{name[0]}",
+                                 sync_timeout_s=sync_timeout_s)
         results[name] = (node2, codes)
     attack = results["attack"][0]
     rep = attack.report
