@@ -71,9 +71,16 @@ def test_sync_cluster_reproduces_in_process_run(tmp_path, terrace, topology):
 
 
 def test_async_cluster_keeps_accuracy(tmp_path, terrace):
-    """Async processes never wait: neighbours' messages arrive a frame or more late. Ground
-    MOTA stays within 0.9 x the synchronous run's."""
-    _up(tmp_path / "a", "--topology", "ring", "--mode", "async")
+    """Async processes never wait: they fuse whatever of their neighbours' messages has arrived
+    (often a frame or more late). Ground MOTA stays within 0.9 x the synchronous run's.
+
+    Paced at 10 frames/s rather than the scenario's 25 (the default pacing of an async
+    cluster); the tracker's own time step stays the scenario's 1/25 s. An async node never
+    waits, so a node starved of CPU on a busy machine skipped frames and fused messages from
+    far behind, and the run measured the machine's load (ground MOTA 0.52 against 0.88 at load
+    average 8), not the tracker's tolerance of late messages. At 10 frames/s a node has 100 ms
+    per frame, room for a machine whose cores are shared with two busy loops."""
+    _up(tmp_path / "a", "--topology", "ring", "--mode", "async", "--fps", "10")
     a = json.loads((tmp_path / "a" / "summary.json").read_text())
     sync = run_network(terrace, build("ring", 4), TrackerConfig())
     ref = evaluate(sync.tracks, terrace, views=("ground",))["ground"]["median"]["mota"]
