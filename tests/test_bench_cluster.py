@@ -86,6 +86,10 @@ def test_two_node_cluster_monitor_equals_counters(tmp_path):
 
 @pytest.mark.integration
 def test_command_writes_summary_and_table(tmp_path, capsys):
+    """What the command does: one run per pacing, the JSON summary and the table written, the
+    figures in their columns, every node gone. How fast a machine runs the cluster is the
+    benchmark's to report (``sim_cluster bench-cluster``, docs/results), not a test's: only
+    what holds on any machine is asserted (pacing never runs faster than the camera rate)."""
     class Args:
         nodes, frames, repeats, topology, scenario, seed = "2", 40, 1, "chain", "lab-sim", 0
         sync_timeout, startup_timeout, out = 10.0, 30.0, str(tmp_path)
@@ -93,17 +97,28 @@ def test_command_writes_summary_and_table(tmp_path, capsys):
 
     assert main(Args) == 0
     result = json.loads((tmp_path / RESULT).read_text())
-    s = result["summary"]["2"]
-    assert s["monitor_agrees_in_every_run"]
-    assert s["bytes_per_link_frame_monitor"] == s["bytes_per_link_frame_counters"] > 0
+    assert (result["frames"], result["repeats"], result["pacing"]) == (40, 1, [0.0, 20.0])
+    assert set(result["summary"]) == set(result["runs"]) == {"2", "2@20"}
+    assert all(len(runs) == 1 for runs in result["runs"].values())
+    for key, s in result["summary"].items():
+        assert s["nodes"] == 2 and s["timeouts"] == 0 and not any(s["problems"].values()), s
+        assert _positive(s["fps"]) and _positive(s["busy_ms_per_frame"]), s
+        assert 0 < s["bytes_per_link_frame_monitor"] <= s["bytes_per_link_frame_counters"], s
+        if s["monitor_agrees_in_every_run"]:  # (else missed a start-up prefix: first test)
+            assert s["bytes_per_link_frame_monitor"] == s["bytes_per_link_frame_counters"], s
+    assert result["summary"]["2"]["pacing_fps"] == 0
     paced = result["summary"]["2@20"]
-    assert paced["pacing_fps"] == 20 and paced["timeouts"] == 0
-    # the camera rate, not faster (the rate runs from the later node's frame 0: a start-up
-    # skew of a few tens of ms shortens 39 frame periods a little)
-    assert 15 < paced["fps"] <= 20 * 1.1
+    assert paced["pacing_fps"] == 20
+    # paced: never faster than the camera rate (the rate runs from the later node's frame 0: a
+    # start-up skew of a few tens of ms shortens 39 frame periods a little)
+    assert paced["fps"] <= 20 * 1.1, paced["fps"]
     out = capsys.readouterr().out
     lines = table(result).splitlines()
-    assert "frames/s" in out and lines[3].split()[:2] == ["2", "-"] and lines[4].split()[:2] == ["2", "20"]
+    assert f"wrote {tmp_path / RESULT}" in out and lines[0] in out
+    assert lines[1].split()[:3] == ["nodes", "pacing", "frames/s"]
+    for line, key, pacing in ((lines[3], "2", "-"), (lines[4], "2@20", "20")):
+        s = result["summary"][key]
+        assert line.split()[:4] == ["2", pacing, f"{s['fps']:.1f}", f"{s['busy_ms_per_frame']:.2f}"]
     for key in ("n2", "n2@20"):
         pids = [p["pid"] for p in json.loads((tmp_path / key / "r0" / "cluster.json").read_text())
                 ["nodes"].values()]
