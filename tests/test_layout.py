@@ -114,9 +114,10 @@ def test_memory_holds_the_people_in_the_world_only():
 
 
 def test_a_256_camera_scenario_opens_quickly():
-    t0 = time.perf_counter()
+    # CPU time, not wall time: the work of opening it, whatever else the machine runs
+    t0 = time.process_time()
     s = open_scenario("grid-256", frames=100_000)
-    assert time.perf_counter() - t0 < 3.0
+    assert time.process_time() - t0 < 3.0
     assert s.num_cameras == 256 and s._held is None  # no frame made yet
     assert s.neighbours[17] == (1, 16, 18, 33)
 
