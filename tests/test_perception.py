@@ -409,13 +409,17 @@ def test_perception_modules_do_not_import_torch():
 
 # -- end to end: rendered video -> detector -> re-id -> tracker, one process per camera --------------
 @pytest.mark.integration
+@pytest.mark.slow  # renders 4 cameras' video, then runs the 4-node cluster and the reference
 def test_cluster_from_rendered_video_tracks_at_least_0_8_of_simulated(tmp_path):
     """Issue 7's bar: one process per camera from rendered frames (MOG2 + histogram re-id) reaches
     at least 0.8 x the ground MOTA of the same scenario from simulated detections (the in-process
-    run, which the cluster reproduces exactly from simulated detections: test_cluster.py)."""
+    run, which the cluster reproduces exactly from simulated detections: test_cluster.py). A sync
+    timeout long enough that a node starved of CPU (a busy machine) is waited for, not fused
+    without: the accuracy is then the detector's, not the machine's load."""
     out = tmp_path / "run"
     r = subprocess.run([sys.executable, "-m", "sim_cluster.cli", "up", "--scenario", "terrace-sim",
-                        "--source", "video", "--frames", "300", "--out", str(out), "--quiet"],
+                        "--source", "video", "--frames", "300", "--sync-timeout", "60", "--out",
+                        str(out), "--quiet"],
                        capture_output=True, text=True, cwd=REPO, timeout=600)
     assert r.returncode == 0, r.stdout + r.stderr
     cfg = (out / "configs" / "node1.toml").read_text()
