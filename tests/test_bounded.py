@@ -4,6 +4,7 @@ many times over, and the tables checked after every frame of every node."""
 from __future__ import annotations
 
 import numpy as np
+import pytest
 
 from edge_node.core.config import TrackerConfig
 from edge_node.core.node import CameraNode
@@ -40,6 +41,7 @@ def _check(node: CameraNode, cfg: TrackerConfig, seen: dict) -> None:
     seen["max_store"] = max(seen["max_store"], book.old.nbytes)
 
 
+@pytest.mark.slow  # 3000 frames, every table checked after every frame
 def test_every_table_of_a_node_stays_bounded_while_ids_churn():
     data = open_scenario("terrace-sim", frames=FRAMES).first_cameras(2)
     cfg = TrackerConfig(max_old_trackers=OLD, max_old_mib=OLD_MIB)

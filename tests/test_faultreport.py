@@ -1,6 +1,9 @@
 """``sim_cluster fault-report``: every standard case runs, nothing crashes, ratios add up."""
 import pytest
 
+# every standard fault case over a 4-node network, each beside its fault-free run
+pytestmark = pytest.mark.slow
+
 from sim_cluster.experiments.faultreport import run_report, standard_cases, table
 from sim_cluster.scenarios.loader import load_scenario
 

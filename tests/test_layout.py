@@ -74,6 +74,7 @@ def test_same_seed_same_frames_and_frame_k_independent_of_run_length():
     assert not np.array_equal(short.frame(120).xy, other.frame(120).xy)
 
 
+@pytest.mark.slow  # 400 frames of a 64-camera world
 def test_people_walk_across_many_cameras():
     """In a 64-camera corridor some people cross at least 4 cameras' views in 400 frames."""
     s = open_scenario("corridor-64", frames=400)

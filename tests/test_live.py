@@ -49,6 +49,7 @@ def watch(out: Path, n: int, until: float, log: list) -> None:
 
 
 @pytest.mark.integration
+@pytest.mark.slow  # a paced 4-node ring watched for 15 s around a 5 s freeze
 def test_a_frozen_node_neither_drags_the_ring_nor_stays_behind(tmp_path, procs):
     """Sync ring of 4 at 25 fps; node 2 frozen (SIGSTOP) for 5 s. Its neighbours wait for it
     once, then run at camera rate through the freeze (before: one frame per sync timeout, 1 s).

@@ -93,6 +93,7 @@ def node_config(path: Path, node: int, export: Path, out: Path) -> Path:
 
 
 @pytest.mark.integration
+@pytest.mark.slow  # three nodes in network namespaces, a 3 s link cut, watched recovering
 def test_nodes_on_separate_hosts_live_through_a_link_cut_by_the_kernel(tmp_path):
     """Chain 0 - 1 - 2, each node in its own namespace. The veth link 1 - 2 goes down for 3 s
     mid-run: Zenoh loses the link (lease 1 s), node 1 stops waiting for node 2, both go on;

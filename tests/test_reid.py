@@ -119,6 +119,7 @@ def test_the_defaults_reidentify_perfectly():
     assert AppearanceParams.from_quality(rank1=1.0) == AppearanceParams()
 
 
+@pytest.mark.slow  # a calibration, then descriptors of 32 seeds
 @pytest.mark.parametrize("rank1", [0.8, 0.5])
 def test_generated_descriptors_have_the_stated_rank1(rank1):
     params = AppearanceParams.from_quality(rank1=rank1)
@@ -151,6 +152,7 @@ def _params(table: dict) -> AppearanceParams:
                                         .table("appearance"))
 
 
+@pytest.mark.slow  # two calibrations of the re-id quality
 def test_appearance_table_takes_a_rank1():
     dist = {"same_camera_distance": 0.10, "cross_camera_distance": 0.22,
             "different_person_distance": 0.80}
@@ -174,6 +176,7 @@ def _preset_appearance(name: str) -> AppearanceParams:
         scenario_table(read_scenario_toml(path), path.name).table("appearance"))
 
 
+@pytest.mark.slow  # a calibration, then descriptors of 32 seeds
 def test_presets_default_to_a_realistic_reid():
     """Every preset simulates a re-id with look-alikes: cross-camera rank-1 0.80 with 20 people
     (issue 17), measured on the calibration's gallery and, independently, on 32 seeds it never

@@ -64,6 +64,7 @@ def test_verdict_exempts_fault_minutes_and_checks_rss_per_process_life():
 
 
 @pytest.mark.integration
+@pytest.mark.slow  # three 8 s minutes of a 3-node cluster, a kill and a restart
 def test_a_short_soak_kills_restarts_and_its_clean_minute_equals_the_in_process_run(tmp_path):
     seed = next(s for s in range(50) if chaos_schedule(s, 3, 2, minute_s=8.0)[0].kind == "kill")
     report = soak(3, 2, tmp_path / "soak", chaos=seed, topology="chain", minute_s=8.0,

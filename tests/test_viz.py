@@ -306,6 +306,7 @@ def test_closing_a_sink_whose_viewer_cannot_be_reached_is_bounded_and_does_not_r
 
 
 @pytest.mark.integration
+@pytest.mark.slow  # each node waits out its sink's flush timeout at exit
 def test_a_cluster_streaming_to_no_viewer_finishes_and_stops_every_node(tmp_path):
     """``sim_cluster up --rerun connect ADDR`` with nothing at ADDR: the run ends as without
     Rerun (summary, every node's counters with exit code 0) and no node is left running; the
@@ -330,6 +331,7 @@ def test_a_cluster_streaming_to_no_viewer_finishes_and_stops_every_node(tmp_path
 
 
 @pytest.mark.integration
+@pytest.mark.slow  # each node waits out its sink's flush timeout at exit
 def test_down_stops_a_detached_cluster_streaming_to_no_viewer_and_keeps_its_files(tmp_path):
     """``up --detach --rerun connect ADDR`` with nothing at ADDR, then ``down``: every node is
     gone when ``down`` returns (it said 'could not be stopped': it looked right after SIGKILL),

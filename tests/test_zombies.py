@@ -70,6 +70,7 @@ def rows(path: Path) -> list[tuple[int, tuple[int, int]]]:
     return [(t.frame, t.id) for t in iter_tracks(path)]
 
 
+@pytest.mark.slow  # a paced 3-node cluster per mode, frozen 7 s, then watched catching up
 @pytest.mark.parametrize("mode", ["sync", "async"])
 def test_a_node_frozen_past_the_inbox_window_catches_up(tmp_path, mode):
     """SIGSTOP the middle node of a paced chain for longer than its inbox keeps frames ahead
