@@ -51,6 +51,7 @@ from sim_cluster.cluster.processes import spawn, terminate
 from sim_cluster.cluster.state import ClusterError, node_counters, node_status
 from sim_cluster.experiments.chaos import fill, phantom_message, publish_once, rss_kb
 from sim_cluster.experiments.provenance import provenance
+from sim_cluster.scenarios.loader import open_scenario
 
 KINDS = ("freeze", "disk-full", "restarts", "flood", "boot")
 SCENARIO = "terrace-sim"
@@ -180,7 +181,6 @@ def _world_walk_s(node: int, before: int | None, frame: int | None) -> float | N
     frame)."""
     if frame is None or before is None:
         return None
-    from sim_cluster.scenarios.loader import open_scenario
     spent = []
     for _ in range(2):  # the first pass pays one-off imports and caches the node had paid
         camera = open_scenario(SCENARIO, seed=0, frames=frame + 1).camera(node)  # node n: camera n
