@@ -149,19 +149,26 @@ def test_co_motion_merges_duplicates_without_appearance():
     """No descriptors, and camera 1's map 0.7 m off (no registration to correct it): both
     cameras start their own tracker of the person in the same frame, 0.7 m apart, too far to be
     taken for one at once. They move together; after ``comotion_frames`` frames they are merged:
-    one id, on both nodes, for good."""
-    cfg = TrackerConfig(registration=False)
-    nodes = make_nodes({0: (1,), 1: (0,)}, cfg, offsets={1: (0.7, 0.0)})
-    rng = np.random.default_rng(5)
-    counts = []
-    for k in range(60):
-        p = walk(k, 0)
-        d = [Detection(det(*p, pid=0, rng=rng).box, None)]
-        out = step(nodes, k, {0: d, 1: d})
-        counts.append(len(out[0]))
-    assert counts[1:cfg.comotion_frames] == [2] * (cfg.comotion_frames - 1)  # the duplicate...
-    assert counts[cfg.comotion_frames + 1:] == [1] * (59 - cfg.comotion_frames)  # ...merged
-    assert [t.id for t in out[0]] == [t.id for t in out[1]] == [(0, 0)]
+    one id, on both nodes, for good. While the pair agrees towards the merge the younger
+    tracker is held but not reported (``hide_pending``): every node reports the one id from
+    the first frame; without it, the duplicate shows until the merge."""
+    for hide in (False, True):
+        cfg = TrackerConfig(registration=False, hide_pending=hide)
+        nodes = make_nodes({0: (1,), 1: (0,)}, cfg, offsets={1: (0.7, 0.0)})
+        rng = np.random.default_rng(5)
+        counts, held = [], []
+        for k in range(60):
+            p = walk(k, 0)
+            d = [Detection(det(*p, pid=0, rng=rng).box, None)]
+            out = step(nodes, k, {0: d, 1: d})
+            counts.append(len(out[0]))
+            held.append(len(nodes[0].trackers))
+        n = cfg.comotion_frames
+        assert held[1:n] == [2] * (n - 1)  # the duplicate...
+        assert held[n:] == [1] * (60 - n)  # ...merged in the frame the pair agreed n times
+        assert counts[1:n] == [1 if hide else 2] * (n - 1)
+        assert counts[n:] == [1] * (60 - n)
+        assert [t.id for t in out[0]] == [t.id for t in out[1]] == [(0, 0)]
 
 
 def test_simultaneous_births_on_top_of_each_other_merge_at_once_without_appearance():
