@@ -236,3 +236,31 @@ def test_image_and_jacobians_from_the_ground_match_the_image_to_ground_map(pixel
     for j, e in enumerate(np.eye(2) * eps):
         numeric = (cam.to_ground(uv + e) - cam.to_ground(uv - e)) / (2 * eps)
         np.testing.assert_allclose(J[:, :, j], numeric, rtol=1e-5, atol=1e-9)
+
+
+def test_debias_is_the_expected_pull_of_the_foot_points_own_noise():
+    """R2's sums ``A(g)^T W r`` over residuals of a perfectly registered camera (``theta`` 0,
+    the others measuring the target exactly) should average zero, but ``A`` is taken at the
+    noisy ``g = p + n`` and ``r = p - g = -n``: by Monte Carlo over the noise, the rotation
+    and scale rows average ``-tr(J^T W Rg)`` and ``-tr(W Rg)``, which ``_debias`` adds back."""
+    cam = topdown_camera(0)
+    reg = Registration(cam, TrackerConfig())
+    rng = np.random.default_rng(0)
+    total_mc, total_db, var_mc = np.zeros(5), np.zeros(5), np.zeros(5)
+    for _ in range(4):
+        p = rng.uniform(1.0, 9.0, size=2)
+        a = rng.uniform(0.05, 0.4, size=2)
+        c, s = np.cos(rng.uniform(0, np.pi)), np.sin(rng.uniform(0, np.pi))
+        Q = np.array([[c, -s], [s, c]])
+        Rg = Q @ np.diag(a ** 2) @ Q.T  # the foot point's noise covariance
+        W = np.linalg.inv(Rg + 0.01 * np.eye(2))
+        n = rng.multivariate_normal(np.zeros(2), Rg, size=200_000)
+        g = p + n
+        A = reg.bases(g, np.tile([0.0, 1.0], (len(g), 1)))
+        terms = np.einsum("nji,jk,nk->ni", A, W, -n)
+        total_mc += terms.mean(axis=0)
+        var_mc += terms.var(axis=0) / len(n)
+        total_db += Registration._debias(W[None], Rg[None])
+    se = np.sqrt(var_mc)  # the Monte Carlo means' standard errors
+    assert np.all(np.abs(total_mc + total_db) < 4 * se), (total_mc, -total_db, se)
+    assert abs(total_db[3]) > 20 * se[3]  # the scale row's pull is real (the check can fail)

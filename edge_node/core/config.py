@@ -68,6 +68,7 @@ class TrackerConfig:
     reg_drift: float = nonnegative(0.005, "m per frame, random walk of a registration (bumps)")
     reg_noise: float = positive(0.2, "m, sigma of a corrected foot point's error (stance, sway)")
     reg_gate: float = positive(13.8, "chi-square gate on a registration residual (2 dof, 99.9%)")
+    reg_debias: bool = boolean(True, "compensate the errors-in-variables shrink of R2's scale")
     reg_anchor: float = number(0.001, lo=0.0, hi=1.0,
                                doc="per frame, pull of every correction towards zero (common frame)")
 
