@@ -149,19 +149,26 @@ def test_co_motion_merges_duplicates_without_appearance():
     """No descriptors, and camera 1's map 0.7 m off (no registration to correct it): both
     cameras start their own tracker of the person in the same frame, 0.7 m apart, too far to be
     taken for one at once. They move together; after ``comotion_frames`` frames they are merged:
-    one id, on both nodes, for good."""
-    cfg = TrackerConfig(registration=False)
-    nodes = make_nodes({0: (1,), 1: (0,)}, cfg, offsets={1: (0.7, 0.0)})
-    rng = np.random.default_rng(5)
-    counts = []
-    for k in range(60):
-        p = walk(k, 0)
-        d = [Detection(det(*p, pid=0, rng=rng).box, None)]
-        out = step(nodes, k, {0: d, 1: d})
-        counts.append(len(out[0]))
-    assert counts[1:cfg.comotion_frames] == [2] * (cfg.comotion_frames - 1)  # the duplicate...
-    assert counts[cfg.comotion_frames + 1:] == [1] * (59 - cfg.comotion_frames)  # ...merged
-    assert [t.id for t in out[0]] == [t.id for t in out[1]] == [(0, 0)]
+    one id, on both nodes, for good. While the pair agrees towards the merge the younger
+    tracker is held but not reported (``hide_pending``): every node reports the one id from
+    the first frame; without it, the duplicate shows until the merge."""
+    for hide in (False, True):
+        cfg = TrackerConfig(registration=False, hide_pending=hide)
+        nodes = make_nodes({0: (1,), 1: (0,)}, cfg, offsets={1: (0.7, 0.0)})
+        rng = np.random.default_rng(5)
+        counts, held = [], []
+        for k in range(60):
+            p = walk(k, 0)
+            d = [Detection(det(*p, pid=0, rng=rng).box, None)]
+            out = step(nodes, k, {0: d, 1: d})
+            counts.append(len(out[0]))
+            held.append(len(nodes[0].trackers))
+        n = cfg.comotion_frames
+        assert held[1:n] == [2] * (n - 1)  # the duplicate...
+        assert held[n:] == [1] * (60 - n)  # ...merged in the frame the pair agreed n times
+        assert counts[1:n] == [1 if hide else 2] * (n - 1)
+        assert counts[n:] == [1] * (60 - n)
+        assert [t.id for t in out[0]] == [t.id for t in out[1]] == [(0, 0)]
 
 
 def test_simultaneous_births_on_top_of_each_other_merge_at_once_without_appearance():
@@ -229,3 +236,31 @@ def test_image_and_jacobians_from_the_ground_match_the_image_to_ground_map(pixel
     for j, e in enumerate(np.eye(2) * eps):
         numeric = (cam.to_ground(uv + e) - cam.to_ground(uv - e)) / (2 * eps)
         np.testing.assert_allclose(J[:, :, j], numeric, rtol=1e-5, atol=1e-9)
+
+
+def test_debias_is_the_expected_pull_of_the_foot_points_own_noise():
+    """R2's sums ``A(g)^T W r`` over residuals of a perfectly registered camera (``theta`` 0,
+    the others measuring the target exactly) should average zero, but ``A`` is taken at the
+    noisy ``g = p + n`` and ``r = p - g = -n``: by Monte Carlo over the noise, the rotation
+    and scale rows average ``-tr(J^T W Rg)`` and ``-tr(W Rg)``, which ``_debias`` adds back."""
+    cam = topdown_camera(0)
+    reg = Registration(cam, TrackerConfig())
+    rng = np.random.default_rng(0)
+    total_mc, total_db, var_mc = np.zeros(5), np.zeros(5), np.zeros(5)
+    for _ in range(4):
+        p = rng.uniform(1.0, 9.0, size=2)
+        a = rng.uniform(0.05, 0.4, size=2)
+        c, s = np.cos(rng.uniform(0, np.pi)), np.sin(rng.uniform(0, np.pi))
+        Q = np.array([[c, -s], [s, c]])
+        Rg = Q @ np.diag(a ** 2) @ Q.T  # the foot point's noise covariance
+        W = np.linalg.inv(Rg + 0.01 * np.eye(2))
+        n = rng.multivariate_normal(np.zeros(2), Rg, size=200_000)
+        g = p + n
+        A = reg.bases(g, np.tile([0.0, 1.0], (len(g), 1)))
+        terms = np.einsum("nji,jk,nk->ni", A, W, -n)
+        total_mc += terms.mean(axis=0)
+        var_mc += terms.var(axis=0) / len(n)
+        total_db += Registration._debias(W[None], Rg[None])
+    se = np.sqrt(var_mc)  # the Monte Carlo means' standard errors
+    assert np.all(np.abs(total_mc + total_db) < 4 * se), (total_mc, -total_db, se)
+    assert abs(total_db[3]) > 20 * se[3]  # the scale row's pull is real (the check can fail)

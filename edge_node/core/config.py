@@ -68,6 +68,7 @@ class TrackerConfig:
     reg_drift: float = nonnegative(0.005, "m per frame, random walk of a registration (bumps)")
     reg_noise: float = positive(0.2, "m, sigma of a corrected foot point's error (stance, sway)")
     reg_gate: float = positive(13.8, "chi-square gate on a registration residual (2 dof, 99.9%)")
+    reg_debias: bool = boolean(True, "compensate the errors-in-variables shrink of R2's scale")
     reg_anchor: float = number(0.001, lo=0.0, hi=1.0,
                                doc="per frame, pull of every correction towards zero (common frame)")
 
@@ -75,6 +76,12 @@ class TrackerConfig:
     view_frames: int = integer(100, lo=0, doc="frames a camera keeps drawing a target it last saw")
     view_rate: float = number(0.2, lo=0.0, hi=1.0, doc="smoothing of a camera's own box size")
     view_unseen: bool = boolean(False, "draw targets a camera has not seen (at the network's size)")
+    view_inside: float = number(0.9, lo=0.0, hi=1.0,
+                                doc="least fraction of a drawn box inside the image (0: any overlap)")
+    view_fresh: int = integer(50, lo=0, doc="frames since the camera's last measurement of a target "
+                              "after which a nearer target can hide it")
+    view_hidden: float = number(1.0, lo=0.0, hi=1.0,
+                                doc="fraction of a box a nearer drawn box must cover to hide it (1: never; docs/tuning.md)")
 
     # --- birth prior (a new tracker, identical on every node that adopts it) ----------------
     birth_pos_sigma: float = positive(0.5, "m")
@@ -115,6 +122,9 @@ class TrackerConfig:
     reid_gate: float = positive(1.5, "m, how near a new tracker's birth a dropped tracker must be (without appearance; with it, plus reid_speed x the time since the drop)")
     reid_speed: float = positive(2.0, "m/s, how fast a dropped person may have walked to where a new tracker re-identified as them is born")
     report_coast: int = integer(1, lo=0, doc="frames a tracker nobody sees is still reported")
+    hide_pending: bool = boolean(True, "a tracker new on this node (within comotion_frames) that "
+                                 "agrees with an older one towards a merge is not reported "
+                                 "until the pair merges or parts")
     scope_hops: int = integer(0, lo=0, doc="regional scope (not in the paper; needs the DTM): a node keeps and sends a tracker only within this many hops of the cameras that see it; 0 = every node holds every tracker (the paper)")
 
     # --- trust boundary (edge_node/core/screen.py): what a neighbour's entry may claim -----

@@ -252,6 +252,20 @@ class DistributedTrackerManager:
     def merges(self, views: Sequence[MergeView]) -> list[tuple[TrackerId, TrackerId]]:
         return find_merges(views, self.streaks, self.cfg)
 
+    def pending(self, born: Mapping[TrackerId, int]) -> list[tuple[TrackerId, TrackerId]]:
+        """Pairs ``(younger, older)`` on their way to being merged: every pair agreeing towards
+        a merge (:func:`find_merges`' streaks; ``born`` maps the trackers this node holds to
+        their birth frames), in a deterministic order. The younger is most likely a duplicate
+        of the older, and if it is, it is merged into it within ``comotion_frames``: reporting
+        it meanwhile shows a second id for one person (a fragment and, once merged, a switch
+        back)."""
+        out = []
+        for a, b in sorted(self.streaks):
+            if a in born and b in born:
+                old, young = sorted((a, b), key=lambda t: rank(born[t], t))
+                out.append((young, old))
+        return out
+
     def merged(self, loser: TrackerId) -> None:
         """``loser`` is gone: forget the agreement streaks it was part of."""
         for key in [key for key in self.streaks if loser in key]:
@@ -300,6 +314,9 @@ class IndependentTrackers:
 
     def merges(self, views: Sequence[MergeView]) -> list[tuple[TrackerId, TrackerId]]:
         return []
+
+    def pending(self, born: Mapping[TrackerId, int]) -> list[tuple[TrackerId, TrackerId]]:
+        return []  # nothing is ever merged
 
     def merged(self, loser: TrackerId) -> None:
         pass

@@ -702,8 +702,14 @@ class CameraNode:
 
     def tracks(self) -> list[Track]:
         """The current estimates (after the last ``update``): the trackers it reports."""
-        shown = [t for t in self.trackers.in_order()
-                 if t.x_hat is not None and self._reported(t)]
+        held = self.trackers.in_order()
+        shown = [t for t in held if t.x_hat is not None and self._reported(t)]
+        if self.cfg.hide_pending and len(shown) > 1:
+            ids = {t.id for t in shown}
+            new = self._frame - self.cfg.comotion_frames
+            hidden = {young for young, old in self.manager.pending({t.id: t.born for t in held})
+                      if old in ids and self.trackers[young].since >= new}
+            shown = [t for t in shown if t.id not in hidden]
         if not shown:
             return []
         boxes = self.views(shown)
@@ -732,15 +738,16 @@ class CameraNode:
         measures, smoothed (``Track.boxes``). All trackers of a camera at once."""
         out: list[dict[int, np.ndarray]] = [{} for _ in trackers]
         for cam in self.cameras:
-            rows, sizes = [], []
+            rows, sizes, ages = [], [], []
             for i, tr in enumerate(trackers):
                 seen = tr.views.get(cam.id)
                 if seen is None or self._frame - seen[0] > self.cfg.view_frames:
                     if not self.cfg.view_unseen:
                         continue
-                    seen = (self._frame, tr.x_hat[2:4])
+                    seen = (self._frame - self.cfg.view_frames - 1, tr.x_hat[2:4])
                 rows.append(i)
                 sizes.append(seen[1])
+                ages.append(self._frame - seen[0])
             if not rows:
                 continue
             xy = stacked([trackers[i].x_hat for i in rows], self._rows.get("x_hat"))[:, :2]
@@ -750,10 +757,40 @@ class CameraNode:
                 foot, J = cam.image_and_jacobians(g)
                 wh = np.array(sizes) * pixels_per_unit(J)[:, None]
             box = np.concatenate([foot[:, :1] - wh[:, :1] / 2.0, foot[:, 1:] - wh[:, 1:], wh], axis=1)
-            for i, b, ok in zip(rows, box, np.isfinite(foot).all(axis=1).tolist()):
+            drawn = self._visible(cam, box, np.array(ages))
+            for i, b, ok in zip(rows, box, drawn.tolist()):
                 if ok:
                     out[i][cam.id] = b
         return out
+
+    def _visible(self, cam: Camera, box: np.ndarray, age: np.ndarray) -> np.ndarray:
+        """Which of a camera's boxes ``(n, 4)`` it can see (``age``: frames since it last
+        measured each target): finite, overlapping the image with at least ``view_inside`` of
+        the box's width between its left and right edges (people walk in and out of a view
+        sideways; one whose head or feet the frame cuts off is still there), and not hidden. A target the camera has not measured for more than
+        ``view_fresh`` frames is hidden when a nearer visible box (its bottom edge lower in the
+        image: the target stands closer on the ground plane) covers ``view_hidden`` of it; the
+        camera's detector would not report it either, so drawing it could only add a false
+        box. A target the camera measures now is drawn however crowded the scene."""
+        cfg = self.cfg
+        W, H = cam.image_size
+        with np.errstate(invalid="ignore", over="ignore"):
+            x0, y0 = box[:, 0], box[:, 1]
+            x1, y1 = x0 + box[:, 2], y0 + box[:, 3]
+            area = box[:, 2] * box[:, 3]
+            across = (np.minimum(x1, W) - np.maximum(x0, 0.0)).clip(0.0)  # width in the image
+            ok = np.isfinite(box).all(axis=1) & (area > 0) & (y1 > 0) & (y0 < H)
+            ok &= (across > 0) & (across >= cfg.view_inside * box[:, 2])
+        stale = ok & (age > cfg.view_fresh)
+        if cfg.view_hidden >= 1.0 or not stale.any() or ok.sum() < 2:
+            return ok
+        a, b = np.flatnonzero(stale), np.flatnonzero(ok)
+        cover = ((np.minimum(x1[a, None], x1[None, b]) - np.maximum(x0[a, None], x0[None, b])).clip(0.0)
+                 * (np.minimum(y1[a, None], y1[None, b]) - np.maximum(y0[a, None], y0[None, b])).clip(0.0))
+        nearer = y1[None, b] > y1[a, None]
+        hidden = ((cover * nearer) >= cfg.view_hidden * area[a, None]).any(axis=1)
+        ok[a[hidden]] = False
+        return ok
 
     def _reported(self, tr: Tracker) -> bool:
         """A tracker is reported (returned by ``update``, written, drawn, evaluated) unless it

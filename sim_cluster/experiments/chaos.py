@@ -32,15 +32,12 @@ def fill(where: Path) -> Path:
     filler = where / f".filler-{uuid.uuid4().hex}"
     fd = os.open(filler, os.O_WRONLY | os.O_CREAT)
     try:
-        while True:
-            os.write(fd, b"\0" * 4096)
-    except OSError:
-        pass
-    try:
-        while True:
-            os.write(fd, b"\0")
-    except OSError:
-        pass
+        for block in (1 << 20, 4096, 1):  # large writes first: a 1 GiB tmpfs fills in a blink
+            try:
+                while True:
+                    os.write(fd, b"\0" * block)
+            except OSError:
+                pass
     finally:
         os.close(fd)
     return filler

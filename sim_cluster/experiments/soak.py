@@ -240,8 +240,11 @@ class Soak:
                     event["skipped"] = "no tmpfs of its own (it needs root)"
                     self.say(f"{now:7.1f} s: disk_full skipped: {event['skipped']}")
                 else:
+                    t0 = time.monotonic()
                     self._filler = fill(self.disk)
-                    self._full = (now, now + f.duration_s, {})
+                    full_at = now + (time.monotonic() - t0)  # the nodes' clock starts when it is full
+                    event["fill_s"] = round(full_at - now, 2)
+                    self._full = (full_at, now + f.duration_s, {})
                     event["degraded_after_s"] = self._full[2]
                 continue
             if f.kind == "flood":
