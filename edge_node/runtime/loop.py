@@ -87,6 +87,7 @@ from edge_node.formats.tracks import TrackWriter
 from edge_node.outbox import Delivery, Outbox, OutboxCounters
 from edge_node.runtime import transport as tr
 from edge_node.runtime.config import NodeConfig, NodeConfigError
+from edge_node.runtime.inbox import FRESH_S
 from edge_node.runtime.memory import freeze_startup, heap, release_freed_memory, steady_allocator
 from edge_node.runtime.output import (ReservedJson, StatusWriter, clean_temporaries,
                                       counters_path, latency_summary, state_path, status_path,
@@ -103,6 +104,7 @@ LATE_PACING_S = 2.0  # a paced loop this far behind its clock re-anchors instead
 BOOT_GRACE_S = 0.5  # a paced first frame waits this long for a neighbour that sent nothing yet
 PLAUSIBLE_RATE = 1.5  # the network's frame is believed up to this many times camera rate ...
 PLAUSIBLE_SLACK_S = 1.0  # ... plus this many seconds of frames, since the node was last level
+STOOD_STILL_S = 1.0  # a frame that took longer: the node stood still (a freeze, an overload) ...
 COUNTERS_INTERVAL_S = 10.0  # while running: the counters file rewritten, freed memory released
 LOG_INTERVAL_S = 10.0  # a failing output is logged at most once per this many seconds
 WATCHDOG_POLL_S = 0.25
@@ -443,6 +445,7 @@ class FrameLoop:
         self._level = (st.first_frame, t_start)
         self.write_status("running")
         k, i = st.first_frame, 0
+        last_at, hold = t_start, 0.0  # end of the previous frame; no "level" before ``hold``
         with Watchdog(self):
             while k < st.frames_total:
                 if self.stop.is_set():
@@ -475,14 +478,22 @@ class FrameLoop:
                 k += 1
                 ahead = self._network_frame() if fps > 0 else None  # unpaced: every frame counts
                 now = time.monotonic()
+                if now - last_at > STOOD_STILL_S:
+                    # ... and what it hears in the next FRESH_S may be news from before, queued
+                    # while it stood still and fresh only by its arrival: it must not count as
+                    # "level with the network" (after a 7 s freeze the queued frame-77 messages
+                    # made the node level at 77 just then, and the network's true frame 428, a
+                    # moment later, was refused as farther than the clock allows)
+                    hold = now + FRESH_S
+                last_at = now
                 if ahead is not None and k + SKIP_FRAMES < ahead < st.frames_total:
                     if self._plausible(ahead, now, fps):
                         self._skip(k, ahead)
                         k = ahead
                         t_start, i = time.monotonic(), 0  # pace from here on
                         continue
-                if ahead is not None and ahead <= k:  # (no fresh neighbour: nothing learnt)
-                    self._level = (k, now)
+                if ahead is not None and ahead <= k and now >= hold:  # (no fresh neighbour:
+                    self._level = (k, now)  # nothing learnt)
                 if ahead is None or ahead <= k:
                     if self._catching_up:
                         self._catching_up = False
