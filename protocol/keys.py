@@ -1,6 +1,6 @@
 """Zenoh key expressions of the wire: one key per directed neighbour link, one liveliness token per node.
 
-Layout (see DESIGN.md, "The wire")::
+Layout (docs/concepts.md, "How it is built")::
 
     dmtt/<network>/link/<src>/<dst>    one FrameMessage per frame from node src to node dst
     dmtt/<network>/alive/<node>        liveliness token of a running node

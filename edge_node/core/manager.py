@@ -7,7 +7,7 @@ managers a node is assembled with.
   cameras are found by Euclidean ground distance (``V = I``) and co-motion, with gallery
   appearance as a veto (:func:`pair_score`), and merged
   under a deterministic winner so that every camera converges on the same id. The paper names
-  the smallest id for simultaneous initialisations; since duplicates also arise later (DESIGN.md),
+  the smallest id for simultaneous initialisations; since duplicates also arise later (docs/concepts.md),
   the winner here is the *oldest* tracker, ``(born, id)`` smallest, which is the smallest id
   among simultaneous births and keeps an established id when a late duplicate is merged into it.
 * re-identification: a new local tracker whose gallery matches an *old* (dropped) tracker's

@@ -5,7 +5,7 @@ Jacobian at the foot point: far targets are less certain). What the pixel noise 
 is the camera's registration error (calibration, and where on the person the box's bottom edge
 lands): with online registration (``edge_node.core.registration``) it is estimated and corrected
 and only its remaining uncertainty is added; without it, ``calib_sigma`` is added on the ground
-position (DESIGN.md, "What real data does": about 0.8 m between cameras on EPFL Terrace). With
+position (docs/concepts.md, registration: about 0.8 m between cameras on EPFL Terrace). With
 ``fixed_R`` set, the paper's constant ``R`` is used instead.
 """
 from __future__ import annotations

@@ -1,5 +1,5 @@
-"""What a node remembers of its neighbours in event-triggered operation (DESIGN.md, "Runtime
-modes"; the paper's asynchronous remark at the end of Sec. III-A, after He et al. 2017).
+"""What a node remembers of its neighbours in event-triggered operation (docs/concepts.md,
+"How it is built"; the paper's asynchronous remark at the end of Sec. III-A, after He et al. 2017).
 
 Neighbours send a tracker only when they have something new about it, and messages may come
 late, twice or out of order. The memory keeps each neighbour's newest entry per tracker and,

@@ -1,4 +1,4 @@
-"""Online registration of one camera's ground map (our extension; DESIGN.md "Cameras disagree").
+"""Online registration of one camera's ground map (our extension; docs/concepts.md, registration).
 
 The paper assumes exact image-to-ground homographies. Real ones are not: on EPFL Terrace the same
 person's foot point from two cameras lands about 0.8 m apart, on Campus about 2 m. Fusing such

@@ -1,4 +1,4 @@
-"""What an event-triggered camera sends (the asynchronous variant, DESIGN.md "Runtime modes").
+"""What an event-triggered camera sends (the asynchronous variant, docs/concepts.md).
 
 The paper notes (end of Sec. III-A) that the consensus filter lends itself to an asynchronous,
 event-triggered implementation (He et al. 2017, information-matrix triggers). Here each

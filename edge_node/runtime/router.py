@@ -1,4 +1,4 @@
-"""``edge_node router``: a Zenoh router that joins sites (DESIGN.md, "A live service").
+"""``edge_node router``: a Zenoh router that joins sites (docs/deploy.md, "More than one site").
 
 Within a site, camera boxes peer directly (one Zenoh connection per logical link, multicast and
 gossip off). Sites are joined through routers: every box of a site also connects to its site's

@@ -1,6 +1,6 @@
 """Known registration errors in the synthetic world (``[calibration_error]``, issue 12 item 4).
 
-Real homographies are off (DESIGN.md "Cameras disagree"); this module makes the seeded world off
+Real homographies are off (docs/concepts.md, registration); this module makes the seeded world off
 by a known amount, so that the tracker's online registration (``edge_node/core/registration.py``)
 can be checked against the truth.
 
