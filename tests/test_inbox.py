@@ -103,3 +103,15 @@ def test_a_neighbour_that_sent_nothing_is_waited_for_only_the_grace(box):
     box.accept(2, msg(2, 1))
     box.accept(1, msg(1, 1))
     assert sorted(box.collect(1, timeout=30.0)) == [1, 2]
+
+
+def test_one_message_far_ahead_does_not_stop_the_wait_for_its_sender(box):
+    """A link delivers in order, so a neighbour's next frame shows its current one lost; one
+    message a second ahead (forged: the zombie probe's flood came for frame k + 25) does not:
+    the frame's message is still waited for (here: until the timeout), not taken for lost, and
+    node 1 stopped fusing node 0 for a second before the flood."""
+    box.accept(1, msg(1, 0))
+    box.accept(2, msg(2, 25))
+    assert sorted(box.collect(0, timeout=0.0)) == [1]
+    c = box.counters()
+    assert c["lost"] == {} and c["timeouts"] == {"2->0": 1}

@@ -306,3 +306,73 @@ def test_information_on_one_ground_direction_only_does_not_stop_registration():
     assert attacked.stats.rejected == {}  # meaningful information: the screen keeps it
     assert attacked.registrations  # registration is on
     assert [[t.id for t in f] for f in got] == [[t.id for t in f] for f in clean]
+
+
+def test_a_flood_of_fresh_ids_cannot_make_a_camera_s_later_births_implausible():
+    """Phantoms under fresh, huge counters of camera 0, born now (what the screen cannot tell
+    from a camera that sees them), must not poison the counter-order rule for that camera's
+    honest ids: person 9, whom camera 0 starts three frames later under its next counter, is
+    taken by node 1 as in a run without the flood, and node 1 tracks the honest people exactly
+    as that run does (the flood of the zombie probe made node 0 refuse 10,287 honest births of
+    a flooded camera as ``implausible_birth``; issue 36)."""
+    phantoms = [entry((0, 10**8 + i), [8.0 + 0.1 * i, 9.0, 0.5, 1.7, 0, 0], born=6)
+                for i in range(4)]
+
+    def run(flood):
+        nodes, rng = two_nodes()
+        tracks = []
+        for k in range(6, 12):
+            dets = {0: [det(3.0 + 0.03 * k, 5.0, 7, rng), det(7.0, 2.0 + 0.03 * k, 8, rng)]
+                    + ([det(1.0, 1.0 + 0.03 * k, 9, rng)] if k >= 9 else []),
+                    1: [det(3.0 + 0.03 * k, 5.0, 7, rng)]}
+            msgs = {i: n.prepare(k, dets[i]) for i, n in nodes.items()}
+            nodes[0].update([codec.decode(codec.encode(msgs[1]), expect_sender=1)])
+            to_1 = msgs[0]
+            if flood and k == 6:
+                to_1 = replace(to_1, trackers=to_1.trackers + tuple(phantoms))
+            tracks.append(nodes[1].update([codec.decode(codec.encode(to_1), expect_sender=0)]))
+        return nodes, tracks
+
+    (clean, ref), (flooded, got) = run(False), run(True)
+    assert flooded[1].book.born[(0, 10**8)] == 6  # the phantoms were taken: they are plausible
+    new = [t for t in clean[0].trackers.ids() if t not in {(0, 0), (0, 1)}]
+    assert new == [(0, 2)] and (0, 2) in clean[1].trackers  # person 9, born at frame 9
+    assert flooded[1].stats.rejected == {}
+    honest = [[t for t in f if t.id[1] < 10**8] for f in got]
+    same_tracks(ref, honest)
+    assert [len(f) for f in honest] == [len(f) for f in ref]
+
+
+def test_a_phantom_heard_once_does_not_give_its_id_to_a_person_appearing_where_it_went():
+    """One message's phantom (ell 0, never told of again) is adopted, then dropped after
+    ``kappa`` frames; a person who appears where it was, within ``reid_frames``, is born under
+    a fresh id of the camera that sees it, not re-identified as the phantom (the zombie probe's
+    flood: a phantom took the id of a person born 60 frames later, on every node). A person the
+    network kept tracking and who reappears there is re-identified as before. One stray
+    detection associated to the phantom (frame 5) does not make it a person: a birth needs two
+    observations, and so does hearsay (``CONFIRM_FRAMES``; in the probe a phantom that one
+    detection of camera 3 touched took a person's id 54 frames later)."""
+    cfg = TrackerConfig.for_ablation("dkf+dtm")  # no appearance: place decides
+    nodes = make_nodes({0: (1,), 1: (0,)}, cfg)
+    phantom = entry((0, 10**8), [5.0, 5.0, 0.5, 1.7, 0, 0], born=2)
+    walker = [det(1.0, 1.0 + 0.02 * k, 9) for k in range(12)]  # seen by camera 1, 12 frames
+    k_back = 2 + cfg.kappa + 6  # both trackers are dropped by now (ell past kappa)
+    births = {}
+    for k in range(k_back + 3):
+        dets = {0: [], 1: []}
+        if k < 12:
+            dets[1].append(walker[k])
+        if k == 5:
+            dets[1].append(det(5.0, 5.0, 5))  # a stray detection where the phantom is
+        if k >= k_back:  # the phantom's place, and where the walker went
+            dets[1] += [det(5.1, 5.0, 5), det(1.0, 1.24, 9)]
+        msgs = {i: n.prepare(k, dets[i]) for i, n in nodes.items()}
+        if k == 2:
+            msgs[0] = replace(msgs[0], trackers=msgs[0].trackers + (phantom,))
+        for i, n in nodes.items():
+            n.update([codec.decode(codec.encode(msgs[1 - i]), expect_sender=1 - i)])
+        births.update({t: k for t in nodes[1].trackers.ids() if t not in births})
+    held = nodes[1].trackers.ids()
+    assert (0, 10**8) not in held
+    assert [t for t in held if births[t] >= k_back] == [(1, 1)]  # the one new person
+    assert (1, 0) in held and births[(1, 0)] < 12  # the walker, re-identified

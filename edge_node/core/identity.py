@@ -102,11 +102,12 @@ class IdentityBook:
 
     # -- dropped trackers ----------------------------------------------------------------------
     def retire(self, tid: TrackerId, gallery: Gallery, keep_gallery: bool,
-               frame: int = 0, xy: np.ndarray | None = None) -> None:
+               frame: int = 0, xy: np.ndarray | None = None, reid: bool = True) -> None:
         """``tid`` was dropped at ``frame`` (estimated at ``xy``): keep its gallery and where it
-        went for re-identification, or only its id."""
+        went for re-identification (only for a later adoption of ``tid`` when not ``reid``),
+        or only its id."""
         if keep_gallery:
-            self.old.put(tid, gallery, frame, xy)
+            self.old.put(tid, gallery, frame, xy, reid)
         else:
             self.dropped[tid] = None
             while len(self.dropped) > 10 * self.cfg.max_old_trackers:

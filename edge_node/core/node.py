@@ -290,7 +290,8 @@ class CameraNode:
         gallery.mark(k)
         born = k
         first, last = chain.observations[0], chain.observations[-1]
-        tid = self.manager.reidentify(gallery, self.book.old, k, last.z[:2], self.book.last)
+        tid = self.manager.reidentify(gallery, self.book.old.candidates(), k, last.z[:2],
+                                      self.book.last)
         if tid is not None:
             old_gallery = self.book.old.take(tid)
             old_gallery.extend(gallery)
@@ -510,19 +511,22 @@ class CameraNode:
             x_hat[bad], M[bad] = x_bar[bad], P[bad]
         self._rows["x_hat"], self._rows["M"] = RowStack(x_hat), RowStack(M)
         ells = self.manager.ells([tr.local.ell_sent for tr in trs], rows, entries.ell).tolist()  # eq. 8
+        k = self._frame
         for tr, ell, x_i, M_i in zip(trs, ells, self._rows["x_hat"].rows, self._rows["M"].rows):
             tr.x_hat, tr.M = x_i, M_i
             seen_before = tr.ell - tr.lag
             tr.ell = ell
             if lagless is None:  # synchronous: every neighbour's news of frame k is here
                 tr.coast = tr.coast + 1 if tr.ell > seen_before else 0
-                continue
-            seen = self.manager.ell(tr.local.ell_sent, [lagless[tr.id]] if tr.id in lagless else [])
-            tr.lag = tr.ell - seen
-            if seen > seen_before:  # news arrives in bursts over a late link: count all of it
-                tr.coast += seen - seen_before
-            elif tr.local.ell_sent == 0 or tr.id in news:  # seen, or news that did not age it
-                tr.coast = 0
+            else:
+                seen = self.manager.ell(tr.local.ell_sent, [lagless[tr.id]] if tr.id in lagless else [])
+                tr.lag = tr.ell - seen
+                if seen > seen_before:  # news arrives in bursts over a late link: count all of it
+                    tr.coast += seen - seen_before
+                elif tr.local.ell_sent == 0 or tr.id in news:  # seen, or news that did not age it
+                    tr.coast = 0
+            if tr.coast == 0 and k > tr.since:
+                tr.held += 1
 
     def _register(self, entries: Entries) -> None:
         """Registration residuals of this frame (``registration``, R2-R3): each of this node's
@@ -656,13 +660,14 @@ class CameraNode:
                 lt.gallery.extend(old.take(winner))
             self.trackers[winner] = lt
         elif loser in old:  # a dropped tracker's gallery follows its id
+            hearsay = loser in old.hearsay
             g = old.take(loser)
             if wt is not None:
                 wt.gallery.extend(g)
             elif winner in old:
                 old.extend(winner, g)
             else:
-                old.put(winner, g)
+                old.put(winner, g, reid=not hearsay)
         self.manager.merged(loser)
 
     # ------------------------------------------------------------------------------------
@@ -685,10 +690,17 @@ class CameraNode:
         return not self.cfg.scope_hops or tr.local.ell_sent - tr.coast < self.cfg.scope_hops
 
     def _drop(self, tid: TrackerId) -> None:
+        """Drop ``tid`` (eq. 8: its ``ell`` passed ``kappa``) and retire it to the identity book.
+        A tracker the network never kept alive after it appeared here (``confirmed``: one
+        message's plausible hearsay, such as a phantom flood's) is kept for a later adoption
+        of its id but not for re-identification: a person appearing later where it went must
+        not take its id (the
+        zombie probe's flood gave a phantom the id of a person born 60 frames later on every
+        node)."""
         tr = self.trackers.pop(tid)
         self.stats.dropped += 1
         self.book.retire(tid, tr.gallery, self.manager.keeps_galleries, self._frame,
-                         None if tr.x_hat is None else tr.x_hat[:2])
+                         None if tr.x_hat is None else tr.x_hat[:2], reid=tr.confirmed)
 
     # ------------------------------------------------------------------------------------
     @property

@@ -12,8 +12,11 @@ again. Its cosine distances to a query differ from the float64 gallery's by floa
 at most 4e-5 on synthetic 512-d descriptors, and re-identification decides the same
 (tests/test_components.py).
 
-A :class:`collections.abc.Mapping` from id to the stored gallery (what
-``manager.reidentify`` reads); where each tracker was dropped is :attr:`ReidStore.last`.
+A :class:`collections.abc.Mapping` from id to the stored gallery; where each tracker was
+dropped is :attr:`ReidStore.last`. Entries put with ``reid=False`` (hearsay: trackers the network
+never kept alive, ``Tracker.confirmed``) keep their gallery for a later adoption of the same id
+but are no re-identification candidates (:meth:`ReidStore.candidates`, what
+``manager.reidentify`` reads).
 Pure and deterministic.
 """
 from __future__ import annotations
@@ -39,6 +42,7 @@ class ReidStore(Mapping):
         self._g: OrderedDict[TrackerId, Gallery] = OrderedDict()  # oldest first
         self.last: dict[TrackerId, tuple[int, np.ndarray]] = {}  # frame and where dropped
         self.nbytes = 0  # descriptor bytes held
+        self.hearsay: set[TrackerId] = set()  # kept, but not to be re-identified
 
     # -- Mapping ------------------------------------------------------------------------------
     def __getitem__(self, tid: TrackerId) -> Gallery:
@@ -53,12 +57,21 @@ class ReidStore(Mapping):
     def __contains__(self, tid: object) -> bool:
         return tid in self._g
 
+    def candidates(self) -> Mapping[TrackerId, Gallery]:
+        """The stored trackers a new one may be re-identified as: all but the hearsay."""
+        if not self.hearsay:
+            return self
+        return {t: g for t, g in self._g.items() if t not in self.hearsay}
+
     # -- changes ------------------------------------------------------------------------------
     def put(self, tid: TrackerId, gallery: Gallery, frame: int | None = None,
-            xy: np.ndarray | None = None) -> None:
+            xy: np.ndarray | None = None, reid: bool = True) -> None:
         """Keep ``gallery`` (a float16 copy) for ``tid``, newest, and where it was dropped
-        (``frame``, ``xy``) when known; then the oldest go until both bounds hold."""
+        (``frame``, ``xy``) when known; then the oldest go until both bounds hold. ``reid``:
+        whether it is a re-identification candidate (module docstring)."""
         self._discard(tid)
+        if not reid:
+            self.hearsay.add(tid)
         g = gallery.astype(STORED)
         self._g[tid] = g
         self.nbytes += g.nbytes
@@ -74,6 +87,7 @@ class ReidStore(Mapping):
     def _discard(self, tid: TrackerId) -> Gallery | None:
         """Remove ``tid`` and where it was dropped; its stored gallery, or ``None``."""
         self.last.pop(tid, None)
+        self.hearsay.discard(tid)
         g = self._g.pop(tid, None)
         if g is not None:
             self.nbytes -= g.nbytes

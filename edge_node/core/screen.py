@@ -30,12 +30,14 @@ Tracker entry ``(ID, x_bar, u, U, ell, born)`` (paper III-D):
 * ``future_birth``: ``born`` after the message's frame.
 * ``born_moved``: an id whose birth this node knows (adopted, or first claimed in an entry it
   accepted), claimed earlier: ranks cannot be stolen, not even in two steps.
-* ``implausible_birth``: an id new to this node whose birth contradicts its camera's counter
-  order (a camera's counter grows with time, so ``(c, n) < (c, m)`` implies ``born_n <=
-  born_m``), or an id of the sender's own camera that it never mentioned although we have been
+* ``implausible_birth``: an id new to this node claiming to be older than an id its camera
+  created before it (a camera's counter grows with time, so ``(c, m) < (c, n)`` implies
+  ``born_m <= born_n``: a forged old birth under a fresh counter is refused), or an id of the sender's own camera that it never mentioned although we have been
   hearing it without a gap since before that birth, more than ``kappa`` frames ago (a sender
   announces its own births at once; a sender we did not hear, partitioned or new, may bring
-  old ones).
+  old ones). The converse (a *larger* known counter born *earlier*) is not a reason: it
+  protects no rank (the newcomer is the younger) and a flood of phantoms under huge fresh
+  counters, born now, would make every later honest birth of that camera implausible.
 
 Merge announcement ``loser -> winner``:
 
@@ -418,10 +420,10 @@ class Screen:
 
     @staticmethod
     def _in_counter_order(tid: TrackerId, born: int, book: IdentityBook) -> bool:
-        """A camera's counter grows with time: among the ids of ``tid``'s camera this node knows
-        the birth of, a smaller counter was not born later, a larger one not earlier."""
+        """A camera's counter grows with time: no id of ``tid``'s camera with a smaller counter
+        is known to be born after ``born`` (module docstring: only this direction)."""
         cam, n = tid
         for (c, m), b in book.born.items():
-            if c == cam and ((m < n and b > born) or (m > n and b < born)):
+            if c == cam and m < n and b > born:
                 return False
         return True

@@ -28,6 +28,10 @@ _NO_u = np.zeros(STATE_DIM)
 _NO_U = np.zeros((STATE_DIM, STATE_DIM))
 _NO_u.setflags(write=False)
 _NO_U.setflags(write=False)
+# frames in which the network must keep a tracker alive after it appeared on a node before it
+# counts as a person (two, as a birth needs two observations): one message's phantom, or one
+# stray detection associated to it, is hearsay (the zombie probe's flood)
+CONFIRM_FRAMES = 2
 
 
 class LocalInfo:
@@ -79,6 +83,9 @@ class Tracker:
     # messages on time; the frame of the oldest message that told of it when they came late
     heard: int = 0
     heard_appearance: bool = True  # adopted with the appearance a neighbour's entry carries
+    # frames after it appeared here in which the network kept it alive (``ell`` held): with
+    # CONFIRM_FRAMES of them it is a person, not one message's hearsay (``confirmed``)
+    held: int = 0
     announced: bool = False  # appearance already sent by this node
     x_hat: np.ndarray | None = None  # estimate of the last update (eq. 4)
     M: np.ndarray | None = None  # its covariance
@@ -86,6 +93,12 @@ class Tracker:
     # per camera of this node: (last frame it measured the target, its box size in ground units
     # along the image axes, smoothed): what that camera's own view draws
     views: dict[int, tuple[int, np.ndarray]] = field(default_factory=dict)
+
+    @property
+    def confirmed(self) -> bool:
+        """Whether the network kept it alive in ``CONFIRM_FRAMES`` frames after it appeared on
+        this node: only such a tracker is re-identified when dropped (``CameraNode._drop``)."""
+        return self.held >= CONFIRM_FRAMES
 
     def certainty(self) -> float:
         return float(np.trace(self.P))
@@ -111,6 +124,7 @@ class Tracker:
         self.since = min(self.since, other.since)
         self.heard = min(self.heard, other.heard)
         self.heard_appearance = self.heard_appearance or other.heard_appearance
+        self.held = max(self.held, other.held)
         for cam, (k, size) in other.views.items():
             if cam not in self.views or self.views[cam][0] < k:
                 self.views[cam] = (k, size)

@@ -27,6 +27,7 @@ from protocol.messages import FrameMessage
 
 GONE_GRACE_S = 0.25  # how long frame k still waits for a neighbour whose liveliness just ended
 FRESH_S = 2.0  # a neighbour heard within this long tells where the network is (network_frame)
+LOSS_RUN = 4  # a neighbour's message of one of the next LOSS_RUN frames shows this frame's lost
 
 
 class FrameInbox:
@@ -157,9 +158,10 @@ class FrameInbox:
         that is alive (one whose liveliness is lost is not waited for). A neighbour that misses
         the timeout is lagging: it is not waited for again until one of its messages arrives in
         time, so one slow or frozen box costs its neighbours one timeout, not one per frame.
-        A neighbour whose later frame has arrived is not waited for either: a link delivers in
-        order, so its frame-``frame`` message was lost (counted in ``lost``), and a lossy link
-        costs a frame period, not the timeout. Messages of earlier frames are discarded
+        A neighbour whose message of one of the next ``LOSS_RUN`` frames has arrived is not
+        waited for either: a link delivers in order, so its frame-``frame`` message was lost
+        (counted in ``lost``), and a lossy link costs a frame period, not the timeout. (Not any
+        later frame: a single forged message far ahead must not stop the waits.) Messages of earlier frames are discarded
         (counted as late), now and when they arrive. ``silent_grace`` (a paced node's first
         frame): a neighbour that has sent nothing yet is waited for only that long, then taken
         for one still in its own start-up (waiting for a camera that is not up, say) and not
@@ -185,7 +187,11 @@ class FrameInbox:
                     silent = missing - set(self._heard_at)
                     self._lagging |= silent
                     missing -= silent
-                gone = {s for s in missing if self._newest.get(s, -1) > frame}
+                # in order: a message of one of its next frames shows this one lost (not any
+                # later frame: one forged message a second ahead stopped the waits for that
+                # neighbour for a second, and its honest messages came late)
+                gone = {s for s in missing
+                        if any((s, f) in self._inbox for f in range(frame + 1, frame + 1 + LOSS_RUN))}
                 for s in gone - lost:
                     self.lost[s] += 1
                 lost |= gone
