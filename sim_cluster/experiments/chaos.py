@@ -43,11 +43,14 @@ def fill(where: Path) -> Path:
     return filler
 
 
+PHANTOM_COUNTER = 10**8  # the phantoms' ids: (sender, PHANTOM_COUNTER + i), beyond any honest counter
+
+
 def phantom_message(network: str, sender: int, frame: int, n: int, seed: int = 0) -> FrameMessage:
     """``n`` plausible trackers under fresh ids of ``sender``'s camera, born now, ell 0: what
     the screen cannot tell from a camera that sees that many people."""
     rng = np.random.default_rng(seed)
-    infos = tuple(TrackerInfo((sender, 10**8 + i),  # on the terrace, walking (metres)
+    infos = tuple(TrackerInfo((sender, PHANTOM_COUNTER + i),  # on the terrace, walking (metres)
                               np.array([rng.uniform(0, 10), rng.uniform(0, 10), 0.5, 1.7,
                                         rng.uniform(-1, 1), rng.uniform(-1, 1)]),
                               np.zeros(6), np.zeros((6, 6)), 0, born=frame)

@@ -19,7 +19,9 @@ processes on loopback against its goal, printed as a table and written to
                of node 0, published on its link to node 1 by a session that is not node 0 (no
                access control here; with mTLS and the ACL only node 0's certificate could): the
                honest nodes' frame rate and resident memory before and after (goals: camera
-               rate, +10 %), every node still sending, how many phantoms were taken.
+               rate, +10 %), every node still sending, how many phantoms were taken, and the
+               honest people's tracks against the in-process run without the flood (goal: the
+               same ids, positions within ``HONEST_DEV_M``).
 ``boot``       a paced chain with its last camera absent: when each node completes its first
                second of frames after the first node started (goals: nodes not bordering the
                absent camera within 1 s, its neighbour within 5 s).
@@ -42,19 +44,24 @@ from pathlib import Path
 
 import numpy as np
 
+from edge_node.core.config import TrackerConfig
 from edge_node.formats.tracks import iter_tracks
+from edge_node.runtime.inbox import LOSS_RUN
 from edge_node.runtime.output import tracks_path
 from protocol import codec
 from protocol.keys import link_key
 from sim_cluster.cluster.launcher import Cluster
 from sim_cluster.cluster.processes import spawn, terminate
 from sim_cluster.cluster.state import ClusterError, node_counters, node_status
-from sim_cluster.experiments.chaos import fill, phantom_message, publish_once, rss_kb
+from sim_cluster.experiments.chaos import PHANTOM_COUNTER, fill, phantom_message, publish_once, rss_kb
 from sim_cluster.experiments.provenance import provenance
+from sim_cluster.network.inprocess import run_network
+from sim_cluster.network.topology import build
 from sim_cluster.scenarios.loader import open_scenario
 
 KINDS = ("freeze", "disk-full", "restarts", "flood", "boot")
 SCENARIO = "terrace-sim"
+CONFIG = "dkf+lda+dtm"
 
 
 # -- a cluster to probe ----------------------------------------------------------------------------
@@ -66,7 +73,7 @@ def _cluster(out: Path, *, nodes: int, topology: str, mode: str, fps: float, sec
     c = Cluster.prepare(out, network=network, scenario=SCENARIO, seed=0, frames=frames,
                         mode=mode, topology=topology, nodes=nodes)
     c.reset(clear_logs=True)
-    c.write_configs(config="dkf+lda+dtm", sync_timeout_s=1.0, startup_timeout_s=30.0, fps=fps,
+    c.write_configs(config=CONFIG, sync_timeout_s=1.0, startup_timeout_s=30.0, fps=fps,
                     status_interval_s=0.02)
     return c
 
@@ -355,6 +362,7 @@ def probe_flood(out: Path, *, phantoms: int = 4096, nodes: int = 4, topology: st
             rss1 = {i: rss_kb(c.state.nodes[str(i)].pid) for i in range(nodes)}
     finally:
         c.down()
+    honest = _honest_tracks(c, nodes, topology, k)
     rows = []
     for i in range(nodes):
         def rate(a, b):
@@ -375,10 +383,66 @@ def probe_flood(out: Path, *, phantoms: int = 4096, nodes: int = 4, topology: st
                      "too_many_trackers": rej.get("too_many_trackers", 0),
                      "adoption_rate": rej.get("adoption_rate", 0),
                      "trackers_cut": cnt.get("trackers_cut"), "encode_errors": cnt.get("encode_errors"),
+                     "implausible_birth": rej.get("implausible_birth", 0),
+                     **honest[i],
                      "pass": (growth is not None and growth <= 0.10
                               and (rate(t1, t2) or 0) >= 0.95 and bool(after and before
-                                                                        and max(after) > max(before)))})
+                                                                        and max(after) > max(before))
+                              and honest[i]["id_frames_changed"] == 0
+                              and (honest[i]["dev_after_m"] or 0.0) <= HONEST_DEV_M)})
     return rows
+
+
+HONEST_DEV_M = 0.25  # m, half a person's width. Not 0: the forged message takes the place of
+# node 0's own message of its frame (first come; the real one then comes late), and node 1 takes
+# node 0's messages of the LOSS_RUN frames before it for lost (a link delivers in order), so
+# node 1 fuses up to five frames without node 0's measurements: a loss, not the phantoms
+
+
+def _honest_tracks(c: Cluster, nodes: int, topology: str, k_flood: int) -> dict[int, dict]:
+    """Each node's tracks of honest people (ids that are not the phantoms') against the
+    in-process run of the same frames without the flood (the sync shells agree track for track,
+    ``tests/test_cluster.py``): before the flood the largest position difference (0 when the
+    comparison is valid: no sync timeout); from ``LOSS_RUN`` frames before the flood's frame
+    on, the frames whose honest ids differ and the largest position difference of the ids both
+    hold (``HONEST_DEV_M``)."""
+    def honest(ts) -> dict:
+        return {t.id: np.asarray(t.x[:2], float) for t in ts if t.id[1] < PHANTOM_COUNTER}
+
+    got: dict[int, dict[int, dict]] = {i: {} for i in range(nodes)}
+    for i in range(nodes):
+        path = tracks_path(c.out / "nodes", i)
+        for t in (iter_tracks(path) if path.exists() else ()):
+            row = got[i].setdefault(t.frame, {})
+            if t.id[1] < PHANTOM_COUNTER:
+                row[t.id] = np.asarray(t.x[:2], float)
+    last = min((max(g) for g in got.values() if g), default=-1)
+    ref: dict[int, dict[int, dict]] = {i: {} for i in range(nodes)}
+
+    def on_frame(k: int, tracks: dict) -> None:
+        for i, ts in tracks.items():
+            ref[i][k] = honest(ts)
+
+    if last >= 0:
+        stream = open_scenario(SCENARIO, seed=0, frames=last + 1).first_cameras(nodes)
+        run_network(stream, build(topology, nodes), TrackerConfig.for_ablation(CONFIG),
+                    frames=last + 1, on_frame=on_frame)
+    k_from = k_flood - LOSS_RUN
+    out = {}
+    for i in range(nodes):
+        before, after, changed = 0.0, 0.0, 0
+        for k in range(last + 1):
+            a, b = got[i].get(k, {}), ref[i].get(k, {})
+            if k >= k_from and set(a) != set(b):
+                changed += 1
+            dev = max((float(np.hypot(*(a[t] - b[t]))) for t in set(a) & set(b)), default=0.0)
+            if k < k_from:
+                before = max(before, dev)
+            else:
+                after = max(after, dev)
+        out[i] = {"dev_before_m": round(before, 6), "id_frames_changed": changed,
+                  "dev_after_m": round(after, 4), "frames_compared": last + 1 - k_from}
+    return out
 
 
 # -- boot with a camera absent -------------------------------------------------------------------------
