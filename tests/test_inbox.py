@@ -115,3 +115,26 @@ def test_one_message_far_ahead_does_not_stop_the_wait_for_its_sender(box):
     assert sorted(box.collect(0, timeout=0.0)) == [1]
     c = box.counters()
     assert c["lost"] == {} and c["timeouts"] == {"2->0": 1}
+
+
+def test_a_node_behind_every_neighbour_does_not_wait_for_the_frame_it_is_at(box):
+    """Back from a freeze: every fresh neighbour is far ahead, so the frame's messages will not
+    come (the node skips next); no timeout is waited (it cost a second of catch-up)."""
+    box.accept(1, msg(1, 3100))
+    box.accept(2, msg(2, 3101))
+    assert box.collect(100, timeout=5.0) == {}  # returns at once
+    c = box.counters()
+    assert c["timeouts"] == {} and c["lost"] == {"1->0": 1, "2->0": 1}
+
+
+def test_a_neighbour_back_from_a_freeze_far_behind_is_not_waited_for(box):
+    """Neighbour 2 comes back from a freeze and sends its frame 100 while this node is at
+    3100: it will skip to us, so frame 3100 does not wait the timeout for it (its neighbours
+    stood still a second), and it is waited for again once it is in time."""
+    box.accept(1, msg(1, 3100))
+    box.accept(2, msg(2, 100))  # late: counted, and it tells where neighbour 2 is
+    assert sorted(box.collect(3100, timeout=5.0)) == [1]  # at once
+    assert box.counters()["timeouts"] == {}
+    box.accept(1, msg(1, 3101))
+    box.accept(2, msg(2, 3101))  # caught up: in time again
+    assert sorted(box.collect(3101, timeout=5.0)) == [1, 2]

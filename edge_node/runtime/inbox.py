@@ -134,9 +134,11 @@ class FrameInbox:
         fresh; catching up) holds it back only until it has caught up, and one neighbour that
         lies about its frame cannot fling it beyond the others."""
         with self.cond:
-            now = self.clock()
-            frames = [f for n, f in self._newest.items()
-                      if n in self.alive and now - self._heard_at.get(n, now - FRESH_S) < FRESH_S]
+            return self._network_frame_locked(self.clock())
+
+    def _network_frame_locked(self, now: float) -> int | None:
+        frames = [f for n, f in self._newest.items()
+                  if n in self.alive and now - self._heard_at.get(n, now - FRESH_S) < FRESH_S]
         return min(frames) if frames else None
 
     def skip_to(self, frame: int) -> None:
@@ -161,7 +163,8 @@ class FrameInbox:
         A neighbour whose message of one of the next ``LOSS_RUN`` frames has arrived is not
         waited for either: a link delivers in order, so its frame-``frame`` message was lost
         (counted in ``lost``), and a lossy link costs a frame period, not the timeout. (Not any
-        later frame: a single forged message far ahead must not stop the waits.) Messages of earlier frames are discarded
+        later frame: a single forged message far ahead must not stop the waits; but when every
+        fresh neighbour is beyond that, this node is the one behind and skips next.) Messages of earlier frames are discarded
         (counted as late), now and when they arrive. ``silent_grace`` (a paced node's first
         frame): a neighbour that has sent nothing yet is waited for only that long, then taken
         for one still in its own start-up (waiting for a camera that is not up, say) and not
@@ -183,15 +186,25 @@ class FrameInbox:
                 now = self.clock()
                 leaving = {s for s, t in self._gone_at.items() if now - t < GONE_GRACE_S}
                 missing = (self.alive | leaving) - have - self._lagging
+                # a neighbour heard lately at a frame far behind this one (back from a freeze,
+                # it skips to us next): not waited for until its messages come in time (its
+                # neighbours stood still a whole timeout when a frozen node came back)
+                far = {s for s in missing if self._newest.get(s, frame) < frame - LOSS_RUN
+                       and now - self._heard_at.get(s, now - FRESH_S) < FRESH_S}
+                self._lagging |= far
+                missing -= far
                 if silent_grace is not None and now - start >= silent_grace:
                     silent = missing - set(self._heard_at)
                     self._lagging |= silent
                     missing -= silent
                 # in order: a message of one of its next frames shows this one lost (not any
                 # later frame: one forged message a second ahead stopped the waits for that
-                # neighbour for a second, and its honest messages came late)
+                # neighbour for a second, and its honest messages came late), or every fresh
+                # neighbour is beyond them (this node is behind: a freeze; it skips next)
+                behind = (self._network_frame_locked(now) or -1) > frame + LOSS_RUN
                 gone = {s for s in missing
-                        if any((s, f) in self._inbox for f in range(frame + 1, frame + 1 + LOSS_RUN))}
+                        if (behind and self._newest.get(s, -1) > frame)
+                        or any((s, f) in self._inbox for f in range(frame + 1, frame + 1 + LOSS_RUN))}
                 for s in gone - lost:
                     self.lost[s] += 1
                 lost |= gone

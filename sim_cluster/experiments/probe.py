@@ -221,8 +221,13 @@ def _freeze_row(s: Sampler, mode: str, d: float, node: int, neigh: list[int], fp
             if a is not None and b is not None:
                 worst.append((b - a) / fps)
             t += 0.5
+    def offset(t: float) -> int | None:  # the node's frame less its neighbours' newest
+        f, others = s.frame_at(node, t), [s.frame_at(j, t) for j in neigh]
+        return None if f is None or None in others else f - max(others)
+
     cu = counters.get("catch_up") or {}
     return {"mode": mode, "freeze_s": d, "catch_up_s": caught,
+            "offset_before": offset(t_stop - 0.5), "offset_end": offset(t_end),
             "neighbour_rate": round(min(rates), 3) if rates else None,
             "neighbour_worst_second": round(min(worst), 3) if worst else None,
             "catch_ups": cu.get("catch_ups"), "frames_skipped": cu.get("frames_skipped"),
