@@ -22,13 +22,14 @@ import sys
 import threading
 from dataclasses import replace
 
-from edge_node.perception import PerceptionError, calibrate
+from edge_node.perception import calibrate
 from edge_node.runtime import loop, router
 from edge_node.runtime.config import NodeConfigError, load_node_config
 from edge_node.runtime.preflight import preflight
 from edge_node.runtime.sources import SourceError
 from edge_node.runtime.transport import DuplicateNodeError, TransportError
 from edge_node.viz import VizSpecError, parse_spec
+from protocol.errors import DmttError
 
 PROG = "edge_node"
 
@@ -88,7 +89,7 @@ def _calibrate(args) -> int:
     try:
         img, gnd = calibrate.read_pairs(args.points)
         cal = calibrate.fit_homography(img, gnd, ransac_px=args.ransac)
-    except PerceptionError as e:
+    except DmttError as e:
         return _fail(str(e))
     print(calibrate.report(cal, tuple(args.image_size) if args.image_size else None))
     return 0
@@ -105,7 +106,7 @@ def _check(args) -> int:
     try:
         cfg = load_node_config(args.config)
         ready = preflight(cfg)
-    except (NodeConfigError, SourceError) as e:
+    except DmttError as e:
         return _fail(str(e))
     ready.close()
     src = ready.source

@@ -14,8 +14,10 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from protocol.errors import DmttError
 
-class GeometryError(ValueError):
+
+class GeometryError(DmttError, ValueError):
     """A camera description that cannot be used (singular homography, bad shapes)."""
 
 

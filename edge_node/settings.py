@@ -29,13 +29,14 @@ import numpy as np
 
 from edge_node.core.params import ConfigError
 from edge_node.formats.text import read_text
+from protocol.errors import DmttError
 
 T = TypeVar("T")
 
 _REQUIRED = object()
 
 
-class SettingsError(ValueError):
+class SettingsError(DmttError, ValueError):
     """A settings file that cannot be used; ``file`` and ``field`` say where (``field`` is None
     when the error is about the whole file or a whole table)."""
 

@@ -4,7 +4,7 @@ Depends on nothing else of ours (numpy and msgpack only), so any implementation 
 speaks these bytes can join a network.
 """
 from protocol.codec import DEFAULT_LIMITS, MAX_WIRE_INT, Limits, decode, encode, quantize
-from protocol.errors import ProtocolError
+from protocol.errors import DmttError, ProtocolError
 from protocol.keys import (
     MAX_NETWORK_LEN,
     MAX_NODE_ID,
@@ -30,6 +30,7 @@ from protocol.messages import (
 )
 
 __all__ = [
+    "DmttError",
     "DEFAULT_LIMITS",
     "MAX_DESCRIPTORS",
     "MAX_NETWORK_LEN",

@@ -47,12 +47,13 @@ from edge_node.core.stacks import RowStack, stacked
 from edge_node.core.tracker import LocalInfo, Tracker, TrackerTable
 from edge_node.core.types import Detection, Track
 from edge_node.geometry import Camera
+from protocol.errors import DmttError
 from protocol.messages import MAX_DESCRIPTORS, FrameMessage, TrackerBlock, TrackerId, TrackerInfo
 
 Manager = DistributedTrackerManager | IndependentTrackers
 
 
-class NodeStateError(RuntimeError):
+class NodeStateError(DmttError, RuntimeError):
     """``prepare`` and ``update`` called out of order, or frames going backwards."""
 
 

@@ -12,8 +12,10 @@ import math
 from dataclasses import Field, dataclass, field, fields
 from typing import Any
 
+from protocol.errors import DmttError
 
-class ConfigError(ValueError):
+
+class ConfigError(DmttError, ValueError):
     """A parameter that is out of range, of the wrong type or unknown.
 
     ``field`` is the parameter's name as written in a file (``tracker.tau``), or ``None`` when

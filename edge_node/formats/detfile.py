@@ -42,6 +42,7 @@ import numpy as np
 
 from edge_node.core.types import Detection
 from edge_node.formats.text import text_lines
+from protocol.errors import DmttError
 
 BOX_FMT = "%.4f"  # 1e-4 px: round trips well inside 1e-3 px
 
@@ -53,7 +54,7 @@ BOX_FMT = "%.4f"  # 1e-4 px: round trips well inside 1e-3 px
 MAX_FRAME = 10**9
 
 
-class DetFilesError(ValueError):
+class DetFilesError(DmttError, ValueError):
     """A det-files directory or file that cannot be read; the message names the file and field."""
 
 

@@ -21,12 +21,13 @@ import numpy as np
 
 from edge_node.formats.text import read_text
 from edge_node.geometry import Camera, GeometryError
+from protocol.errors import DmttError
 
 FILE = "homographies.json"
 ANNOTATION_SIZE = (360, 288)
 
 
-class HomographiesError(ValueError):
+class HomographiesError(DmttError, ValueError):
     """A calibration file that cannot be used; the message names the file and the field."""
 
 

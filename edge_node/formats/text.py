@@ -17,10 +17,12 @@ import os
 from collections.abc import Callable, Iterator
 from pathlib import Path
 
+from protocol.errors import DmttError
+
 CHUNK = 1 << 16  # bytes read at a time while finding the first bad byte
 
 
-class NotText(ValueError):
+class NotText(DmttError, ValueError):
     """The first bytes of ``path`` that are not UTF-8: ``byte`` at ``offset`` (from 0), on
     ``line`` (1-based, counting ``\\n``)."""
 

@@ -19,8 +19,10 @@ tracker core (``edge_node.core``) and a node fed by detection files never import
 """
 from __future__ import annotations
 
+from protocol.errors import DmttError
 
-class PerceptionError(ValueError):
+
+class PerceptionError(DmttError, ValueError):
     """A perception component that cannot be built or used (a missing or unreadable model file,
     a bad checkpoint, a frame source that cannot be opened, a missing optional dependency).
     Raised at construction, so a node fails at start-up with a clear message, not mid-run."""

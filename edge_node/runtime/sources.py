@@ -43,11 +43,12 @@ from edge_node.perception import PerceptionError
 from edge_node.perception.frames import FRAME_KINDS
 from edge_node.perception.pipeline import open_frame_source
 from edge_node.settings import Table
+from protocol.errors import DmttError
 
 PLUGIN_GROUP = "dmtt.sources"
 
 
-class SourceError(ValueError):
+class SourceError(DmttError, ValueError):
     """A source that cannot be opened: unreadable files, or a kind nobody installed. A plug-in
     starts its message with the field at fault (``source.camera is 42, but ...``);
     :func:`open_source` puts the config's file name in front."""

@@ -39,7 +39,7 @@ import numpy as np
 import zenoh
 
 from protocol import codec
-from protocol.errors import ProtocolError
+from protocol.errors import DmttError, ProtocolError
 from protocol.keys import (alive_key, alive_pattern, inbox_key, link_key, parse_alive_key,
                            parse_link_key, peers_key, peers_pattern)
 from edge_node.runtime.inbox import FrameInbox
@@ -74,7 +74,7 @@ class LatencyRing:
         return self._a.copy() if self._full else self._a[:self._next].copy()
 
 
-class StartupError(RuntimeError):
+class StartupError(DmttError, RuntimeError):
     """The start-up barrier timed out; ``missing`` are the neighbours that were not ready."""
 
     def __init__(self, node: int, missing: dict[int, list[str]], timeout: float,
@@ -91,7 +91,7 @@ class StartupError(RuntimeError):
                          f"{', '.join(map(str, self.missing))} ({what})")
 
 
-class TransportError(RuntimeError):
+class TransportError(DmttError, RuntimeError):
     """The Zenoh session or one of its declarations could not be set up."""
 
 

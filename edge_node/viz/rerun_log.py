@@ -47,6 +47,7 @@ from typing import Any
 import numpy as np
 
 from edge_node.viz.live import LiveSink
+from protocol.errors import DmttError
 
 APP_ID = "dmtt"
 KINDS = ("off", "spawn", "connect", "save", "serve")
@@ -68,11 +69,11 @@ _NODE_COLOURS = [(31, 119, 180), (255, 127, 14), (44, 160, 44), (214, 39, 40), (
                  (140, 86, 75), (227, 119, 194), (127, 127, 127), (188, 189, 34), (23, 190, 207)]
 
 
-class VizSpecError(ValueError):
+class VizSpecError(DmttError, ValueError):
     """A ``--rerun`` spec that cannot be used; the message says why."""
 
 
-class SinkError(RuntimeError):
+class SinkError(DmttError, RuntimeError):
     """A Rerun sink that could not start (port in use, unwritable file, no viewer binary)."""
 
 

@@ -14,12 +14,13 @@ from pathlib import Path
 
 from edge_node.formats.text import read_text
 from edge_node.runtime.output import counters_path, status_path
+from protocol.errors import DmttError
 from sim_cluster.cluster.processes import alive
 
 STATE = "cluster.json"
 
 
-class ClusterError(Exception):
+class ClusterError(DmttError):
     """A cluster that cannot be started or acted on; the message says why."""
 
 

@@ -33,6 +33,7 @@ from typing import Any, Protocol, Union
 import numpy as np
 
 from edge_node.geometry import Camera
+from protocol.errors import DmttError
 from sim_cluster.scenarios.data import ScenarioData
 
 try:  # motmetrics is a declared dependency; fail with a clear message if the env lacks it.
@@ -41,7 +42,7 @@ except ImportError as exc:  # pragma: no cover - environment problem
     raise ImportError("sim_cluster.evaluation needs py-motmetrics (pip install motmetrics)") from exc
 
 
-class EvaluationError(ValueError):
+class EvaluationError(DmttError, ValueError):
     """Tracks or ground truth that cannot be evaluated (bad node index, malformed state)."""
 
 

@@ -44,6 +44,7 @@ from typing import Any
 from tqdm import tqdm
 
 from edge_node.core.config import ABLATIONS, CONFIG_NAMES, TrackerConfig
+from protocol.errors import DmttError
 from sim_cluster.experiments.run import run_once
 from sim_cluster.network import topology as topo
 from sim_cluster.network.inprocess import CENTRALIZED
@@ -84,7 +85,7 @@ PAPER = {
 }
 
 
-class AblationError(ValueError):
+class AblationError(DmttError, ValueError):
     """A bad argument of the ablation command (the CLI turns it into exit status 2)."""
 
 

@@ -12,12 +12,13 @@ from collections.abc import Sequence
 from pathlib import Path
 
 from edge_node.formats.text import read_text
+from protocol.errors import DmttError
 
 Adjacency = dict[int, tuple[int, ...]]
 NAMES = ("complete", "ring", "chain", "disconnected", "star")
 
 
-class TopologyError(ValueError):
+class TopologyError(DmttError, ValueError):
     """An unknown topology name or an edge list that does not describe a graph on ``0..N-1``."""
 
 

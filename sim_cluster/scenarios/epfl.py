@@ -68,6 +68,7 @@ from edge_node.formats.homographies import (FILE, HomographiesError, read_homogr
                                             sequence_cameras, sequence_entry)
 from edge_node.formats.text import read_text, text_lines
 from edge_node.geometry import Camera
+from protocol.errors import DmttError
 from sim_cluster.scenarios.data import (CHUNK_FRAMES, Frame, GroundTruth, ScenarioData,
                                         ScenarioStream)
 from sim_cluster.scenarios.files import ScenarioError, scenario_table
@@ -84,11 +85,11 @@ PERSON_WIDTH_M = 0.5
 PERSON_HEIGHT_M = 1.75
 
 
-class DataNotFoundError(FileNotFoundError):
+class DataNotFoundError(DmttError, FileNotFoundError):
     """The data root or a data file is missing; the message names every path tried."""
 
 
-class EpflFormatError(ValueError):
+class EpflFormatError(DmttError, ValueError):
     """An annotation or calibration file that cannot be parsed; the message names file and field."""
 
 

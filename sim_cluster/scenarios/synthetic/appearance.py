@@ -45,6 +45,7 @@ import math
 
 import numpy as np
 
+from protocol.errors import DmttError
 from sim_cluster.evaluation.reid import ReidScore, cross_camera_reid
 
 _MASK64 = (1 << 64) - 1
@@ -74,7 +75,7 @@ QUALITY_SEEDS = 64
 DECAY_MAX = 32.0
 
 
-class AppearanceError(ValueError):
+class AppearanceError(DmttError, ValueError):
     """Appearance parameters that cannot produce descriptors."""
 
 

@@ -95,7 +95,7 @@ class CalibrationBump:
 
 
 @dataclass(frozen=True)
-class CalibrationError:
+class CalibrationOffsets:
     """Per camera (in camera order) the error of the believed ground map: ``shifts[i]`` (m) and
     ``rotations_deg[i]`` about the camera's reference point; an optional bump."""
 

@@ -28,10 +28,11 @@ import numpy as np
 
 from edge_node.core.types import Detection
 from edge_node.geometry import Camera
+from protocol.errors import DmttError
 from sim_cluster.scenarios.synthetic.appearance import AppearanceModel
 
 
-class DetectorParamsError(ValueError):
+class DetectorParamsError(DmttError, ValueError):
     """Detector parameters out of range."""
 
 

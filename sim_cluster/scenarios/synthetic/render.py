@@ -33,6 +33,7 @@ from pathlib import Path
 import numpy as np
 
 from edge_node.geometry import Camera
+from protocol.errors import DmttError
 from sim_cluster.scenarios.files import read_scenario_toml, resolve_scenario_path, scenario_table
 from sim_cluster.scenarios.synthetic.schema import parse_synthetic
 from sim_cluster.scenarios.synthetic.world import (_TAG_PEOPLE, Trajectories, WorldConfig,
@@ -44,7 +45,7 @@ SWING_DEG = 24.0  # leg swing amplitude
 TEX_PX_PER_M = 40.0
 
 
-class RenderError(ValueError):
+class RenderError(DmttError, ValueError):
     """A scenario or camera that cannot be rendered."""
 
 

@@ -68,7 +68,7 @@ from sim_cluster.scenarios.data import ScenarioStream
 from sim_cluster.scenarios.files import ScenarioError, scenario_table
 from sim_cluster.scenarios.synthetic.appearance import (QUALITY_PEOPLE, AppearanceError,
                                                         AppearanceParams)
-from sim_cluster.scenarios.synthetic.calibration import CalibrationBump, CalibrationError
+from sim_cluster.scenarios.synthetic.calibration import CalibrationBump, CalibrationOffsets
 from sim_cluster.scenarios.synthetic.detector_model import DetectorParams, DetectorParamsError
 from sim_cluster.scenarios.synthetic.layout import KINDS as LAYOUT_KINDS
 from sim_cluster.scenarios.synthetic.layout import LayoutParams, layout_cameras, layout_stream
@@ -243,8 +243,8 @@ def _shift(t: Table, label: str, v: object) -> tuple[float, float]:
     return (t.check_number(f"{label}[0]", v[0]), t.check_number(f"{label}[1]", v[1]))
 
 
-def calibration_error_from_table(t: Table, n_cameras: int) -> CalibrationError:
-    """``CalibrationError`` from a ``[calibration_error]`` table: ``shift_m`` (one ``[dx, dy]``
+def calibration_error_from_table(t: Table, n_cameras: int) -> CalibrationOffsets:
+    """``CalibrationOffsets`` from a ``[calibration_error]`` table: ``shift_m`` (one ``[dx, dy]``
     per camera, metres) and ``rotation_deg`` (one per camera), each defaulting to zeros, and an
     optional ``[calibration_error.bump]`` (``camera``, ``frame``, ``shift_m``, ``rotation_deg``)."""
     rot = {"lo": -_MAX_ROTATION_DEG, "hi": _MAX_ROTATION_DEG}
@@ -272,7 +272,7 @@ def calibration_error_from_table(t: Table, n_cameras: int) -> CalibrationError:
         bt.finish()
         bump = CalibrationBump(camera=camera, frame=frame, shift=shift, rotation_deg=rotation)
     t.finish()
-    return CalibrationError(shifts=tuple(shifts), rotations_deg=tuple(rotations), bump=bump)
+    return CalibrationOffsets(shifts=tuple(shifts), rotations_deg=tuple(rotations), bump=bump)
 
 
 def appearance_params_from_table(t: Table) -> AppearanceParams:

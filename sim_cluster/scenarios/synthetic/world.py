@@ -50,9 +50,10 @@ import math
 import numpy as np
 
 from edge_node.geometry import Camera
+from protocol.errors import DmttError
 from sim_cluster.scenarios.data import CHUNK_FRAMES, Frame, ScenarioData, ScenarioStream
 from sim_cluster.scenarios.synthetic.appearance import AppearanceModel, AppearanceParams
-from sim_cluster.scenarios.synthetic.calibration import (CalibrationError, believed_camera,
+from sim_cluster.scenarios.synthetic.calibration import (CalibrationOffsets, believed_camera,
                                                          moved_camera)
 from sim_cluster.scenarios.synthetic.detector_model import (DetectorParams, detect_frames,
                                                             in_image_fraction)
@@ -64,7 +65,7 @@ _GRID = (8, 16)  # occlusion sample grid (columns, rows) per box
 _SIDESTEPS = tuple(math.radians(a) for a in (0.0, -45.0, 45.0, -90.0, 90.0))
 
 
-class WorldError(ValueError):
+class WorldError(DmttError, ValueError):
     """A world configuration that cannot be simulated."""
 
 
@@ -117,7 +118,7 @@ class WorldConfig:
     detector: DetectorParams = field(default_factory=DetectorParams)
     appearance: AppearanceParams = field(default_factory=AppearanceParams)
     min_visible: float = 0.1  # ground-truth visibility threshold (see module docstring)
-    calibration: CalibrationError | None = None  # known registration errors (calibration module)
+    calibration: CalibrationOffsets | None = None  # known registration errors (calibration module)
 
     def __post_init__(self) -> None:
         xmin, xmax, ymin, ymax = self.area
