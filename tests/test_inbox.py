@@ -50,6 +50,16 @@ def test_one_lying_neighbour_cannot_fling_the_node_ahead(box):
     box.accept(1, msg(1, 40))
     box.accept(2, msg(2, 10**12))  # forged
     assert box.network_frame() == 40
+    assert box.network_lead() == 10**12  # the most advanced: the loop bounds what it does with it
+
+
+def test_the_lead_is_the_most_advanced_fresh_neighbour(box):
+    box.accept(1, msg(1, 3134))
+    box.accept(2, msg(2, 3137))
+    assert (box.network_frame(), box.network_lead()) == (3134, 3137)
+    box.clock_.t += FRESH_S + 0.1
+    box.accept(1, msg(1, 3135))  # 2 silent since: not fresh
+    assert (box.network_frame(), box.network_lead()) == (3135, 3135)
 
 
 def test_a_neighbour_not_heard_lately_does_not_count(box):
@@ -138,3 +148,35 @@ def test_a_neighbour_back_from_a_freeze_far_behind_is_not_waited_for(box):
     box.accept(1, msg(1, 3101))
     box.accept(2, msg(2, 3101))  # caught up: in time again
     assert sorted(box.collect(3101, timeout=5.0)) == [1, 2]
+
+
+def test_a_neighbour_back_after_going_away_is_waited_for_only_a_moment(box):
+    """Neighbour 2's liveliness went away (it froze) and came back, and nothing of it has come
+    since: both sides' messages of that moment went out before the link was back, so waiting
+    the whole timeout for it (as its neighbours and the frozen node itself did, each for the
+    other: 1 s of a 30 s freeze's 1.5 s catch-up) gains nothing; after ``BACK_GRACE_S`` it is
+    lagging, and it is waited for again once heard in time."""
+    from edge_node.runtime.inbox import BACK_GRACE_S
+
+    box.liveliness(2, gone=True)
+    box.liveliness(2, gone=False)
+    box.clock_.t += BACK_GRACE_S
+    box.accept(1, msg(1, 852))
+    assert sorted(box.collect(852, timeout=0.0)) == [1]  # not waited for: no timeout
+    assert box.counters()["timeouts"] == {}
+    box.accept(1, msg(1, 853))
+    box.accept(2, msg(2, 853))  # in time again: waited for from now on
+    assert sorted(box.collect(853, timeout=5.0)) == [1, 2]
+    box.accept(1, msg(1, 854))
+    assert sorted(box.collect(854, timeout=0.0)) == [1]
+    assert box.counters()["timeouts"] == {"2->0": 1}
+
+
+def test_a_neighbour_heard_since_it_came_back_is_waited_for_as_before(box):
+    box.liveliness(2, gone=True)
+    box.liveliness(2, gone=False)
+    box.accept(2, msg(2, 9))  # heard since (a frame it is past): not a stranger
+    box.clock_.t += 10.0
+    box.accept(1, msg(1, 10))
+    assert sorted(box.collect(10, timeout=0.0)) == [1]
+    assert box.counters()["timeouts"] == {"2->0": 1}

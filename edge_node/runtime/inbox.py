@@ -17,6 +17,7 @@ counted in ``skipped``).
 """
 from __future__ import annotations
 
+import math
 import threading
 import time
 from collections import defaultdict
@@ -26,6 +27,7 @@ from typing import Callable
 from protocol.messages import FrameMessage
 
 GONE_GRACE_S = 0.25  # how long frame k still waits for a neighbour whose liveliness just ended
+BACK_GRACE_S = 0.25  # how long a neighbour back after its liveliness ended is waited for unheard
 FRESH_S = 2.0  # a neighbour heard within this long tells where the network is (network_frame)
 LOSS_RUN = 4  # a neighbour's message of one of the next LOSS_RUN frames shows this frame's lost
 
@@ -52,6 +54,7 @@ class FrameInbox:
         self._floor = -1  # sync: frames below this are late
         self.alive: set[int] = set()  # alive neighbours
         self._gone_at: dict[int, float] = {}  # neighbour -> when its liveliness went away
+        self._back_at: dict[int, float] = {}  # neighbour -> when it came back after going away
         self._lagging: set[int] = set()  # sync: neighbours that missed a frame and are behind
         self._newest: dict[int, int] = {}  # sender -> newest frame received from it
         self._heard_at: dict[int, float] = {}  # sender -> when its last message came
@@ -105,6 +108,8 @@ class FrameInbox:
                     self._gone_at[n] = self.clock()
                 self.alive.discard(n)
             elif n in self.neighbours:
+                if n not in self.alive and n in self._gone_at:  # back after going away
+                    self._back_at[n] = self.clock()
                 self.alive.add(n)
             self.cond.notify_all()
 
@@ -136,10 +141,17 @@ class FrameInbox:
         with self.cond:
             return self._network_frame_locked(self.clock())
 
-    def _network_frame_locked(self, now: float) -> int | None:
+    def _network_frame_locked(self, now: float, lead: bool = False) -> int | None:
         frames = [f for n, f in self._newest.items()
                   if n in self.alive and now - self._heard_at.get(n, now - FRESH_S) < FRESH_S]
-        return min(frames) if frames else None
+        return (max(frames) if lead else min(frames)) if frames else None
+
+    def network_lead(self) -> int | None:
+        """The newest frame of any fresh, alive neighbour (``network_frame`` takes the least):
+        how far ahead the most advanced neighbour is. A sync node behind it runs without pause
+        until level (``runtime/loop.py``); it cannot run past the neighbours it waits for."""
+        with self.cond:
+            return self._network_frame_locked(self.clock(), lead=True)
 
     def skip_to(self, frame: int) -> None:
         """This node skips ahead to ``frame``: the messages of the frames it skips are dropped
@@ -193,6 +205,15 @@ class FrameInbox:
                        and now - self._heard_at.get(s, now - FRESH_S) < FRESH_S}
                 self._lagging |= far
                 missing -= far
+                # a neighbour back after its liveliness went away (a freeze on either side, a
+                # restart) and not heard since: its frames and ours are apart, and each side's
+                # message of the moment went out before the link was back, so both waited a
+                # whole timeout; it is waited for BACK_GRACE_S, then taken for lagging
+                back = {s: self._back_at[s] for s in missing if s in self._back_at
+                        and self._heard_at.get(s, -math.inf) < self._back_at[s]}
+                stale = {s for s, t in back.items() if now - t >= BACK_GRACE_S}
+                self._lagging |= stale
+                missing -= stale
                 if silent_grace is not None and now - start >= silent_grace:
                     silent = missing - set(self._heard_at)
                     self._lagging |= silent
@@ -216,6 +237,11 @@ class FrameInbox:
                     remaining = min(remaining, start + silent_grace - self.clock())
                     if remaining <= 0:
                         continue  # the grace is over: silent ones are not waited for
+                if back.keys() & missing:
+                    remaining = min(remaining, min(back[s] for s in back.keys() & missing)
+                                    + BACK_GRACE_S - self.clock())
+                    if remaining <= 0:
+                        continue  # a returning neighbour's grace is over
                 if remaining <= 0:
                     for s in missing:
                         self.timeouts[s] += 1

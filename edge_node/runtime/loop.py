@@ -501,11 +501,17 @@ class FrameLoop:
                                  self.node.id, k)
                 if fps > 0:
                     due = t_start + i / fps
-                    if self.mode == "sync" and ahead is not None and ahead > k:
+                    lead = self._network_lead() if self.mode == "sync" else None
+                    if self.mode == "sync" and ((ahead is not None and ahead > k) or
+                                                (lead is not None and k < lead <= k + fps)):
                         # one or two frames behind the network (fewer than a skip): no pause until
                         # level, then paced from there. Paced at camera rate a node that far behind
                         # stayed behind for good, and its neighbours, no longer waiting for it,
-                        # dropped every message it sent as late. (Sync only: in lock-step a
+                        # dropped every message it sent as late. Behind the most advanced
+                        # neighbour (lead) too, by up to a second of frames: level with the least
+                        # advanced one, a node paced at camera rate stayed 2-3 frames behind the
+                        # other, which took it for lagging and never waited for it again (after a
+                        # 2-minute freeze: 2.7 s to be within a frame). (Sync only: in lock-step a
                         # neighbour is ahead only of a node it no longer waits for; async nodes'
                         # clocks drift by a frame either way and would chase each other.)
                         t_start, i = time.monotonic(), 0
@@ -555,6 +561,10 @@ class FrameLoop:
 
     def _network_frame(self) -> int | None:
         f = getattr(self.transport, "network_frame", None)
+        return None if f is None else f()
+
+    def _network_lead(self) -> int | None:
+        f = getattr(self.transport, "network_lead", None)
         return None if f is None else f()
 
     def _log_viz(self, k: int, tracks: list) -> None:

@@ -427,6 +427,10 @@ class ZenohTransport:
         """Where the running network is (``FrameInbox.network_frame``)."""
         return self.inbox.network_frame()
 
+    def network_lead(self) -> int | None:
+        """The most advanced neighbour's frame (``FrameInbox.network_lead``)."""
+        return self.inbox.network_lead()
+
     def skip_to(self, frame: int) -> None:
         """This node skips ahead to ``frame`` (``FrameInbox.skip_to``)."""
         self.inbox.skip_to(frame)
