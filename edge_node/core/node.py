@@ -695,9 +695,8 @@ class CameraNode:
         A tracker the network never kept alive after it appeared here (``confirmed``: one
         message's plausible hearsay, such as a phantom flood's) is kept for a later adoption
         of its id but not for re-identification: a person appearing later where it went must
-        not take its id (the
-        zombie probe's flood gave a phantom the id of a person born 60 frames later on every
-        node)."""
+        not take its id (the zombie probe's flood gave a phantom the id of a person born 54
+        frames after it was dropped, on every node)."""
         tr = self.trackers.pop(tid)
         self.stats.dropped += 1
         self.book.retire(tid, tr.gallery, self.manager.keeps_galleries, self._frame,

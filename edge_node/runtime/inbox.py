@@ -141,9 +141,12 @@ class FrameInbox:
         with self.cond:
             return self._network_frame_locked(self.clock())
 
+    def _fresh(self, n: int, now: float) -> bool:
+        """Whether neighbour ``n`` was heard within ``FRESH_S``."""
+        return now - self._heard_at.get(n, now - FRESH_S) < FRESH_S
+
     def _network_frame_locked(self, now: float, lead: bool = False) -> int | None:
-        frames = [f for n, f in self._newest.items()
-                  if n in self.alive and now - self._heard_at.get(n, now - FRESH_S) < FRESH_S]
+        frames = [f for n, f in self._newest.items() if n in self.alive and self._fresh(n, now)]
         return (max(frames) if lead else min(frames)) if frames else None
 
     def network_lead(self) -> int | None:
@@ -201,8 +204,8 @@ class FrameInbox:
                 # a neighbour heard lately at a frame far behind this one (back from a freeze,
                 # it skips to us next): not waited for until its messages come in time (its
                 # neighbours stood still a whole timeout when a frozen node came back)
-                far = {s for s in missing if self._newest.get(s, frame) < frame - LOSS_RUN
-                       and now - self._heard_at.get(s, now - FRESH_S) < FRESH_S}
+                far = {s for s in missing
+                       if self._newest.get(s, frame) < frame - LOSS_RUN and self._fresh(s, now)}
                 self._lagging |= far
                 missing -= far
                 # a neighbour back after its liveliness went away (a freeze on either side, a
@@ -211,9 +214,9 @@ class FrameInbox:
                 # whole timeout; it is waited for BACK_GRACE_S, then taken for lagging
                 back = {s: self._back_at[s] for s in missing if s in self._back_at
                         and self._heard_at.get(s, -math.inf) < self._back_at[s]}
-                stale = {s for s, t in back.items() if now - t >= BACK_GRACE_S}
-                self._lagging |= stale
-                missing -= stale
+                unheard = {s for s, t in back.items() if now - t >= BACK_GRACE_S}
+                self._lagging |= unheard
+                missing -= unheard
                 if silent_grace is not None and now - start >= silent_grace:
                     silent = missing - set(self._heard_at)
                     self._lagging |= silent
