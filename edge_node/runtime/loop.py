@@ -31,7 +31,10 @@ was last level with the network: ``PLAUSIBLE_RATE``), and paces on from there. A
 most ``kappa`` frames predicts the trackers through; a longer one starts the tracker core
 afresh as a restarted node does (its id counter kept), and its neighbours, seeing its frames
 jump, resync it with their trackers and galleries (``edge_node.outbox``). Status phase
-``catching up`` until it is level again.
+``catching up`` until it is level again. The source is told where the node went
+(``Source.seek``): a simulated camera walks its world there in the background while the node
+runs on level with the network, its frames without an image until the walk arrives (counted,
+``frames_without_image``); a camera serves its current frame.
 
 Health: the status file says ``starting``, ``running``, ``catching up``, ``degraded`` (output
 failing: the node tracks and sends on, retries its files with a backoff and logs the failure
@@ -555,6 +558,9 @@ class FrameLoop:
         skip_to = getattr(self.transport, "skip_to", None)
         if skip_to is not None:
             skip_to(ahead)
+        seek = getattr(self.source, "seek", None)
+        if seek is not None:  # a simulated camera walks there in the background (Source.seek)
+            seek(ahead)
         self._catching_up = True
         if self.phase != "catching up":
             self.write_status("catching up")
@@ -954,7 +960,9 @@ def write_counters(cfg: NodeConfig, loop: FrameLoop, transport, code: int | None
         "rotations": loop.writer.rotations,
         "catch_up": {"catch_ups": st.catch_ups, "frames_skipped": st.frames_skipped_behind,
                      "core_restarts": st.core_restarts,
-                     "implausible_frames": st.implausible_frames},
+                     "implausible_frames": st.implausible_frames,
+                     # frames the camera had no image for yet after a skip (Source.seek)
+                     "frames_without_image": getattr(loop.source, "frames_without_image", 0)},
         "output": {"failures": st.output_failures + loop.writer.failures,
                    "errors": loop.output_errors,
                    "track_frames_dropped": loop.writer.frames_dropped,

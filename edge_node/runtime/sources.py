@@ -58,17 +58,33 @@ class SourceError(DmttError, ValueError):
 class Source:
     """This node's camera and its detections per frame ``0..frames-1``: ``read(k)``, called
     with increasing ``k`` (frames may be skipped, never revisited in a normal run), makes or
-    reads frame ``k`` on demand, so a source need not hold a run's frames in memory."""
+    reads frame ``k`` on demand, so a source need not hold a run's frames in memory. After a
+    skip the loop calls ``seek`` (when the source has one) with the frame it skipped to."""
 
     camera: Camera
     frames: int
     fps: float
     units_per_metre: float
-    read: Callable[[int], list[Detection]]
+    #: frame ``k``'s detections; ``None``: the camera has no image for ``k`` yet (after a seek)
+    read: Callable[[int], list[Detection] | None]
     description: str = ""
+    #: optional: the node skipped ahead to frame ``k`` (a catch-up after a freeze). A source
+    #: that must make its way there (a simulated world walking its people frame by frame) may
+    #: do so in the background and answer ``None`` until it is there: those frames have no
+    #: image, as a camera's frames dropped while it was busy, and the node predicts through
+    #: them. A camera serves its current frame and needs no seek.
+    seek: Callable[[int], None] | None = None
+    #: frames read that had no image yet (``read`` gave ``None``)
+    frames_without_image: int = 0
 
     def __call__(self, k: int) -> list[Detection]:
-        return self.read(k) if 0 <= k < self.frames else []
+        if not 0 <= k < self.frames:
+            return []
+        dets = self.read(k)
+        if dets is None:
+            self.frames_without_image += 1
+            return []
+        return dets
 
 
 class SourcePlugin(Protocol):

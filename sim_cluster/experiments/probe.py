@@ -233,6 +233,9 @@ def _freeze_row(s: Sampler, mode: str, d: float, node: int, neigh: list[int], fp
             "neighbour_worst_second": round(min(worst), 3) if worst else None,
             "catch_ups": cu.get("catch_ups"), "frames_skipped": cu.get("frames_skipped"),
             "core_restarts": cu.get("core_restarts"),
+            # frames the node ran level with the network before its camera had an image again
+            # (the simulated world walking there in the background: Source.seek)
+            "frames_without_image": cu.get("frames_without_image"),
             "pass": caught is not None and caught <= 2.0 and bool(rates) and min(rates) >= 0.95}
 
 
