@@ -35,7 +35,9 @@ def _check(node: CameraNode, cfg: TrackerConfig, seen: dict) -> None:
         assert all(node.frame - f <= window + 1 for f in heard.values())
     assert len(node._taken) <= len(node.neighbours) * (cfg.kappa + 1)
     n = len(node.trackers)
-    assert len(node.manager.streaks) <= n * (n - 1) // 2
+    ev = node.manager.evidence  # co-motion evidence: pairs of trackers held, never more
+    assert len(ev) <= n * (n - 1) // 2
+    assert all(a in node.trackers and b in node.trackers for a, b in ev)
     seen["ids"].update(node.trackers)
     seen["max_born"] = max(seen["max_born"], len(book.born))
     seen["max_store"] = max(seen["max_store"], book.old.nbytes)

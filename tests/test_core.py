@@ -242,17 +242,23 @@ def test_returning_person_gets_their_old_id():
 
 
 def test_find_merges_needs_co_motion_for_established_trackers():
-    """Two established trackers of one look merge only after ``comotion_frames`` frames within
-    ``comotion_gate``; appearance can forbid a merge but never hurries one."""
-    cfg = TrackerConfig(comotion_frames=4)
+    """Two established trackers of one look merge only once the cameras' co-motion evidence
+    reaches ``merge_llr``; appearance can forbid a merge but never hurries one. Here camera 0
+    (this node's) measures one and neighbour 1's camera the other: each saw one person there,
+    2 ln(1 / comotion_miss) = 2 ln 2 = 1.386 nats a frame, so 5 nats take 4 frames."""
+    cfg = TrackerConfig(comotion_miss=0.5, merge_llr=5.0)
     g = _gallery(1)
-    a = MergeView((0, 0), np.array([0.0, 0.0]), g, False, frozenset())
-    b = MergeView((1, 0), np.array([0.5, 0.0]), g, False, frozenset())
+    a = MergeView((0, 0), np.array([0.0, 0.0]), g, False, frozenset({0}))
+    b = MergeView((1, 0), np.array([0.5, 0.0]), g, False, frozenset(), measured_by=frozenset({1}))
     streaks = {}
     assert [find_merges([a, b], streaks, cfg) for _ in range(3)] == [[], [], []]
+    assert streaks[(0, 0), (1, 0)] == pytest.approx(3 * 2 * np.log(2))
     assert find_merges([a, b], streaks, cfg) == [((1, 0), (0, 0))]
+    # measured by nobody: no evidence either way, never merged
+    a_, b_ = (MergeView(v.id, v.xy, g, False, frozenset()) for v in (a, b))
+    assert all(find_merges([a_, b_], {}, cfg) == [] for _ in range(30))
     # identical galleries 1.2 m apart (beyond comotion_gate, within tau_gda): never merged
-    far = MergeView((1, 0), np.array([1.2, 0.0]), g, False, frozenset())
+    far = MergeView((1, 0), np.array([1.2, 0.0]), g, False, frozenset(), measured_by=frozenset({1}))
     assert all(find_merges([a, far], streaks, cfg) == [] for _ in range(10))
     # the camera that starts a tracker merges it at once into one of the same look within
     # tau_gda (it sees nobody else there), and so do two trackers both new this frame (the
@@ -281,8 +287,50 @@ def test_find_merges_needs_co_motion_for_established_trackers():
     f = MergeView((1, 0), np.array([0.1, 0.0]), g, False, frozenset(), measured_by=frozenset({3}))
     assert all(find_merges([e, f], streaks, cfg) == [] for _ in range(10))
     # different appearance: never merged
-    h = MergeView((1, 0), np.array([0.1, 0.0]), _gallery(2), True, frozenset())
+    h = MergeView((1, 0), np.array([0.1, 0.0]), _gallery(2), True, frozenset(),
+                  measured_by=frozenset({1}))
     assert all(find_merges([a, h], streaks, cfg) == [] for _ in range(10))
+
+
+def test_co_motion_remembers_that_two_trackers_were_seen_as_two_people():
+    """Evidence against a merge (a camera measured both: ln(comotion_split / (1 -
+    comotion_miss)) = ln(0.02 / 0.5) = -3.219 nats a frame) is kept while both trackers live,
+    also while they are apart, down to ``merge_llr_floor``; evidence for one target is
+    forgotten when they part. Two people seen as two for 3 frames then hidden from every
+    camera but one each need 5 + 3 x 3.219 = 14.66 nats, 11 frames of 1.386, not 4."""
+    cfg = TrackerConfig(comotion_miss=0.5, comotion_split=0.02, merge_llr=5.0,
+                        merge_llr_floor=-20.0)
+    g = _gallery(1)
+    two = [MergeView((0, 0), np.array([0.0, 0.0]), g, False, frozenset({0})),
+           MergeView((1, 0), np.array([0.6, 0.0]), g, False, frozenset({0}))]
+    one_each = [MergeView((0, 0), np.array([0.0, 0.0]), g, False, frozenset({0})),
+                MergeView((1, 0), np.array([0.6, 0.0]), g, False, frozenset(),
+                          measured_by=frozenset({1}))]
+    apart = [one_each[0], MergeView((1, 0), np.array([5.0, 0.0]), g, False, frozenset())]
+    key = ((0, 0), (1, 0))
+    ev = {}
+    assert all(find_merges(two, ev, cfg) == [] for _ in range(3))
+    assert ev[key] == pytest.approx(3 * np.log(0.02 / 0.5))
+    assert all(find_merges(apart, ev, cfg) == [] for _ in range(50))  # kept while apart
+    assert ev[key] == pytest.approx(3 * np.log(0.02 / 0.5))
+    got = [find_merges(one_each, ev, cfg) for _ in range(11)]
+    assert got[:10] == [[]] * 10 and got[10] == [((1, 0), (0, 0))]
+    # the floor: 100 frames seen as two weigh no more than -20 nats: 5 + 20 = 25 nats, 19 frames
+    ev = {}
+    for _ in range(100):
+        find_merges(two, ev, cfg)
+    assert ev[key] == -20.0
+    got = [find_merges(one_each, ev, cfg) for _ in range(19)]
+    assert got[:18] == [[]] * 18 and got[18] == [((1, 0), (0, 0))]
+    # evidence for one target is forgotten when they part; a tracker gone takes its pairs along
+    ev = {}
+    find_merges(one_each, ev, cfg)
+    assert ev[key] > 0
+    find_merges(apart, ev, cfg)
+    assert key not in ev
+    find_merges(two, ev, cfg)
+    find_merges(two[:1], ev, cfg)
+    assert key not in ev
 
 
 def test_tracker_is_unit_invariant():
@@ -470,17 +518,21 @@ def test_reidentification_by_appearance_must_be_reachable():
 
 def test_merge_evidence_needs_a_measurement_of_both_here_or_next_door():
     """With ``merge_evidence`` a node merges two look-alike trackers by co-motion only while its
-    camera or a neighbour measures each of them; without it, on co-motion alone."""
+    camera or a neighbour measures each of them; without it, also when only one is measured
+    (a camera that sees one person where two trackers are: ln 4 = 1.386 nats a frame, two
+    frames to 2.7; two cameras each measuring one of them: 2.77 nats, one frame)."""
     g = _gallery(1)
-    far = [MergeView((0, 0), np.array([0.0, 0.0]), g, False, frozenset()),
-           MergeView((1, 0), np.array([0.5, 0.0]), g, False, frozenset())]
+    half = [MergeView((0, 0), np.array([0.0, 0.0]), g, False, frozenset({0})),
+            MergeView((1, 0), np.array([0.5, 0.0]), g, False, frozenset())]
     near = [MergeView((0, 0), np.array([0.0, 0.0]), g, False, frozenset({0})),
             MergeView((1, 0), np.array([0.5, 0.0]), g, False, frozenset(), measured_by=frozenset({2}))]
-    for views, on, merged in ((far, False, True), (far, True, False), (near, True, True)):
-        cfg = TrackerConfig(comotion_frames=3, merge_evidence=on)
+    merge = [((1, 0), (0, 0))]
+    for views, on, expected in ((half, False, [[], merge]), (half, True, [[], []]),
+                                (near, True, [merge, merge])):  # (a test repeats the pair)
+        cfg = TrackerConfig(comotion_miss=0.25, merge_llr=2.7, merge_evidence=on)
         streaks = {}
-        got = [find_merges(views, streaks, cfg) for _ in range(3)]
-        assert got[-1] == ([((1, 0), (0, 0))] if merged else []), (on, views[0].seen_by)
+        got = [find_merges(views, streaks, cfg) for _ in range(2)]
+        assert got == expected, (on, views[1].measured_by)
 
 
 def test_the_inbox_takes_one_entry_per_sender_and_surviving_id():
@@ -689,3 +741,27 @@ def test_eq8_for_all_trackers_at_once_is_each_trackers_minimum():
     assert got.tolist() == want and got.dtype == np.int64
     assert any(i not in rows for i in range(12)) and got.tolist() != own.tolist()  # both cases occur
     assert IndependentTrackers(TrackerConfig()).ells(own.tolist(), rows, received).tolist() == own.tolist()
+
+
+def test_a_dropped_tracker_hands_its_id_to_the_duplicate_that_took_its_target_over():
+    """``heir``: lost at (0, 0), unseen for ell = 16 frames, dropped at frame 100 (kappa 15, 25
+    fps): the reach is reid_gate + reid_speed x 16 / 25 = 1.5 + 1.28 = 2.78 m, and a tracker
+    qualifies if it appeared on the node at frame 100 - 16 - 30 = 54 or later, is younger, and
+    was never seen beside the lost one as a second person."""
+    from edge_node.core.manager import heir
+    cfg = TrackerConfig(reid_gate=1.5, reid_speed=2.0, kappa=15, fps=25.0)
+    g = Gallery(20, 20)
+
+    def view(tid, x, born, since):
+        return MergeView(tid, np.array([x, 0.0]), g, False, frozenset(), born=born, since=since)
+    lost = view((0, 1), 0.0, 10, 10)
+    young = view((2, 7), 2.7, 60, 60)  # 2.7 m < 2.78 m
+    nearer = view((1, 3), 1.0, 70, 70)
+    assert heir(lost, 16, [lost, young], 100, {}, cfg) == (2, 7)
+    assert heir(lost, 16, [lost, young, nearer], 100, {}, cfg) == (1, 3)
+    assert heir(lost, 16, [lost, view((2, 7), 2.9, 60, 60)], 100, {}, cfg) is None  # too far
+    assert heir(lost, 16, [lost, view((2, 7), 1.0, 60, 50)], 100, {}, cfg) is None  # came before 54
+    assert heir(lost, 16, [lost, view((2, 7), 1.0, 5, 60)], 100, {}, cfg) is None  # older
+    # a camera once saw the two as two people: no heir
+    assert heir(lost, 16, [lost, nearer], 100, {((0, 1), (1, 3)): -3.2}, cfg) is None
+    assert heir(lost, 16, [lost, nearer], 100, {((0, 1), (1, 3)): 4.0}, cfg) == (1, 3)

@@ -1,5 +1,7 @@
 """Online registration (edge_node/core/registration.py), each camera's own view (Track.boxes),
 and the manager without appearance (co-motion merging, re-identification by place)."""
+import math
+
 import numpy as np
 import pytest
 
@@ -148,10 +150,12 @@ def test_a_target_a_camera_has_not_seen_is_not_in_its_view():
 def test_co_motion_merges_duplicates_without_appearance():
     """No descriptors, and camera 1's map 0.7 m off (no registration to correct it): both
     cameras start their own tracker of the person in the same frame, 0.7 m apart, too far to be
-    taken for one at once. They move together; after ``comotion_frames`` frames they are merged:
-    one id, on both nodes, for good. While the pair agrees towards the merge the younger
-    tracker is held but not reported (``hide_pending``): every node reports the one id from
-    the first frame; without it, the duplicate shows until the merge."""
+    taken for one at once. They move together, each camera measuring its own tracker: two
+    cameras each saw one person there, 2 ln(1 / comotion_miss) = 1.386 nats a frame, so after
+    ceil(merge_llr / 1.386) = 22 frames they are merged: one id, on both nodes, for good.
+    While the pair agrees towards the merge the younger tracker is held but not reported
+    (``hide_pending``): every node reports the one id from the first frame; without it, the
+    duplicate shows until the merge."""
     for hide in (False, True):
         cfg = TrackerConfig(registration=False, hide_pending=hide)
         nodes = make_nodes({0: (1,), 1: (0,)}, cfg, offsets={1: (0.7, 0.0)})
@@ -163,7 +167,8 @@ def test_co_motion_merges_duplicates_without_appearance():
             out = step(nodes, k, {0: d, 1: d})
             counts.append(len(out[0]))
             held.append(len(nodes[0].trackers))
-        n = cfg.comotion_frames
+        n = math.ceil(cfg.merge_llr / (2 * math.log(1 / cfg.comotion_miss)))
+        assert n == 22 and cfg.comotion_frames >= n
         assert held[1:n] == [2] * (n - 1)  # the duplicate...
         assert held[n:] == [1] * (60 - n)  # ...merged in the frame the pair agreed n times
         assert counts[1:n] == [1 if hide else 2] * (n - 1)

@@ -111,7 +111,11 @@ class TrackerConfig:
     alpha_gda: float = positive(1.5, "m, s_d normaliser of the global association")
     merge_appearance: float = nonnegative(0.4, "galleries farther apart (cosine) are never merged")
     comotion_gate: float = positive(1.0, "m, how close two trackers of one target stay")
-    comotion_frames: int = integer(10, lo=1, doc="frames they must stay so to merge")
+    comotion_frames: int = integer(25, lo=1, doc="frames a tracker counts as new on a node: hidden while on its way to a merge (hide_pending); 25 covers a merge at merge_llr when two cameras each measure one of the pair (22 frames of 1.39 nats)")
+    comotion_miss: float = number(0.5, lo=0.0, lo_open=True, hi=0.99, doc="chance that a camera which sees two people within the comotion_gate measures only one of them (one hidden behind the other, a miss)")
+    comotion_split: float = number(0.02, lo=0.0, lo_open=True, hi=0.5, doc="chance that a camera measures one person as two (its detector splits a person into two boxes)")
+    merge_llr: float = positive(30.0, "nats of co-motion evidence (one target against two) at which two trackers merge")
+    merge_llr_floor: float = number(-70.0, hi=0.0, doc="nats: the least co-motion evidence kept for a pair (two trackers once seen as two people merge after this much more)")
     merge_evidence: bool = boolean(False, "merge by co-motion only where this node's camera or a neighbour measures both trackers (README, What we tuned: large gains with look-alikes, Campus loses)")
     merge_announce_frames: int = integer(3, lo=1, doc="frames a merge announcement is repeated")
     kappa: int = integer(15, lo=1, doc="drop a tracker when ell exceeds kappa (eq. 8)")
@@ -121,6 +125,7 @@ class TrackerConfig:
     reid_frames: int = integer(50, lo=0, doc="without appearance: frames a dropped tracker may be re-identified")
     reid_gate: float = positive(1.5, "m, how near a new tracker's birth a dropped tracker must be (without appearance; with it, plus reid_speed x the time since the drop)")
     reid_speed: float = positive(2.0, "m/s, how fast a dropped person may have walked to where a new tracker re-identified as them is born")
+    stitch: bool = boolean(False, "a tracker dropped while a younger one, born beside it since it was last seen, goes on where it was gives that one its id (tracklet stitching, manager.heir)")
     report_coast: int = integer(1, lo=0, doc="frames a tracker nobody sees is still reported")
     hide_pending: bool = boolean(True, "a tracker new on this node (within comotion_frames) that "
                                  "agrees with an older one towards a merge is not reported "

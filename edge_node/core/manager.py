@@ -15,6 +15,7 @@ managers a node is assembled with.
 """
 from __future__ import annotations
 
+import math
 from collections.abc import Collection, Iterable, Mapping, Sequence
 from dataclasses import dataclass
 
@@ -95,30 +96,32 @@ def merge_reach(cfg: TrackerConfig) -> float:
     return max(cfg.m(cfg.comotion_gate), cfg.m(cfg.tau_gda))
 
 
-def pair_score(a: MergeView, b: MergeView, cfg: TrackerConfig) -> tuple[float, int] | None:
-    """Global association of two trackers on this node: ``(score, frames)`` when they may be one
-    target, the score ``s_a * d / alpha_gda`` (eqs. 5-7 with ``V = I``; ``s_a`` is
-    ``unknown_appearance`` where a gallery is missing) and how many consecutive frames they must
-    agree before they are merged; ``None`` when they cannot be one target.
+def pair_score(a: MergeView, b: MergeView, cfg: TrackerConfig) -> tuple[float, bool] | None:
+    """Global association of two trackers on this node: ``(score, at_once)`` when they may be
+    one target, the score ``s_a * d / alpha_gda`` (eqs. 5-7 with ``V = I``; ``s_a`` is
+    ``unknown_appearance`` where a gallery is missing) and whether they merge this frame
+    (``False``: only once the co-motion evidence, :func:`comotion_llr` summed over frames, says
+    so); ``None`` when they cannot be one target.
 
     Appearance merges at once only where the deciding node can vouch for it; elsewhere place
     and co-motion decide and appearance can only forbid (the paper merges on appearance
     within a distance gate):
 
-    * No camera may see them as two: neither this node's (it associated them to two different
-      measurements this frame) nor a neighbour whose camera saw both (its entries carry
-      measurement information or say ``ell`` 0).
     * Appearance known on both sides and ``s_a > merge_appearance``: two people.
-    * At once within ``tau_gda``, appearance matching: a tracker this node's camera started this
-      frame (the camera sees the target and nobody else beside it, or the first rule applies),
-      or two simultaneous initialisations (the paper's; :func:`simultaneous`: both new on this
-      node, or, over a late link, as they would have been had the news come on time).
-    * At once by place: a tracker new on this node within half the ``comotion_gate`` of another.
-    * Otherwise the two must stay within ``comotion_gate`` of each other for
-      ``comotion_frames`` frames in a row.
-    * With ``merge_evidence`` (off by default), only while this node's camera or a neighbour
-      measures each of the two: a node that only hears of both through consensus cannot tell
-      two look-alikes walking together from a duplicate.
+    * At once within ``tau_gda``, appearance matching, no camera seeing them as two (neither
+      this node's, which associated them to two different measurements this frame, nor a
+      neighbour's whose camera saw both: its entries carry measurement information or say
+      ``ell`` 0): a tracker this node's camera started this frame (the camera sees the target
+      and nobody else beside it), or two simultaneous initialisations (the paper's;
+      :func:`simultaneous`: both new on this node, or, over a late link, as they would have been
+      had the news come on time).
+    * At once by place: a tracker new on this node within half the ``comotion_gate`` of
+      another, no camera seeing them as two.
+    * Otherwise by co-motion: within ``comotion_gate`` of each other, until the evidence of
+      the cameras (:func:`comotion_llr`) adds up to ``merge_llr``.
+    * With ``merge_evidence`` (off by default), co-motion only while this node's camera or a
+      neighbour measures each of the two: a node that only hears of both through consensus
+      cannot tell two look-alikes walking together from a duplicate.
 
     Why not more appearance: a real re-id network confuses some people (cross-camera rank-1
     around 0.8). Merging on appearance anywhere (within ``tau_gda`` at once for a new tracker,
@@ -128,12 +131,8 @@ def pair_score(a: MergeView, b: MergeView, cfg: TrackerConfig) -> tuple[float, i
     worse than without descriptors (ground MOTA 0.837 against 0.957); keeping the at-once rule
     for trackers adopted from neighbours, ring8-sim issued 13.3 ids per person (0.890). With
     this rule 1.7 and 7.1, ground MOTA 0.967 and 0.943, and with perfect re-id the same figures
-    as before on terrace-sim, terrace-gt and ring8-sim (README, "What we tuned"). A detector
-    that splits one person into two boxes makes a camera "see" a duplicate pair as two people;
-    the pair then waits.
+    as before on terrace-sim, terrace-gt and ring8-sim (docs/tuning.md).
     """
-    if a.seen_by & b.seen_by or a.measured_by & b.measured_by:
-        return None
     d = float(np.linalg.norm(a.xy - b.xy))
     if d >= merge_reach(cfg):
         return None
@@ -142,25 +141,52 @@ def pair_score(a: MergeView, b: MergeView, cfg: TrackerConfig) -> tuple[float, i
     if known and s_a > cfg.merge_appearance:
         return None
     score = max(s_a if known else cfg.unknown_appearance, 1e-3) * d / cfg.m(cfg.alpha_gda)
-    if known and (a.started or b.started or simultaneous(a, b)) and d < cfg.m(cfg.tau_gda):
-        return score, 1
+    seen_as_two = bool(a.seen_by & b.seen_by or a.measured_by & b.measured_by)
+    if (not seen_as_two and known and (a.started or b.started or simultaneous(a, b))
+            and d < cfg.m(cfg.tau_gda)):
+        return score, True
     if d >= cfg.m(cfg.comotion_gate):
         return None
     if cfg.merge_evidence and not ((a.seen_by or a.measured_by) and (b.seen_by or b.measured_by)):
         return None  # neither this node's camera nor a neighbour measures both: it cannot tell
-    return score, 1 if (a.new or b.new) and d < cfg.m(cfg.comotion_gate) / 2.0 else cfg.comotion_frames
+    return score, not seen_as_two and (a.new or b.new) and d < cfg.m(cfg.comotion_gate) / 2.0
 
 
-def find_merges(views: Sequence[MergeView], streaks: dict[tuple[TrackerId, TrackerId], int],
+def comotion_llr(a: MergeView, b: MergeView, cfg: TrackerConfig) -> float:
+    """This frame's log-likelihood ratio, one target against two people, of what the cameras
+    measured of two trackers within the ``comotion_gate`` (ours; the paper merges at once
+    within its gate). A camera that measured one of the two and not the other counts
+    ``log(1 / comotion_miss)``: it saw one person there, as it would of a duplicate, while of two
+    people within a metre it measures only one with probability ``comotion_miss`` (one hidden
+    behind the other, a miss). A camera that measured both counts
+    ``log(comotion_split / (1 - comotion_miss))``: two people, unless its detector split one
+    person into two boxes (``comotion_split``). Cameras that measured neither say nothing.
+    (``seen_by`` are this node's cameras, ``measured_by`` its neighbours', whose entries carry
+    measurement information or say ``ell`` 0.)"""
+    sa, sb = a.seen_by | a.measured_by, b.seen_by | b.measured_by
+    one, both = len(sa ^ sb), len(sa & sb)
+    q, split = cfg.comotion_miss, cfg.comotion_split
+    return one * -math.log(q) + both * math.log(split / (1.0 - q))
+
+
+def find_merges(views: Sequence[MergeView], evidence: dict[tuple[TrackerId, TrackerId], float],
                 cfg: TrackerConfig) -> list[tuple[TrackerId, TrackerId]]:
-    """Pairs ``(loser, winner)`` to merge this frame; updates ``streaks`` in place.
+    """Pairs ``(loser, winner)`` to merge this frame; updates ``evidence`` in place.
 
-    A pair merges once it has agreed for the frames :func:`pair_score` asks. The paper merges
-    "two or more" trackers of one target at once (three cameras that start the same person in
-    the same frame): pairs join groups, best score first (ties broken by ids, so the outcome is
-    deterministic); two groups join only if every pair across them may be one target (scored,
-    not excluded by :func:`pair_score`). Each group keeps its oldest tracker, ``(born, id)``
-    smallest; every other member is merged into it.
+    ``evidence`` holds, per pair of trackers, the co-motion log-likelihood ratio summed over
+    the frames they were within the ``comotion_gate`` (:func:`comotion_llr`, at least
+    ``merge_llr_floor``); a pair merges once it reaches ``merge_llr`` (or at once, by the rules
+    of :func:`pair_score`). Evidence that they are one target is forgotten when they part;
+    evidence that they are two people (a camera saw both) is kept while both trackers live, so
+    two people who were seen apart and then walk together, hidden from every camera but one,
+    are not merged after a moment of agreement (terrace-full, no descriptors: 4 such merges of
+    two people on one node cost 0.09 IDF1, docs/tuning.md).
+
+    The paper merges "two or more" trackers of one target at once (three cameras that start
+    the same person in the same frame): pairs join groups, best score first (ties broken by
+    ids, so the outcome is deterministic); two groups join only if every pair across them may
+    be one target (scored this frame, with no evidence against). Each group keeps its oldest
+    tracker, ``(born, id)`` smallest; every other member is merged into it.
     """
     scored: list[tuple[float, MergeView, MergeView, bool]] = []
     alive: set[tuple[TrackerId, TrackerId]] = set()
@@ -175,14 +201,20 @@ def find_merges(views: Sequence[MergeView], streaks: dict[tuple[TrackerId, Track
             scored_pair = pair_score(a, b, cfg)
             if scored_pair is None:
                 continue
-            s, frames = scored_pair
+            s, at_once = scored_pair
             key = (a.id, b.id)
-            alive.add(key)
-            streaks[key] = streaks.get(key, 0) + 1
-            scored.append((s, a, b, streaks[key] >= frames))
-    for key in list(streaks):
-        if key not in alive:
-            del streaks[key]
+            e = max(evidence.get(key, 0.0) + comotion_llr(a, b, cfg), cfg.merge_llr_floor)
+            evidence[key] = e
+            if at_once or e >= 0.0:
+                alive.add(key)
+                scored.append((s, a, b, at_once or e >= cfg.merge_llr))
+    held = {v.id for v in ordered}
+    for key in list(evidence):
+        if key in alive:
+            continue
+        if key[0] in held and key[1] in held and evidence[key] < 0.0:
+            continue  # seen as two people: remembered while both live
+        del evidence[key]  # parted (or gone): what spoke for one target is forgotten
     group: dict[TrackerId, list[MergeView]] = {}  # tracker -> its group (shared list)
     for s, a, b, ready in sorted(scored, key=lambda e: (e[0], e[1].id, e[2].id)):
         if not ready:
@@ -194,7 +226,7 @@ def find_merges(views: Sequence[MergeView], streaks: dict[tuple[TrackerId, Track
         ga.extend(gb)
         for v in ga:
             group[v.id] = ga
-        streaks.pop((a.id, b.id), None)
+        evidence.pop((a.id, b.id), None)
     merges: list[tuple[TrackerId, TrackerId]] = []
     done: set[int] = set()
     for g in group.values():
@@ -231,6 +263,39 @@ def reidentify(gallery: Gallery, old: Mapping[TrackerId, Gallery], cfg: TrackerC
     return None if best is None else best[1]
 
 
+def heir(lost: MergeView, ell: int, others: Sequence[MergeView], k: int,
+         evidence: Mapping[tuple[TrackerId, TrackerId], float], cfg: TrackerConfig
+         ) -> TrackerId | None:
+    """The tracker that took over the target of ``lost``, dropped at frame ``k`` after nobody
+    saw it for ``ell`` frames (eq. 8), or ``None`` (ours; tracklet stitching). A duplicate born
+    beside a tracker while both were measured can take the person's measurements (they go to
+    whichever tracker the association finds nearer), and the older tracker, unmeasured, is
+    dropped: without this the person keeps the younger id, a second id for one person
+    (terrace-full, no descriptors: person 1 tracked 2,320 frames as one id, then 909 as the
+    duplicate born 33 frames before the first was dropped). The heir is the nearest tracker
+    younger than ``lost`` that appeared on this node no earlier than ``ell + 2 kappa`` frames
+    ago, within ``reid_gate`` plus ``reid_speed`` times the ``ell`` frames unseen of where
+    ``lost`` was estimated last, that no camera ever saw beside it as a second person (the
+    pair's co-motion ``evidence`` is not negative), and whose gallery, where both are known, is
+    within ``merge_appearance`` of the lost one's. It takes the older id by a merge,
+    announced like any other, so every node ends with the same id."""
+    reach = cfg.m(cfg.reid_gate) + cfg.m(cfg.reid_speed) * ell * cfg.dt
+    since = k - ell - 2 * cfg.kappa
+    best: tuple[float, TrackerId] | None = None
+    for v in others:
+        if v.id == lost.id or v.since < since or v.rank <= lost.rank:
+            continue
+        if evidence.get((min(v.id, lost.id), max(v.id, lost.id)), 0.0) < 0.0:
+            continue
+        s_a = v.gallery.distance_to(lost.gallery)
+        if not np.isnan(s_a) and s_a > cfg.merge_appearance:
+            continue  # looks like someone else
+        d = float(np.linalg.norm(v.xy - lost.xy))
+        if d < reach and (best is None or (d, v.id) < best):
+            best = (d, v.id)
+    return None if best is None else best[1]
+
+
 class DistributedTrackerManager:
     """The DTM of the paper's complete configuration (``dkf+lda+dtm``): drop by the ``ell``
     consensus (eq. 8), global association and merging of duplicate trackers, and
@@ -240,7 +305,8 @@ class DistributedTrackerManager:
 
     def __init__(self, cfg: TrackerConfig):
         self.cfg = cfg
-        self.streaks: dict[tuple[TrackerId, TrackerId], int] = {}
+        #: co-motion evidence per pair of trackers (:func:`find_merges`)
+        self.evidence: dict[tuple[TrackerId, TrackerId], float] = {}
 
     def ell(self, own: int, received: Sequence[int]) -> int:
         return ell_consensus(own, received)
@@ -250,29 +316,39 @@ class DistributedTrackerManager:
         return ell_consensus_many(own, rows, received)
 
     def merges(self, views: Sequence[MergeView]) -> list[tuple[TrackerId, TrackerId]]:
-        return find_merges(views, self.streaks, self.cfg)
+        return find_merges(views, self.evidence, self.cfg)
 
     def pending(self, born: Mapping[TrackerId, int]) -> list[tuple[TrackerId, TrackerId]]:
         """Pairs ``(younger, older)`` on their way to being merged: every pair agreeing towards
-        a merge (:func:`find_merges`' streaks; ``born`` maps the trackers this node holds to
+        a merge (:func:`find_merges`' evidence for one target; ``born`` maps the trackers this node holds to
         their birth frames), in a deterministic order. The younger is most likely a duplicate
         of the older, and if it is, it is merged into it within ``comotion_frames``: reporting
         it meanwhile shows a second id for one person (a fragment and, once merged, a switch
         back)."""
         out = []
-        for a, b in sorted(self.streaks):
-            if a in born and b in born:
+        for (a, b), e in sorted(self.evidence.items()):
+            if e > 0.0 and a in born and b in born:
                 old, young = sorted((a, b), key=lambda t: rank(born[t], t))
                 out.append((young, old))
         return out
 
     def merged(self, loser: TrackerId) -> None:
-        """``loser`` is gone: forget the agreement streaks it was part of."""
-        for key in [key for key in self.streaks if loser in key]:
-            del self.streaks[key]
+        """``loser`` is gone: forget the co-motion evidence of the pairs it was part of."""
+        self.forget(loser)
+
+    def forget(self, tid: TrackerId) -> None:
+        """``tid`` is gone (merged or dropped): forget the co-motion evidence of its pairs, so
+        that the table holds pairs of trackers the node holds, never more."""
+        for key in [key for key in self.evidence if tid in key]:
+            del self.evidence[key]
 
     def may_adopt(self, tid: TrackerId, dropped: Collection[TrackerId]) -> bool:
         return True
+
+    def heir(self, lost: MergeView, ell: int, others: Sequence[MergeView], k: int
+             ) -> TrackerId | None:
+        """The tracker that took over ``lost``'s target as it was dropped (:func:`heir`)."""
+        return heir(lost, ell, others, k, self.evidence, self.cfg) if self.cfg.stitch else None
 
     def reidentify(self, gallery: Gallery, old: Mapping[TrackerId, Gallery],
                    k: int = 0, xy: np.ndarray | None = None,
@@ -321,8 +397,15 @@ class IndependentTrackers:
     def merged(self, loser: TrackerId) -> None:
         pass
 
+    def forget(self, tid: TrackerId) -> None:
+        pass
+
     def may_adopt(self, tid: TrackerId, dropped: Collection[TrackerId]) -> bool:
         return tid not in dropped  # a camera's drop decision is its own and final
+
+    def heir(self, lost: MergeView, ell: int, others: Sequence[MergeView], k: int
+             ) -> TrackerId | None:
+        return None  # nothing is ever merged
 
     def reidentify(self, gallery: Gallery, old: Mapping[TrackerId, Gallery],
                    k: int = 0, xy: np.ndarray | None = None,

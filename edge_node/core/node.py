@@ -64,6 +64,7 @@ class NodeStats:
     adopted: int = 0
     reactivated: int = 0
     merged: int = 0
+    stitched: int = 0  # dropped trackers whose target a younger tracker took over (heir)
     dropped: int = 0
     out_of_scope: int = 0  # trackers let go because the target is beyond scope_hops (regional scope)
     ignored_messages: int = 0  # other network, not a neighbour, future or too old a frame
@@ -410,8 +411,14 @@ class CameraNode:
         for loser, winner in self.manager.merges(views):
             self._merge(loser, winner)
         for tid in self.trackers.ids():
+            if tid not in self.trackers:
+                continue  # merged into a tracker dropped before it (heir)
             if self.trackers[tid].ell > self.cfg.kappa:
+                heir = self._heir(k, views, self.trackers[tid])
                 self._drop(tid)
+                if heir is not None:  # it takes the dropped id back (manager.heir)
+                    self._merge(heir, tid)
+                    self.stats.stitched += 1
             elif not self._in_scope(self.trackers[tid]):
                 self._drop(tid)
                 self.stats.out_of_scope += 1
@@ -690,6 +697,15 @@ class CameraNode:
         """Whether this frame's message carries ``tr``: a receiver one hop farther keeps it."""
         return not self.cfg.scope_hops or tr.local.ell_sent - tr.coast < self.cfg.scope_hops
 
+    def _heir(self, k: int, views: list[MergeView], tr: Tracker) -> TrackerId | None:
+        """The tracker that took over the target of ``tr``, which is being dropped
+        (``manager.heir``); only for a tracker the network kept alive (``confirmed``)."""
+        if not tr.confirmed or tr.x_hat is None:
+            return None
+        held = [v for v in views if v.id in self.trackers]
+        lost = next((v for v in held if v.id == tr.id), None)
+        return None if lost is None else self.manager.heir(lost, tr.ell, held, k)
+
     def _drop(self, tid: TrackerId) -> None:
         """Drop ``tid`` (eq. 8: its ``ell`` passed ``kappa``) and retire it to the identity book.
         A tracker the network never kept alive after it appeared here (``confirmed``: one
@@ -698,6 +714,7 @@ class CameraNode:
         not take its id (the zombie probe's flood gave a phantom the id of a person born 54
         frames after it was dropped, on every node)."""
         tr = self.trackers.pop(tid)
+        self.manager.forget(tid)
         self.stats.dropped += 1
         self.book.retire(tid, tr.gallery, self.manager.keeps_galleries, self._frame,
                          None if tr.x_hat is None else tr.x_hat[:2], reid=tr.confirmed)
