@@ -320,8 +320,8 @@ class DistributedTrackerManager:
 
     def pending(self, born: Mapping[TrackerId, int]) -> list[tuple[TrackerId, TrackerId]]:
         """Pairs ``(younger, older)`` on their way to being merged: every pair agreeing towards
-        a merge (:func:`find_merges`' evidence for one target; ``born`` maps the trackers this node holds to
-        their birth frames), in a deterministic order. The younger is most likely a duplicate
+        a merge (:func:`find_merges`' evidence for one target; ``born`` maps the trackers this
+        node holds to their birth frames), in a deterministic order. The younger is most likely a duplicate
         of the older, and if it is, it is merged into it within ``comotion_frames``: reporting
         it meanwhile shows a second id for one person (a fragment and, once merged, a switch
         back)."""
@@ -331,10 +331,6 @@ class DistributedTrackerManager:
                 old, young = sorted((a, b), key=lambda t: rank(born[t], t))
                 out.append((young, old))
         return out
-
-    def merged(self, loser: TrackerId) -> None:
-        """``loser`` is gone: forget the co-motion evidence of the pairs it was part of."""
-        self.forget(loser)
 
     def forget(self, tid: TrackerId) -> None:
         """``tid`` is gone (merged or dropped): forget the co-motion evidence of its pairs, so
@@ -393,9 +389,6 @@ class IndependentTrackers:
 
     def pending(self, born: Mapping[TrackerId, int]) -> list[tuple[TrackerId, TrackerId]]:
         return []  # nothing is ever merged
-
-    def merged(self, loser: TrackerId) -> None:
-        pass
 
     def forget(self, tid: TrackerId) -> None:
         pass

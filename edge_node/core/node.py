@@ -676,7 +676,7 @@ class CameraNode:
                 old.extend(winner, g)
             else:
                 old.put(winner, g, reid=not hearsay)
-        self.manager.merged(loser)
+        self.manager.forget(loser)
 
     # ------------------------------------------------------------------------------------
     # regional scope (our addition; cfg.scope_hops, needs the DTM's ell consensus)
