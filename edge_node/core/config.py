@@ -125,6 +125,12 @@ class TrackerConfig:
     reid_frames: int = integer(50, lo=0, doc="without appearance: frames a dropped tracker may be re-identified")
     reid_gate: float = positive(1.5, "m, how near a new tracker's birth a dropped tracker must be (without appearance; with it, plus reid_speed x the time since the drop)")
     reid_speed: float = positive(2.0, "m/s, how fast a dropped person may have walked to where a new tracker re-identified as them is born")
+    reappear: bool = boolean(True, "re-identification by motion: a new tracker that goes on where a dropped one was heading takes its id (edge_node/core/reappear.py)")
+    reappear_age: int = integer(10, lo=1, doc="frames after a new tracker's birth at which its course is compared with the dropped trackers' (its Kalman velocity holds by then)")
+    reappear_frames: int = integer(150, lo=1, doc="frames between a drop and a birth within which the new tracker may be the dropped one re-appearing")
+    reappear_gate: float = positive(1.5, "m, how near the two courses, carried to the middle of the gap, must meet")
+    reappear_spread: float = nonnegative(0.0, "m/s, how much farther apart the courses may meet per second of the gap (a hidden walker's course bends)")
+    reappear_hide: int = integer(4, lo=0, doc="frames after reappear_age a new tracker that may re-appear is still not reported (the decision's announcement travels a hop a frame)")
     stitch: bool = boolean(False, "a tracker dropped while a younger one, born beside it since it was last seen, goes on where it was gives that one its id (tracklet stitching, manager.heir)")
     report_coast: int = integer(1, lo=0, doc="frames a tracker nobody sees is still reported")
     hide_pending: bool = boolean(True, "a tracker new on this node (within comotion_frames) that "

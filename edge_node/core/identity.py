@@ -102,12 +102,13 @@ class IdentityBook:
 
     # -- dropped trackers ----------------------------------------------------------------------
     def retire(self, tid: TrackerId, gallery: Gallery, keep_gallery: bool,
-               frame: int = 0, xy: np.ndarray | None = None, reid: bool = True) -> None:
-        """``tid`` was dropped at ``frame`` (estimated at ``xy``): keep its gallery and where it
-        went for re-identification (only for a later adoption of ``tid`` when not ``reid``),
-        or only its id."""
+               frame: int = 0, xy: np.ndarray | None = None, reid: bool = True,
+               x: np.ndarray | None = None, seen: int | None = None) -> None:
+        """``tid`` was dropped at ``frame`` (estimated at ``xy``, state ``x``, last seen at frame
+        ``seen``): keep its gallery and where it went for re-identification (only for a later adoption of ``tid`` when not
+        ``reid``), or only its id."""
         if keep_gallery:
-            self.old.put(tid, gallery, frame, xy, reid)
+            self.old.put(tid, gallery, frame, xy, reid, x, seen)
         else:
             self.dropped[tid] = None
             while len(self.dropped) > 10 * self.cfg.max_old_trackers:

@@ -11,7 +11,9 @@ managers a node is assembled with.
   the winner here is the *oldest* tracker, ``(born, id)`` smallest, which is the smallest id
   among simultaneous births and keeps an established id when a late duplicate is merged into it.
 * re-identification: a new local tracker whose gallery matches an *old* (dropped) tracker's
-  within ``epsilon`` takes the old id back.
+  within ``epsilon`` takes the old id back; ours: without appearance, one born near where an old
+  tracker was dropped, and one whose course continues an old tracker's
+  (:mod:`edge_node.core.reappear`).
 """
 from __future__ import annotations
 
@@ -24,6 +26,7 @@ import numpy as np
 from edge_node.core.config import TrackerConfig
 from edge_node.core.gallery import Gallery
 from edge_node.core.identity import rank
+from edge_node.core.reappear import Gone, Young, awaiting, reappearances
 from edge_node.geometry import norms
 from protocol.messages import TrackerId
 
@@ -346,6 +349,16 @@ class DistributedTrackerManager:
         """The tracker that took over ``lost``'s target as it was dropped (:func:`heir`)."""
         return heir(lost, ell, others, k, self.evidence, self.cfg) if self.cfg.stitch else None
 
+    def reappearances(self, young: Sequence[Young], gone: Sequence[Gone], k: int
+                      ) -> list[tuple[TrackerId, TrackerId]]:
+        """New trackers that go on where dropped ones were heading, ``(new, dropped)``
+        (:func:`edge_node.core.reappear.reappearances`; none unless ``reappear``)."""
+        return reappearances(young, gone, k, self.cfg) if self.cfg.reappear else []
+
+    def awaiting(self, young: Young, gone: Sequence[Gone], k: int) -> bool:
+        """Whether ``young`` may still be linked to a dropped tracker (:func:`awaiting`)."""
+        return self.cfg.reappear and awaiting(young, gone, k, self.cfg)
+
     def reidentify(self, gallery: Gallery, old: Mapping[TrackerId, Gallery],
                    k: int = 0, xy: np.ndarray | None = None,
                    last: Mapping[TrackerId, tuple[int, np.ndarray]] | None = None
@@ -399,6 +412,13 @@ class IndependentTrackers:
     def heir(self, lost: MergeView, ell: int, others: Sequence[MergeView], k: int
              ) -> TrackerId | None:
         return None  # nothing is ever merged
+
+    def reappearances(self, young: Sequence[Young], gone: Sequence[Gone], k: int
+                      ) -> list[tuple[TrackerId, TrackerId]]:
+        return []  # a dropped id stays dropped
+
+    def awaiting(self, young: Young, gone: Sequence[Gone], k: int) -> bool:
+        return False
 
     def reidentify(self, gallery: Gallery, old: Mapping[TrackerId, Gallery],
                    k: int = 0, xy: np.ndarray | None = None,

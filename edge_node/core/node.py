@@ -41,6 +41,7 @@ from edge_node.core.measurement import (BoxMeasurements, box_measurements, fixed
                                         uncorrected_many)
 from edge_node.core.memory import NeighbourMemory
 from edge_node.core.model import STATE_DIM, birth_covariance, birth_state, process_noise, quantize, transition
+from edge_node.core.reappear import Gone, Young, gone_trackers
 from edge_node.core.registration import Registration
 from edge_node.core.screen import Screen
 from edge_node.core.stacks import RowStack, stacked
@@ -65,6 +66,7 @@ class NodeStats:
     reactivated: int = 0
     merged: int = 0
     stitched: int = 0  # dropped trackers whose target a younger tracker took over (heir)
+    reappeared: int = 0  # new trackers that took a dropped one's id by its course (reappear.py)
     dropped: int = 0
     out_of_scope: int = 0  # trackers let go because the target is beyond scope_hops (regional scope)
     ignored_messages: int = 0  # other network, not a neighbour, future or too old a frame
@@ -306,6 +308,7 @@ class CameraNode:
         tr = Tracker(tid, quantize(birth_state(first.z)), self.P_birth.copy(), gallery,
                      born=born, since=k, heard=k)
         self.book.born[tid] = born
+        tr.origin = np.asarray(last.z[:2], float).copy()
         tr.local.add(cam_id, *dkf.information(last.z, last.R), last.raw)
         self._saw_many([tr], cam_id, k, [last.raw])
         self.trackers[tid] = tr
@@ -422,6 +425,7 @@ class CameraNode:
             elif not self._in_scope(self.trackers[tid]):
                 self._drop(tid)
                 self.stats.out_of_scope += 1
+        self._reappear(k)
         self._prepared = False
         self.book.forget(set(self.trackers))
         return self.tracks()
@@ -706,6 +710,27 @@ class CameraNode:
         lost = next((v for v in held if v.id == tr.id), None)
         return None if lost is None else self.manager.heir(lost, tr.ell, held, k)
 
+    def _young(self, tr: Tracker) -> Young:
+        return Young(tr.id, tr.born, tr.x_hat, tr.gallery, tr.origin)
+
+    def _gone(self) -> list[Gone]:
+        """The dropped trackers that may re-appear (``reappear.Gone``)."""
+        old = self.book.old
+        return gone_trackers(old.candidates(), old.last, old.motion)
+
+    def _reappear(self, k: int) -> None:
+        """Trackers this node's cameras created ``reappear_age`` frames ago that go on where a
+        dropped tracker was heading take its id, by a merge announced like any other
+        (``manager.reappearances``); only the creator decides, so one decision per tracker."""
+        age = self.cfg.reappear_age
+        young = [self._young(t) for t in self.trackers.in_order()
+                 if t.origin is not None and k - t.born == age and t.x_hat is not None]
+        if not young:
+            return
+        for new, old in self.manager.reappearances(young, self._gone(), k):
+            self._merge(new, old)
+            self.stats.reappeared += 1
+
     def _drop(self, tid: TrackerId) -> None:
         """Drop ``tid`` (eq. 8: its ``ell`` passed ``kappa``) and retire it to the identity book.
         A tracker the network never kept alive after it appeared here (``confirmed``: one
@@ -717,7 +742,8 @@ class CameraNode:
         self.manager.forget(tid)
         self.stats.dropped += 1
         self.book.retire(tid, tr.gallery, self.manager.keeps_galleries, self._frame,
-                         None if tr.x_hat is None else tr.x_hat[:2], reid=tr.confirmed)
+                         None if tr.x_hat is None else tr.x_hat[:2], reid=tr.confirmed,
+                         x=tr.x_hat, seen=self._frame - tr.ell)
 
     # ------------------------------------------------------------------------------------
     @property
@@ -739,6 +765,13 @@ class CameraNode:
             hidden = {young for young, old in self.manager.pending({t.id: t.born for t in held})
                       if old in ids and self.trackers[young].since >= new}
             shown = [t for t in shown if t.id not in hidden]
+        fresh = [t for t in shown
+                 if self._frame - t.born < self.cfg.reappear_age + self.cfg.reappear_hide]
+        if fresh:  # not yet told whether they are a dropped tracker re-appearing (reappear.py)
+            gone = self._gone()
+            waiting = {t.id for t in fresh
+                       if self.manager.awaiting(self._young(t), gone, self._frame)}
+            shown = [t for t in shown if t.id not in waiting]
         if not shown:
             return []
         boxes = self.views(shown)

@@ -41,6 +41,8 @@ class ReidStore(Mapping):
         self.max_bytes = int(max_bytes)
         self._g: OrderedDict[TrackerId, Gallery] = OrderedDict()  # oldest first
         self.last: dict[TrackerId, tuple[int, np.ndarray]] = {}  # frame and where dropped
+        # the frame it was last seen and its whole state when dropped (reappear.py)
+        self.motion: dict[TrackerId, tuple[int, np.ndarray]] = {}
         self.nbytes = 0  # descriptor bytes held
         self.hearsay: set[TrackerId] = set()  # kept, but not to be re-identified
 
@@ -65,10 +67,12 @@ class ReidStore(Mapping):
 
     # -- changes ------------------------------------------------------------------------------
     def put(self, tid: TrackerId, gallery: Gallery, frame: int | None = None,
-            xy: np.ndarray | None = None, reid: bool = True) -> None:
+            xy: np.ndarray | None = None, reid: bool = True, x: np.ndarray | None = None,
+            seen: int | None = None) -> None:
         """Keep ``gallery`` (a float16 copy) for ``tid``, newest, and where it was dropped
-        (``frame``, ``xy``) when known; then the oldest go until both bounds hold. ``reid``:
-        whether it is a re-identification candidate (module docstring)."""
+        (``frame``, ``xy``; its state ``x`` with the velocity it was going at, and the frame
+        ``seen`` last) when known; then the oldest go until both bounds hold. ``reid``: whether it is a re-identification
+        candidate (module docstring)."""
         self._discard(tid)
         if not reid:
             self.hearsay.add(tid)
@@ -77,6 +81,9 @@ class ReidStore(Mapping):
         self.nbytes += g.nbytes
         if xy is not None:
             self.last[tid] = (int(frame or 0), np.asarray(xy, float).copy())
+        if x is not None:
+            self.motion[tid] = (int(frame or 0) if seen is None else int(seen),
+                                np.asarray(x, float).copy())
         self._shrink()
 
     def take(self, tid: TrackerId) -> Gallery | None:
@@ -87,6 +94,7 @@ class ReidStore(Mapping):
     def _discard(self, tid: TrackerId) -> Gallery | None:
         """Remove ``tid`` and where it was dropped; its stored gallery, or ``None``."""
         self.last.pop(tid, None)
+        self.motion.pop(tid, None)
         self.hearsay.discard(tid)
         g = self._g.pop(tid, None)
         if g is not None:

@@ -87,6 +87,8 @@ class Tracker:
     # CONFIRM_FRAMES of them it is a person, not one message's hearsay (``confirmed``)
     held: int = 0
     announced: bool = False  # appearance already sent by this node
+    # where its own camera measured it at birth (on the node that created it; reappear.py)
+    origin: np.ndarray | None = None
     x_hat: np.ndarray | None = None  # estimate of the last update (eq. 4)
     M: np.ndarray | None = None  # its covariance
     local: LocalInfo = field(default_factory=LocalInfo)
