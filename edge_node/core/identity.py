@@ -105,8 +105,8 @@ class IdentityBook:
                frame: int = 0, xy: np.ndarray | None = None, reid: bool = True,
                x: np.ndarray | None = None, seen: int | None = None) -> None:
         """``tid`` was dropped at ``frame`` (estimated at ``xy``, state ``x``, last seen at frame
-        ``seen``): keep its gallery and where it went for re-identification (only for a later adoption of ``tid`` when not
-        ``reid``), or only its id."""
+        ``seen``): keep its gallery and where it went for re-identification (only for a later
+        adoption of ``tid`` when not ``reid``), or only its id."""
         if keep_gallery:
             self.old.put(tid, gallery, frame, xy, reid, x, seen)
         else:
