@@ -5,6 +5,7 @@ import pytest
 from edge_node.core import TrackerConfig
 from edge_node.core.association import Candidate, LocalDataAssociation, Observation
 from edge_node.core.gallery import Gallery
+from edge_node.core import manager
 from edge_node.core.manager import MergeView, find_merges
 from fakes import det, graph as build, identity, make_nodes, step
 from protocol import codec
@@ -765,3 +766,27 @@ def test_a_dropped_tracker_hands_its_id_to_the_duplicate_that_took_its_target_ov
     # a camera once saw the two as two people: no heir
     assert heir(lost, 16, [lost, nearer], 100, {((0, 1), (1, 3)): -3.2}, cfg) is None
     assert heir(lost, 16, [lost, nearer], 100, {((0, 1), (1, 3)): 4.0}, cfg) == (1, 3)
+
+
+def test_a_dropped_tracker_passes_its_id_to_the_duplicate_on_its_way_to_merge_into_it():
+    """``manager.partner``: the younger tracker with positive co-motion evidence towards the
+    dropped one (the most evidence first), never an older one, never one seen as a second
+    person, never one without evidence."""
+    g = Gallery(20, 20)
+    lost = MergeView((0, 0), np.array([0.0, 0.0]), g, False, frozenset(), born=100)
+    dup = MergeView((1, 4), np.array([0.5, 0.0]), g, False, frozenset(), born=300)
+    dup2 = MergeView((2, 7), np.array([0.2, 0.0]), g, False, frozenset(), born=310)
+    older = MergeView((3, 1), np.array([0.1, 0.0]), g, False, frozenset(), born=50)
+    views = [lost, dup, dup2, older]
+    ev = {((0, 0), (1, 4)): 12.0, ((0, 0), (2, 7)): 4.0, ((0, 0), (3, 1)): 25.0}
+    assert manager.partner(lost, views, ev) == (1, 4)  # the most evidence, not the nearest
+    ev[((0, 0), (1, 4))] = -3.0  # a camera saw the two as two people
+    assert manager.partner(lost, views, ev) == (2, 7)
+    assert manager.partner(lost, views, {((0, 0), (3, 1)): 25.0}) is None  # only older
+    assert manager.partner(lost, views, {}) is None
+    # through the manager: only with heir_pending, and stitch takes precedence
+    m = manager.DistributedTrackerManager(TrackerConfig())
+    m.evidence = {((0, 0), (2, 7)): 4.0}
+    assert m.heir(lost, 16, views, 400) == (2, 7)
+    m.cfg = TrackerConfig(heir_pending=False)
+    assert m.heir(lost, 16, views, 400) is None

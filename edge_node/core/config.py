@@ -131,6 +131,7 @@ class TrackerConfig:
     reappear_gate: float = positive(1.5, "m, how near the two courses, carried to the middle of the gap, must meet")
     reappear_spread: float = nonnegative(0.0, "m/s, how much farther apart the courses may meet per second of the gap (a hidden walker's course bends)")
     reappear_hide: int = integer(4, lo=0, doc="frames after reappear_age a new tracker that may re-appear is still not reported (the decision's announcement travels a hop a frame)")
+    heir_pending: bool = boolean(True, "a tracker dropped while a younger one was on its way to merging into it (positive co-motion evidence) gives that one its id (manager.partner)")
     stitch: bool = boolean(False, "a tracker dropped while a younger one, born beside it since it was last seen, goes on where it was gives that one its id (tracklet stitching, manager.heir)")
     report_coast: int = integer(1, lo=0, doc="frames a tracker nobody sees is still reported")
     hide_pending: bool = boolean(True, "a tracker new on this node (within comotion_frames) that "

@@ -299,6 +299,23 @@ def heir(lost: MergeView, ell: int, others: Sequence[MergeView], k: int,
     return None if best is None else best[1]
 
 
+def partner(lost: MergeView, others: Sequence[MergeView],
+            evidence: Mapping[tuple[TrackerId, TrackerId], float]) -> TrackerId | None:
+    """The younger tracker that was on its way to being merged into ``lost`` (positive co-motion
+    evidence, :func:`find_merges`) when ``lost`` is dropped, or ``None``: the most evidence,
+    ties to the smaller id (ours). The duplicate took the person's measurements before the
+    merge was due and the older tracker, unmeasured, went; without this the person keeps the
+    duplicate's id (terrace-full, no descriptors: 914 frames of one person)."""
+    best: tuple[float, TrackerId] | None = None
+    for v in others:
+        if v.id == lost.id or v.rank <= lost.rank:
+            continue
+        e = evidence.get((min(v.id, lost.id), max(v.id, lost.id)), 0.0)
+        if e > 0.0 and (best is None or (-e, v.id) < best):
+            best = (-e, v.id)
+    return None if best is None else best[1]
+
+
 class DistributedTrackerManager:
     """The DTM of the paper's complete configuration (``dkf+lda+dtm``): drop by the ``ell``
     consensus (eq. 8), global association and merging of duplicate trackers, and
@@ -346,8 +363,12 @@ class DistributedTrackerManager:
 
     def heir(self, lost: MergeView, ell: int, others: Sequence[MergeView], k: int
              ) -> TrackerId | None:
-        """The tracker that took over ``lost``'s target as it was dropped (:func:`heir`)."""
-        return heir(lost, ell, others, k, self.evidence, self.cfg) if self.cfg.stitch else None
+        """The tracker that takes ``lost``'s id as it is dropped: with ``stitch`` the one that
+        took over its target (:func:`heir`), else with ``heir_pending`` the one on its way to
+        merging into it (:func:`partner`)."""
+        if self.cfg.stitch:
+            return heir(lost, ell, others, k, self.evidence, self.cfg)
+        return partner(lost, others, self.evidence) if self.cfg.heir_pending else None
 
     def reappearances(self, young: Sequence[Young], gone: Sequence[Gone], k: int
                       ) -> list[tuple[TrackerId, TrackerId]]:
