@@ -121,6 +121,11 @@ class Gallery:
             return float("nan")
         return float(1.0 - np.max(self.matrix() @ other.matrix().T))
 
+    def unlike(self, other: "Gallery", limit: float) -> bool:
+        """Whether both galleries are known and farther apart than ``limit`` (two people)."""
+        s_a = self.distance_to(other)
+        return not np.isnan(s_a) and s_a > limit
+
     def copy(self) -> "Gallery":
         g = Gallery(self.capacity, self.every)
         g._a, g._n = self._a[:self._n].copy(), self._n

@@ -290,8 +290,7 @@ def heir(lost: MergeView, ell: int, others: Sequence[MergeView], k: int,
             continue
         if evidence.get((min(v.id, lost.id), max(v.id, lost.id)), 0.0) < 0.0:
             continue
-        s_a = v.gallery.distance_to(lost.gallery)
-        if not np.isnan(s_a) and s_a > cfg.merge_appearance:
+        if v.gallery.unlike(lost.gallery, cfg.merge_appearance):
             continue  # looks like someone else
         d = float(np.linalg.norm(v.xy - lost.xy))
         if d < reach and (best is None or (d, v.id) < best):

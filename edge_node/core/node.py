@@ -65,7 +65,7 @@ class NodeStats:
     adopted: int = 0
     reactivated: int = 0
     merged: int = 0
-    stitched: int = 0  # dropped trackers whose target a younger tracker took over (heir)
+    stitched: int = 0  # dropped trackers whose id a younger tracker took (manager.heir: heir_pending or stitch)
     reappeared: int = 0  # new trackers that took a dropped one's id by its course (reappear.py)
     dropped: int = 0
     out_of_scope: int = 0  # trackers let go because the target is beyond scope_hops (regional scope)
@@ -724,7 +724,7 @@ class CameraNode:
         (``manager.reappearances``); only the creator decides, so one decision per tracker."""
         age = self.cfg.reappear_age
         young = [self._young(t) for t in self.trackers.in_order()
-                 if t.origin is not None and k - t.born == age and t.x_hat is not None]
+                 if t.origin is not None and k - t.born == age and t.x_hat is not None]  # created here
         if not young:
             return
         for new, old in self.manager.reappearances(young, self._gone(), k):

@@ -53,7 +53,7 @@ class Young(NamedTuple):
     born: int
     x: np.ndarray
     gallery: Gallery
-    origin: np.ndarray | None = None  # where its camera measured it at birth
+    origin: np.ndarray | None = None  # where its camera measured it at birth (creator only)
 
 
 class Gone(NamedTuple):
@@ -74,15 +74,11 @@ def reach(gap: int, cfg: TrackerConfig) -> float:
 
 def d_mid(young: Young, gone: Gone, k: int, cfg: TrackerConfig) -> float:
     """The distance between the dropped tracker's course carried forward and the new tracker's
-    carried back, at the middle of the gap (module docstring); a new tracker without an
-    ``origin`` (not created on this node) goes back at its Kalman velocity."""
+    carried back from its ``origin``, at the middle of the gap (module docstring)."""
     mid = 0.5 * (gone.seen + young.born)
     forward = gone.x[POS] + gone.x[VEL] * (mid - gone.frame) * cfg.dt
-    if young.origin is None:
-        backward = young.x[POS] - young.x[VEL] * (k - mid) * cfg.dt
-    else:
-        v = (young.x[POS] - young.origin) / max(1, k - young.born)
-        backward = young.origin - v * (young.born - mid)
+    v = (young.x[POS] - young.origin) / max(1, k - young.born)
+    backward = young.origin - v * (young.born - mid)
     return float(np.linalg.norm(forward - backward))
 
 
@@ -93,8 +89,7 @@ def candidates(young: Young, gone: Sequence[Gone], cfg: TrackerConfig) -> list[G
     for g in gone:
         if not (g.frame < young.born and young.born - g.seen <= cfg.reappear_frames):
             continue
-        s_a = young.gallery.distance_to(g.gallery)
-        if not np.isnan(s_a) and s_a > cfg.merge_appearance:
+        if young.gallery.unlike(g.gallery, cfg.merge_appearance):
             continue  # looks like someone else
         out.append(g)
     return out
@@ -102,12 +97,12 @@ def candidates(young: Young, gone: Sequence[Gone], cfg: TrackerConfig) -> list[G
 
 def reappearances(young: Sequence[Young], gone: Sequence[Gone], k: int, cfg: TrackerConfig
                   ) -> list[tuple[TrackerId, TrackerId]]:
-    """``(new, dropped)`` pairs decided at frame ``k``: the trackers of ``young`` that are
-    ``reappear_age`` frames old now, linked to the dropped tracker whose course they continue
+    """``(new, dropped)`` pairs decided at frame ``k``: the trackers of ``young`` created on
+    this node (they have an ``origin``) that are ``reappear_age`` frames old now, linked to the dropped tracker whose course they continue
     (module docstring), nearest pair first, each tracker at most once."""
     scored = []
     for y in young:
-        if k - y.born != cfg.reappear_age:
+        if y.origin is None or k - y.born != cfg.reappear_age:
             continue
         for g in candidates(y, gone, cfg):
             d = d_mid(y, g, k, cfg)
