@@ -89,6 +89,9 @@ class Tracker:
     announced: bool = False  # appearance already sent by this node
     # where its own camera measured it at birth (on the node that created it; reappear.py)
     origin: np.ndarray | None = None
+    # whether the last update (eq. 3) had measurement information on it, its own cameras' or
+    # a neighbour's; False for a tracker adopted from neighbours until some arrives
+    informed: bool = True
     x_hat: np.ndarray | None = None  # estimate of the last update (eq. 4)
     M: np.ndarray | None = None  # its covariance
     local: LocalInfo = field(default_factory=LocalInfo)
