@@ -4,6 +4,7 @@ quality (checked with a rank-1 computed here, independently of ``evaluation.reid
 from __future__ import annotations
 
 import csv
+import json
 
 import numpy as np
 import pytest
@@ -227,6 +228,8 @@ def test_reid_sweep_end_to_end(tmp_path, capsys):
     assert "## campus-sim" in md and "| none |" in md and "| 0.5 |" in md
     assert (out / "reid_sweep.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
     assert '"quality_people": 20' in (out / "summary.json").read_text()
+    prov = json.loads((out / "summary.json").read_text())["meta"]["provenance"]
+    assert prov["machine"] and prov["commit"] and prov["date"]
 
 
 def test_reid_sweep_bad_levels_exit_2(tmp_path, capsys):

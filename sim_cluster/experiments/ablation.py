@@ -45,6 +45,7 @@ from tqdm import tqdm
 
 from edge_node.core.config import ABLATIONS, CONFIG_NAMES, TrackerConfig
 from protocol.errors import DmttError
+from sim_cluster.experiments.provenance import provenance
 from sim_cluster.experiments.run import run_once
 from sim_cluster.network import topology as topo
 from sim_cluster.network.inprocess import CENTRALIZED
@@ -714,7 +715,8 @@ def main(args) -> int:
             "configs": configs, "topologies": topologies, "orderings": args.orderings,
             "frames": args.frames, "runs": len(tasks),
             "std": "sample standard deviation over seeds (ddof=1; 0 with one seed)",
-            "ordering_average": "ring/chain: mean over orderings within a seed, then over seeds"}
+            "ordering_average": "ring/chain: mean over orderings within a seed, then over seeds",
+            "provenance": provenance()}  # the docs' tables name commit and machine
     agg = aggregate(rows)
     out = Path(args.out)
     paths = write_outputs(out, rows, agg, meta, results=ok)

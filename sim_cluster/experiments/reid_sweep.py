@@ -41,6 +41,7 @@ from sim_cluster.experiments.ablation import (GROUND_COLS, IDENTITY_COLS, IMAGE_
                                               TOPOLOGY_NAMES, AblationError, _csv_value, _hms,
                                               _md_table, _num, execute, parse_list, parse_seeds,
                                               probe)
+from sim_cluster.experiments.provenance import provenance
 from sim_cluster.experiments.run import geometry_only, run_once, tracker_config
 from sim_cluster.scenarios.files import read_scenario_toml, resolve_scenario_path, scenario_table
 from sim_cluster.scenarios.loader import load_scenario
@@ -340,7 +341,8 @@ def main(args) -> int:
             "levels": [level_name(lv) for lv in levels], "topology": topology,
             "config": config, "tracker_config": tracker_file, "frames": args.frames,
             "quality_people": QUALITY_PEOPLE,
-            "std": "sample standard deviation over seeds (ddof=1; 0 with one seed)"}
+            "std": "sample standard deviation over seeds (ddof=1; 0 with one seed)",
+            "provenance": provenance()}  # the docs' tables name commit and machine
     agg = aggregate(rows)
     paths = write_outputs(Path(args.out), rows, agg, meta)
     if rows:
