@@ -118,7 +118,6 @@ class TrackerConfig:
     merge_llr_floor: float = number(-70.0, hi=0.0, doc="nats: the least co-motion evidence kept for a pair (two trackers once seen as two people merge after this much more)")
     merge_evidence: bool = boolean(False, "merge by co-motion only where this node's camera or a neighbour measures both trackers (README, What we tuned: large gains with look-alikes, Campus loses)")
     merge_announce_frames: int = integer(3, lo=1, doc="frames a merge announcement is repeated")
-    naive_bound: bool = boolean(True, "bound the covariance of a tracker known only from neighbours by ell")
     naive_bound: bool = boolean(True, "gate a tracker that only the consensus updates with a covariance bounded by ell")
     kappa: int = integer(15, lo=1, doc="drop a tracker when ell exceeds kappa (eq. 8)")
     epsilon: float = nonnegative(0.25, "re-identification threshold on s_a against old trackers")
