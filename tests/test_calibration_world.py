@@ -42,11 +42,12 @@ TOL_M = 0.1
 TOL_DEG = 1.0
 RECOVERY = 50  # frames the registration has to follow the bump
 COMMON_GAP = (
-    "the registration learns the cameras' errors relative to each other to within 0.04 m, but "
-    "the network's common frame sits about 0.2 m off the cameras' mean (a common scale of "
-    "about -4% from the errors-in-variables bias of the scale column, A(g) evaluated at the "
-    "noisy foot point, plus the common mode of the first frames' updates, which reg_anchor = "
-    "0.001 removes with a time constant of 1000 frames); see the session's report")
+    "the registration learns the cameras' errors relative to each other to within 0.044 m, but "
+    "the network's common frame sits 0.18-0.22 m off the cameras' mean: residuals cannot see "
+    "it, the first frames' updates make it (cameras sharing targets with different subsets of "
+    "the others move by different amounts), and reg_anchor = 0.001 removes it with a time "
+    "constant of 1000 frames; a common scale of -0.8 % remains besides. What was tried: "
+    "docs/tuning.md, 'The common frame and the scale that remains'")
 
 
 # -- the truth, from the configuration alone ----------------------------------------------------
