@@ -22,12 +22,15 @@ import sys
 
 from edge_node.core.config import ABLATIONS, CONFIG_NAMES
 from edge_node.formats.layouts import LAYOUTS
+from edge_node.perception.detectors import DETECTORS
+from edge_node.perception.reid import REID
 from protocol.errors import DmttError
 from protocol.keys import is_valid_network
 from sim_cluster.cluster import commands as cluster
 from sim_cluster.experiments import (ablation, bandwidth, bench, bench_cluster, faultreport,
                                      fuzz, probe, reid_sweep, run, soak)
 from sim_cluster.experiments import bench_detectors, report
+from sim_cluster.network import topology as topo
 from sim_cluster.scenarios import commands as scenarios
 from sim_cluster.scenarios.scale import scale_doc
 
@@ -159,13 +162,17 @@ def _source_args(sp) -> None:
     sp.add_argument("--source", default="scenario", choices=("scenario", "video"),
                     help="scenario: each node replays the scenario's simulated detections; "
                          "video: render each camera's frames, nodes run detector + re-id on them")
-    sp.add_argument("--detector", default="mog2", choices=("mog2", "hog", "onnx", "ssdlite"),
+    sp.add_argument("--detector", default="mog2", choices=DETECTORS.names(),
                     help="--source video: the people detector (default mog2)")
-    sp.add_argument("--reid", default="histogram",
-                    choices=("histogram", "osnet_x1_0", "osnet_x0_25", "none"),
+    sp.add_argument("--detector-option", action="append", default=None, metavar="KEY=VALUE",
+                    help="--source video: an option of the detector's [perception.<detector>] "
+                         "table (repeatable; the value is read as TOML, else as a string), e.g. "
+                         "--detector-option tiles=2")
+    sp.add_argument("--reid", default="histogram", choices=REID.names(),
                     help="--source video: the appearance descriptor (default histogram)")
     sp.add_argument("--reid-weights", default=None, help="torchreid checkpoint for --reid osnet_*")
-    sp.add_argument("--onnx-model", default=None, help="ONNX person detector for --detector onnx")
+    sp.add_argument("--onnx-model", default=None,
+                    help="ONNX person detector for --detector onnx (= --detector-option model=FILE)")
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -189,8 +196,8 @@ def build_parser() -> argparse.ArgumentParser:
     scenario_args(r)
     _import_args(r)
     r.add_argument("--topology", default="ring",
-                   help="complete | ring | chain | disconnected | star | centralized | layout (a "
-                        "corridor-<N> / grid-<N> scenario's lattice) | edge-list file")
+                   help=topo.help_text("centralized", "layout (a corridor-<N> / grid-<N> "
+                                                      "scenario's lattice)"))
     r.add_argument("--config", default="dkf+lda+dtm", choices=CONFIG_NAMES)
     r.add_argument("--tracker-config", default=None, help="TOML file overriding tracker parameters")
     r.add_argument("--reid-rank1", type=number(0, above=True), default=None, metavar="R",
@@ -211,7 +218,7 @@ def build_parser() -> argparse.ArgumentParser:
     u = sub.add_parser("up", help="start one edge_node process per camera on loopback (Zenoh)")
     scenario_args(u)
     u.add_argument("--topology", default="chain",
-                   help="complete | ring | chain | disconnected | star | edge-list file")
+                   help=topo.help_text())
     u.add_argument("-n", "--nodes", type=integer(1), default=None,
                    help="number of nodes (default: one per camera of the scenario)")
     u.add_argument("--mode", default="sync", choices=("sync", "async"))
@@ -275,7 +282,7 @@ def build_parser() -> argparse.ArgumentParser:
     sk.add_argument("--every", type=integer(1), default=3, help="minutes between faults")
     sk.add_argument("--scenario", default=None,
                     help="default: terrace-sim for <= 4 nodes, ring8-sim for <= 8")
-    sk.add_argument("--topology", default="ring")
+    sk.add_argument("--topology", default="ring", help=topo.help_text() + " (default ring)")
     sk.add_argument("--config", default="dkf+lda+dtm", choices=CONFIG_NAMES)
     sk.add_argument("--fps", type=number(0, above=True), default=None,
                     help="camera rate (default: the scenario's)")
@@ -382,7 +389,7 @@ def build_parser() -> argparse.ArgumentParser:
     bc.add_argument("--nodes", default="4,8", help="comma-separated node counts (default 4,8)")
     bc.add_argument("--frames", type=integer(2), default=300)
     bc.add_argument("--repeats", type=integer(1), default=3)
-    bc.add_argument("--topology", default="ring", help="complete | ring | chain | star")
+    bc.add_argument("--topology", default="ring", help=topo.help_text() + " (default ring)")
     bc.add_argument("--scenario", default="ring8-sim", help="preset or scenario TOML with at "
                     "least max(--nodes) cameras (a node count N uses cameras 0..N-1)")
     bc.add_argument("--seed", type=integer(0), default=0)
@@ -404,7 +411,7 @@ def build_parser() -> argparse.ArgumentParser:
                    help=f"comma-separated, from {', '.join(CONFIG_NAMES)} (default: the paper's "
                         f"{', '.join(ABLATIONS)})")
     a.add_argument("--topologies", default="complete,ring,chain,disconnected,centralized",
-                   help="comma-separated: complete, ring, chain, disconnected, star, centralized")
+                   help="comma-separated: " + ", ".join(ablation.topology_names()))
     a.add_argument("--orderings", type=int, default=3,
                    help="distinct camera orderings per ring / chain, averaged per seed (default 3)")
     a.add_argument("--frames", type=int, default=None, help="frames per run (default: the scenario's)")
@@ -421,7 +428,7 @@ def build_parser() -> argparse.ArgumentParser:
                     help="comma-separated presets or scenario files (missing data: skipped; "
                          f"default {','.join(bandwidth.DEFAULT_SCENARIOS)})")
     bw.add_argument("--topology", default="ring",
-                    help="complete | ring | chain | star | edge-list file (default ring)")
+                    help=topo.help_text("centralized") + " (default ring)")
     bw.add_argument("--config", default=bandwidth.CONFIG, choices=CONFIG_NAMES)
     bw.add_argument("--gains", default=",".join(f"{g:g}" for g in bandwidth.DEFAULT_GAINS),
                     help="comma-separated trigger gains in nats for the async runs (default "
@@ -450,8 +457,7 @@ def build_parser() -> argparse.ArgumentParser:
                          f"and 'none' for no descriptors (default {reid_sweep.DEFAULT_LEVELS})")
     rs.add_argument("--seeds", default="0-1", help="e.g. 0-4 or 0,2,5 (default 0-1)")
     rs.add_argument("--topology", default="ring",
-                    help="complete | ring | chain | disconnected | star | centralized "
-                         "(default ring)")
+                    help=" | ".join(ablation.topology_names()) + " (default ring)")
     rs.add_argument("--config", default="dkf+lda+dtm", choices=CONFIG_NAMES,
                     help="tracker configuration at the rank-1 levels ('none' drops appearance: "
                          "dkf+lda+dtm becomes dkf+dtm)")

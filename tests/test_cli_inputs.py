@@ -90,7 +90,14 @@ def _previous_run(out: Path) -> dict[Path, tuple[bytes, int]]:
     (["--frames", "-5"], "argument --frames: must be an integer >= 1, got '-5'"),
     (["--rerun", "save"], "--rerun 'save' needs a file"),
     (["--source", "video", "--reid", "osnet_x0_25"],
-     "--reid osnet_x0_25 needs --reid-weights (a torchreid checkpoint)"),
+     "--reid osnet_x0_25: perception.osnet.weights is required (a torchreid OSNet checkpoint); "
+     "give it with --reid-weights FILE"),
+    (["--source", "video", "--detector", "onnx"],
+     "--detector onnx: perception.onnx is required"),
+    (["--source", "video", "--detector", "onnx", "--detector-option", "model=MISSING"],
+     "--detector onnx: perception.onnx.model names a file that does not exist"),
+    (["--source", "video", "--detector", "ssdlite", "--detector-option", "tiles=9"],
+     "--detector ssdlite: perception.ssdlite.tiles must be"),
 ])
 def test_up_checks_everything_before_it_touches_the_previous_run(tmp_path, capsys, extra,
                                                                   message):

@@ -389,7 +389,7 @@ def test_video_config_is_validated(tmp_path):
     f.write_text(base + cam + '[perception]\nreid = "histogram"\n[perception.mog2]\nhistory = 100\n'
                  'split = false\nperson_size_m = [0.5, 1.8]\n')
     cfg = load_node_config(f)
-    assert cfg.perception.mog2 == {"history": 100, "split": False, "person_size_m": [0.5, 1.8]}
+    assert cfg.perception.of("mog2") == {"history": 100, "split": False, "person_size_m": [0.5, 1.8]}
     assert json.dumps(cfg.to_dict())  # edge_node check prints it
     f.write_text(base.replace('"video"', '"scenario"').replace(f'path = "{video}"',
                                                                  'scenario = "terrace-sim"')

@@ -85,7 +85,7 @@ def _settings(text: str, tmp_path: Path):
 
 def test_the_settings_table_is_validated(tmp_path):
     s = _settings('detector = "ssdlite"\n[ssdlite]\nscore_threshold = 0.2\ntiles = 2\n', tmp_path)
-    assert s.detector == "ssdlite" and s.ssdlite == {"score_threshold": 0.2, "tiles": 2}
+    assert s.detector == "ssdlite" and s.of("ssdlite") == {"score_threshold": 0.2, "tiles": 2}
     for bad in ("tiles = 0", "score_threshold = 1.5", 'backend = "tensorflow"', "tilez = 2",
                 'model = "missing.onnx"'):
         with pytest.raises(SettingsError):

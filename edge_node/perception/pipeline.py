@@ -17,9 +17,9 @@ import numpy as np
 
 from edge_node.core.types import Detection
 from edge_node.perception import PerceptionError
-from edge_node.perception.detectors import Detector, make_detector
+from edge_node.perception.detectors import DETECTORS, Detector
 from edge_node.perception.frames import FrameSource, open_frames
-from edge_node.perception.reid import ReidExtractor, make_reid
+from edge_node.perception.reid import REID, ReidExtractor
 from edge_node.perception.settings import PerceptionSettings
 
 log = logging.getLogger("edge_node.perception")
@@ -181,18 +181,10 @@ class FrameDetections:
 def build_perception(settings, *, camera=None, units_per_metre: float = 1.0) -> Perception:
     """A :class:`Perception` from ``PerceptionSettings`` (``edge_node.perception.settings``);
     the MOG2 detector gets the camera for its person-size geometry."""
-    opts = dict(getattr(settings, settings.detector))
-    if settings.detector == "mog2":
-        opts.setdefault("camera", camera)
-        opts.setdefault("units_per_metre", units_per_metre)
-        if "person_size_m" in opts:
-            opts["person_size_m"] = tuple(opts["person_size_m"])
-    if settings.detector == "onnx" and "input_size" in opts:
-        opts["input_size"] = tuple(opts["input_size"])
-    detector = make_detector(settings.detector, **opts)
-    o = settings.osnet
-    reid = make_reid(settings.reid, weights=o.get("weights"), batch=o.get("batch", 32),
-                     threads=o.get("threads"))
+    detector = DETECTORS.get(settings.detector).from_options(
+        settings.of(settings.detector), camera=camera, units_per_metre=units_per_metre)
+    kind = REID.get(settings.reid)
+    reid = kind.from_options(settings.of(kind.table))
     return Perception(detector, reid, settings.min_height_px, camera=camera,
                       units_per_metre=units_per_metre, foot_offset_m=settings.foot_offset_m)
 

@@ -13,19 +13,23 @@ detection as having no descriptor). The tracker compares descriptors by cosine d
   over the central part of the box to leave out background at its sides, square-rooted (so the
   cosine of two descriptors is the Bhattacharyya coefficient of the histograms) and
   L2-normalised. Deterministic, about 0.1 ms per box.
+
+Backends are registered by name in :data:`REID` (``[perception] reid``, ``sim_cluster up
+--reid``); another package adds one in the entry-point group ``dmtt.reid`` with an object like
+:class:`ReidKind` (``edge_node/plugins.py``).
 """
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Protocol, runtime_checkable
+from typing import Any, Protocol, runtime_checkable
 
 import numpy as np
 
 from edge_node.perception import PerceptionError, require_cv2
+from edge_node.perception.options import drop_none, file_option
+from edge_node.plugins import Registry
 
 DIM = 512
-REID_KINDS = ("histogram", "osnet_x1_0", "osnet_x0_25", "osnet_x0_75", "osnet_x0_5",
-              "osnet_ibn_x1_0", "none")
 
 
 @runtime_checkable
@@ -216,14 +220,84 @@ class OsnetReid:
         return out
 
 
+class ReidKind(Protocol):
+    """What ``reid = "<name>"`` needs: the ``[perception.<table>]`` table it reads (kinds may
+    share one: every OSNet variant reads ``[perception.osnet]``; ``None``: no table), and the
+    extractor from what it read (``None``: no descriptors)."""
+
+    table: str | None
+
+    def options(self, perception: Any, base: Path, selected: bool) -> dict[str, Any]:
+        """The kind's options from ``perception.optional_table(self.table)``, validated, with
+        the table finished; ``selected``: a required key may be enforced."""
+
+    def from_options(self, options: dict[str, Any]) -> ReidExtractor | None: ...
+
+
+class _NoTable:
+    table = None
+
+    def options(self, perception, base: Path, selected: bool) -> dict:
+        return {}
+
+
+class _Histogram(_NoTable):
+    """Colour histograms (:class:`HistogramReid`), no weights."""
+
+    def from_options(self, options: dict) -> ReidExtractor:
+        return HistogramReid()
+
+
+class _Nothing(_NoTable):
+    """No descriptors: the tracker associates by geometry alone."""
+
+    def from_options(self, options: dict) -> None:
+        return None
+
+
+class _Osnet:
+    """One OSNet variant (:class:`OsnetReid`) from ``[perception.osnet]``: ``weights`` (a
+    torchreid checkpoint, required), ``batch``, ``threads``."""
+
+    table = "osnet"
+
+    def __init__(self, variant: str):
+        self.variant = variant
+
+    def options(self, perception, base: Path, selected: bool) -> dict:
+        s = perception.optional_table("osnet")
+        if s is None:
+            if selected:
+                raise perception.error("osnet", f"is required for reid = "
+                                       f"\"osnet_{self.variant}\" ([perception.osnet] weights = "
+                                       "\"...pth\", a torchreid checkpoint; see docs/perception.md)")
+            return {}
+        out = drop_none({
+            "weights": file_option(s, "weights", base, "a torchreid OSNet checkpoint",
+                                   required=selected),
+            "batch": s.integer("batch", None, lo=1),
+            "threads": s.integer("threads", None, lo=1),
+        })
+        s.finish()
+        return out
+
+    def from_options(self, options: dict) -> ReidExtractor:
+        return OsnetReid(self.variant, options.get("weights"),
+                         random_init=bool(options.get("random_init", False)),
+                         batch=options.get("batch", 32), threads=options.get("threads"))
+
+
+#: The re-id backends by name (``[perception] reid``; ``sim_cluster up --reid``).
+REID: Registry[ReidKind] = Registry("re-id", "dmtt.reid", PerceptionError)
+REID.add("histogram", _Histogram())
+for _v in ("x1_0", "x0_25", "x0_75", "x0_5", "ibn_x1_0"):
+    REID.add(f"osnet_{_v}", _Osnet(_v))
+REID.add("none", _Nothing())
+
+
 def make_reid(kind: str, *, weights: str | Path | None = None, random_init: bool = False,
               batch: int = 32, threads: int | None = None) -> ReidExtractor | None:
-    """The extractor ``kind`` names (``REID_KINDS``); ``None`` for ``"none"``."""
-    if kind == "none":
-        return None
-    if kind == "histogram":
-        return HistogramReid()
-    if kind.startswith("osnet_"):
-        return OsnetReid(kind.removeprefix("osnet_"), weights, random_init=random_init,
-                         batch=batch, threads=threads)
-    raise PerceptionError(f"unknown re-id {kind!r} (known: {', '.join(REID_KINDS)})")
+    """The extractor ``kind`` names (a :data:`REID` name); ``None`` for ``"none"``."""
+    return REID.get(kind).from_options(drop_none({
+        "weights": None if weights is None else str(weights), "random_init": random_init,
+        "batch": batch, "threads": threads}))

@@ -13,8 +13,9 @@ Schema (defaults in brackets)::
     # fps = 25.0                    # images / camera (a video has its own)         [[camera] fps]
 
     [perception]
-    detector = "mog2"               # "mog2" | "hog" | "onnx" | "ssdlite"                 ["mog2"]
+    detector = "mog2"               # "mog2" | "hog" | "onnx" | "ssdlite" | a plug-in     ["mog2"]
     reid = "histogram"              # "histogram" | "osnet_x1_0" | "osnet_x0_25" | ... | "none"
+                                    # (edge_node/plugins.py: DETECTORS, REID)
     min_height_px = 0               # drop boxes shorter than this                           [0]
     foot_offset_m = 0.2             # raise each box's bottom so its ground point moves this far
                                     # from the camera (the lowest pixel is the nearer foot) [0.2]
@@ -68,153 +69,68 @@ A frame source needs the camera's calibration: ``[camera]`` (homography, image s
 """
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from edge_node.perception.detectors import DETECTOR_KINDS, ONNX_LAYOUTS, SSDLITE_BACKENDS
+from edge_node.perception.detectors import DETECTORS
 from edge_node.perception.frames import FRAME_KINDS
-from edge_node.perception.reid import REID_KINDS
+from edge_node.perception.reid import REID
 
 
 @dataclass(frozen=True)
 class PerceptionSettings:
+    """``[perception]`` as read: the detector and re-id kinds by name, and the options each
+    ``[perception.<table>]`` table gave (``options["mog2"]``: ``Mog2Detector`` keyword
+    arguments; ``options["osnet"]``: weights, batch, threads), tables the config has only."""
+
     detector: str = "mog2"
     reid: str = "histogram"
     min_height_px: float = 0.0
     log_every: int = 250
     foot_offset_m: float = 0.2
-    mog2: dict = field(default_factory=dict)  # Mog2Detector keyword arguments
-    hog: dict = field(default_factory=dict)  # HogDetector keyword arguments
-    onnx: dict = field(default_factory=dict)  # OnnxDetector keyword arguments
-    osnet: dict = field(default_factory=dict)  # OsnetReid: weights, batch, threads
-    ssdlite: dict = field(default_factory=dict)  # SsdliteDetector keyword arguments
+    options: dict[str, dict] = field(default_factory=dict)
+
+    def of(self, table: str | None) -> dict:
+        """The options table ``table`` gave (empty when the config has no such table)."""
+        return dict(self.options.get(table, {})) if table else {}
 
     def to_dict(self) -> dict:
         return {"detector": self.detector, "reid": self.reid, "min_height_px": self.min_height_px,
-                "log_every": self.log_every, "foot_offset_m": self.foot_offset_m, "mog2": dict(self.mog2), "hog": dict(self.hog),
-                "onnx": dict(self.onnx), "ssdlite": dict(self.ssdlite),
-                "osnet": dict(self.osnet)}
-
-
-def _file(t, key: str, base: Path, what: str, required: bool = False) -> str | None:
-    p = t.path(key, base, None)
-    if p is None:
-        if required:
-            raise t.error(key, f"is required ({what})")
-        return None
-    if not p.is_file():
-        raise t.error(key, f"names a file that does not exist: {p} ({what})")
-    return str(p)
-
-
-def _pair(t, key: str, integer: bool) -> list | None:
-    if not t.has(key):
-        t.raw(key, None)
-        return None
-    v = t.raw(key)
-    ok = isinstance(v, list) and len(v) == 2 and all(
-        isinstance(x, (int, float)) and not isinstance(x, bool) and x > 0
-        and (not integer or isinstance(x, int)) and math.isfinite(x) for x in v)
-    if not ok:
-        raise t.error(key, f"must be two positive {'integers' if integer else 'numbers'}, got {v!r}")
-    return list(v)
-
-
-def _drop_none(d: dict) -> dict:
-    return {k: v for k, v in d.items() if v is not None}
+                "log_every": self.log_every, "foot_offset_m": self.foot_offset_m,
+                **{k: dict(v) for k, v in self.options.items()}}
 
 
 def parse_perception(t, base: Path) -> PerceptionSettings:
-    """``[perception]`` (an ``edge_node.settings.Table`` or ``None``) -> :class:`PerceptionSettings`."""
+    """``[perception]`` (an ``edge_node.settings.Table`` or ``None``) -> :class:`PerceptionSettings`.
+
+    Each registered detector and re-id kind reads its own sub-table (:data:`DETECTORS`,
+    :data:`REID`): the chosen kind's always (a required key is enforced), the others' when the
+    config has them, so a typo in any of them is an error naming the key."""
     if t is None:
         return PerceptionSettings()
-    detector = t.string("detector", "mog2", choices=DETECTOR_KINDS)
-    reid = t.string("reid", "histogram", choices=REID_KINDS)
+    detector = t.string("detector", "mog2", choices=DETECTORS.names())
+    reid = t.string("reid", "histogram", choices=REID.names())
     min_h = t.number("min_height_px", 0.0, lo=0)
     log_every = t.integer("log_every", 250, lo=0)
     foot_offset = t.number("foot_offset_m", None, lo=0, hi=1.0)
-
-    m = t.optional_table("mog2")
-    mog2: dict[str, Any] = {}
-    if m is not None:
-        mog2 = _drop_none({
-            "background": _file(m, "background", base, "a video or image of the empty scene"),
-            "history": m.integer("history", None, lo=1),
-            "var_threshold": m.number("var_threshold", None, lo=0, lo_open=True),
-            "learning_rate": m.number("learning_rate", None, lo=-1, hi=1),
-            "min_area": m.integer("min_area", None, lo=1),
-            "min_height": m.integer("min_height", None, lo=0),
-            "open_px": m.integer("open_px", None, lo=0),
-            "close_px": m.integer("close_px", None, lo=0),
-            "split": m.boolean("split", None) if m.has("split") else None,
-            "person_size_m": _pair(m, "person_size_m", integer=False),
-        })
-        m.finish()
-
-    h = t.optional_table("hog")
-    hog: dict[str, Any] = {}
-    if h is not None:
-        hog = _drop_none({
-            "upscale": h.number("upscale", None, lo=0, lo_open=True),
-            "win_stride": h.integer("win_stride", None, lo=1),
-            "padding": h.integer("padding", None, lo=0),
-            "scale": h.number("scale", None, lo=1, lo_open=True),
-            "hit_threshold": h.number("hit_threshold", None),
-            "nms_threshold": h.number("nms_threshold", None, lo=0, hi=1),
-            "min_score": h.number("min_score", None),
-        })
-        h.finish()
-
-    o = t.optional_table("onnx")
-    onnx: dict[str, Any] = {}
-    if o is not None:
-        onnx = _drop_none({
-            "model": _file(o, "model", base, "an ONNX person detector",
-                           required=detector == "onnx"),
-            "input_size": _pair(o, "input_size", integer=True),
-            "score_threshold": o.number("score_threshold", None, lo=0, hi=1),
-            "nms_threshold": o.number("nms_threshold", None, lo=0, hi=1),
-            "class_id": o.integer("class_id", None, lo=0),
-            "layout": o.string("layout", None, choices=ONNX_LAYOUTS),
-        })
-        o.finish()
-    elif detector == "onnx":
-        raise t.error("onnx", "is required for detector = \"onnx\" ([perception.onnx] model = "
-                      "\"your-detector.onnx\")")
-
-    d = t.optional_table("ssdlite")
-    ssdlite: dict[str, Any] = {}
-    if d is not None:
-        ssdlite = _drop_none({
-            "model": _file(d, "model", base, "an ONNX file with the shipped model's outputs"),
-            "score_threshold": d.number("score_threshold", None, lo=0, hi=1),
-            "nms_threshold": d.number("nms_threshold", None, lo=0, hi=1),
-            "tiles": d.integer("tiles", None, lo=1, hi=4),
-            "tile_overlap": d.number("tile_overlap", None, lo=0, hi=0.5),
-            "backend": d.string("backend", None, choices=SSDLITE_BACKENDS),
-            "threads": d.integer("threads", None, lo=1),
-        })
-        d.finish()
-
-    s = t.optional_table("osnet")
-    osnet: dict[str, Any] = {}
-    if s is not None:
-        osnet = _drop_none({
-            "weights": _file(s, "weights", base, "a torchreid OSNet checkpoint",
-                             required=reid.startswith("osnet_")),
-            "batch": s.integer("batch", None, lo=1),
-            "threads": s.integer("threads", None, lo=1),
-        })
-        s.finish()
-    elif reid.startswith("osnet_"):
-        raise t.error("osnet", f"is required for reid = {reid!r} ([perception.osnet] weights = "
-                      "\"...pth\", a torchreid checkpoint; see docs/perception.md)")
+    options: dict[str, dict] = {}
+    for name in DETECTORS.names():
+        if name == detector or t.has(name):
+            options[name] = DETECTORS.get(name).options(t, base, selected=name == detector)
+    chosen = REID.get(reid).table
+    for name in REID.names():
+        kind = REID.get(name)
+        table = kind.table
+        if table is None or table in options or not (table == chosen or t.has(table)):
+            continue
+        owner = REID.get(reid) if table == chosen else kind
+        options[table] = owner.options(t, base, selected=table == chosen)
+    t.declare(*DETECTORS.names(), *{REID.get(n).table for n in REID.names()} - {None})
     t.finish()
     return PerceptionSettings(detector, reid, float(min_h), int(log_every),
                               0.2 if foot_offset is None else float(foot_offset),
-                              mog2, hog, onnx, osnet, ssdlite)
+                              {k: v for k, v in options.items() if v})
 
 
 def parse_frame_source(t, kind: str, base: Path) -> dict:

@@ -10,10 +10,13 @@ from __future__ import annotations
 
 import json
 import sys
+import tomllib
 from pathlib import Path
 
 from edge_node.faults import FaultPlan, Network
 from edge_node.formats.calibration import CALIBRATION
+from edge_node.perception.settings import parse_perception
+from edge_node.settings import SettingsError, Table
 from sim_cluster.cluster.configs import video_source_toml
 from sim_cluster.cluster.launcher import Cluster
 from sim_cluster.cluster.state import ClusterError, node_status
@@ -107,20 +110,58 @@ def video_sources(args, data, out: Path, n: int) -> dict[int, str] | None:
         return None
     detector = getattr(args, "detector", "mog2") or "mog2"
     reid = getattr(args, "reid", "histogram") or "histogram"
-    if reid.startswith("osnet_") and not getattr(args, "reid_weights", None):
-        raise RenderError(f"--reid {reid} needs --reid-weights (a torchreid checkpoint)")
-    if detector == "onnx" and not getattr(args, "onnx_model", None):
-        raise RenderError("--detector onnx needs --onnx-model (an ONNX person detector)")
+    det_opts = parse_options(getattr(args, "detector_option", None) or [], "--detector-option")
+    if getattr(args, "onnx_model", None):  # the older spelling of --detector-option model=...
+        det_opts.setdefault("model", Path(args.onnx_model))
+    reid_opts = {"weights": Path(args.reid_weights)} if getattr(args, "reid_weights", None) else {}
+    tomls = {i: video_source_toml(data.cameras[i], out / "video" / f"c{i}.avi", None,
+                                  detector=detector, reid=reid, detector_options=det_opts,
+                                  reid_options=reid_opts, units_per_metre=data.units_per_metre)
+             for i in range(n)}
+    check_perception(tomls[0])  # a missing model or weights file fails here, before rendering
     if not getattr(args, "quiet", False):
         print(f"rendering {n} camera videos of {data.name} ({data.frames} frames) into {out / 'video'}")
     info = ensure_rendered(args.scenario, out / "video", args.seed, data.frames,
                            cameras=list(range(n)))
     return {i: video_source_toml(data.cameras[i], info["cameras"][str(i)]["frames"],
                                  info["cameras"][str(i)]["background"], detector=detector,
-                                 reid=reid, reid_weights=getattr(args, "reid_weights", None),
-                                 onnx_model=getattr(args, "onnx_model", None),
+                                 reid=reid, detector_options=det_opts, reid_options=reid_opts,
                                  units_per_metre=data.units_per_metre)
             for i in range(n)}
+
+
+def parse_options(items: list[str], flag: str) -> dict:
+    """``KEY=VALUE`` pairs of a repeated flag; each value read as TOML (``0.4``, ``true``,
+    ``[640, 640]``), else taken as a string (a path)."""
+    out: dict = {}
+    for item in items:
+        key, sep, value = item.partition("=")
+        if not sep or not key.strip():
+            raise RenderError(f"{flag} {item!r}: expected KEY=VALUE")
+        try:
+            out[key.strip()] = tomllib.loads(f"v = {value}")["v"]
+        except tomllib.TOMLDecodeError:
+            out[key.strip()] = value
+    return out
+
+
+def check_perception(source_toml: str) -> None:
+    """Read a generated node's ``[perception]`` with the node's own reader: a bad option, a
+    missing required one or a file that is not there is a RenderError naming the flag that
+    sets it."""
+    data = tomllib.loads(source_toml)
+    p = data.get("perception", {})
+    try:
+        parse_perception(Table(p, "sim_cluster up", "perception"), Path.cwd())
+    except SettingsError as e:
+        table, _, key = (e.field or "").removeprefix("perception.").partition(".")
+        if table and table == p.get("detector"):
+            flag = f"--detector {table}", f"--detector-option {key or 'KEY'}=..."
+        elif table:
+            flag = f"--reid {p.get('reid')}", "--reid-weights FILE"
+        else:
+            raise RenderError(f"sim_cluster up: {e.message}") from None
+        raise RenderError(f"{flag[0]}: {e.field} {e.message}; give it with {flag[1]}") from None
 
 
 def status(args) -> int:

@@ -6,12 +6,14 @@ as the source, the tracker configuration and the output folder.
 from __future__ import annotations
 
 import json
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
 from edge_node.geometry import Camera
+from edge_node.perception.reid import REID
 from sim_cluster.cluster.state import ClusterState
 
 
@@ -81,13 +83,27 @@ def _toml_matrix(m) -> str:
                            for row in np.asarray(m, float)) + "]"
 
 
+def _toml_value(v: Any) -> str:
+    if isinstance(v, Path):
+        v = str(v.resolve())
+    return json.dumps(v)  # strings, numbers, booleans and lists of them read back as TOML
+
+
+def _options_table(name: str, options: Mapping[str, Any]) -> list[str]:
+    return ["", f"[perception.{name}]", *(f"{k} = {_toml_value(v)}" for k, v in options.items())]
+
+
 def video_source_toml(camera: Camera, video: str | Path, background: str | Path | None, *,
                       detector: str = "mog2", reid: str = "histogram",
-                      reid_weights: str | Path | None = None, onnx_model: str | Path | None = None,
+                      detector_options: Mapping[str, Any] | None = None,
+                      reid_options: Mapping[str, Any] | None = None,
                       units_per_metre: float = 1.0) -> str:
     """The ``[source]`` body, ``[camera]`` and ``[perception]`` tables of a node that runs from a
     rendered video (what ``sim_cluster up --source video`` writes; schema in
-    ``edge_node/perception/settings.py``)."""
+    ``edge_node/perception/settings.py``). ``detector_options`` go to the detector's table
+    ``[perception.<detector>]``, ``reid_options`` to the re-id kind's table (``osnet`` for every
+    OSNet variant); a ``Path`` is written absolute. MOG2 also gets the rendered empty scene
+    (``background``) and a slow learning rate, so people who pause stay foreground."""
     lines = ['kind = "video"', f"path = {json.dumps(str(Path(video).resolve()))}", "",
              "[camera]",
              f"homography = {_toml_matrix(camera.G)}"]
@@ -97,14 +113,14 @@ def video_source_toml(camera: Camera, video: str | Path, background: str | Path 
               f"pixel_scale = {float(camera.pixel_scale)!r}", f"fps = {float(camera.fps)!r}",
               f"units_per_metre = {float(units_per_metre)!r}", "",
               "[perception]", f"detector = {json.dumps(detector)}", f"reid = {json.dumps(reid)}"]
-    if detector == "mog2":
-        lines += ["", "[perception.mog2]", "learning_rate = 0.001  # people who pause stay foreground"]
+    det = dict(detector_options or {})
+    if detector == "mog2":  # the simulator knows its scene: start MOG2 from the empty one
+        det = {"learning_rate": 0.001, **det}
         if background is not None:
-            lines.append(f"background = {json.dumps(str(Path(background).resolve()))}")
-    if detector == "onnx":
-        lines += ["", "[perception.onnx]", f"model = {json.dumps(str(Path(onnx_model).resolve()))}"]
-    if reid.startswith("osnet_"):
-        lines += ["", "[perception.osnet]", "threads = 1"]
-        if reid_weights is not None:
-            lines.append(f"weights = {json.dumps(str(Path(reid_weights).resolve()))}")
+            det.setdefault("background", Path(background))
+    if det:
+        lines += _options_table(detector, det)
+    table = REID.get(reid).table
+    if table is not None:
+        lines += _options_table(table, {"threads": 1, **(reid_options or {})})
     return "\n".join(lines)

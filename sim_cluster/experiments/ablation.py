@@ -53,8 +53,17 @@ from sim_cluster.scenarios.files import ScenarioError, read_scenario_toml, resol
 from sim_cluster.scenarios.loader import load_scenario
 DEFAULT_SCENARIOS = ("terrace-sim", "lab-sim", "campus-sim", "terrace-gt", "campus-gt")
 DEFAULT_TOPOLOGIES = ("complete", "ring", "chain", "disconnected", CENTRALIZED)
-TOPOLOGY_NAMES = ("complete", "ring", "chain", "disconnected", "star", CENTRALIZED)
-ORDERED = ("ring", "chain")  # topologies run over several camera orderings
+
+
+def topology_names() -> tuple[str, ...]:
+    """Every ``--topologies`` name: the registered graphs (``topology.TOPOLOGIES``) and the
+    centralized baseline."""
+    return (*topo.TOPOLOGIES.names(), CENTRALIZED)
+
+
+def ordered(topology: str) -> bool:
+    """Whether ``topology`` is run over several camera orderings (ring, chain: paper Fig. 4)."""
+    return topology in topo.TOPOLOGIES and topo.TOPOLOGIES.get(topology).ordered
 FULL = "dkf+lda+dtm"
 
 # (csv column, evaluation metric) per view
@@ -164,14 +173,14 @@ def plan(scenarios: Sequence[str], seeds: Sequence[int], configs: Sequence[str] 
     tasks: list[Task] = []
     for scenario in scenarios:
         n = cameras[scenario]
-        orders = {t: topo.orderings(t, n, orderings) for t in topologies if t in ORDERED}
+        orders = {t: topo.orderings(t, n, orderings) for t in topologies if ordered(t)}
         root = data_root.get(scenario) if isinstance(data_root, Mapping) else data_root
         for seed in seeds:
             for config in configs:
                 for topology in topologies:
                     variants: list[tuple[int, tuple[int, ...] | None]] = (
                         [(i, tuple(o)) for i, o in enumerate(orders[topology])]
-                        if topology in ORDERED else [(0, None)])
+                        if ordered(topology) else [(0, None)])
                     for i, order in variants:
                         tasks.append(Task(len(tasks), scenario, int(seed), config, topology, i,
                                           order, frames, root))
@@ -248,7 +257,7 @@ def _hms(s: float) -> str:
 
 
 def _label(t: Task) -> str:
-    o = f"#{t.ordering}" if t.topology in ORDERED else ""
+    o = f"#{t.ordering}" if ordered(t.topology) else ""
     return f"{t.scenario} s{t.seed} {t.config} {t.topology}{o}"
 
 
@@ -489,7 +498,7 @@ def markdown(agg: Mapping, meta: Mapping) -> str:
         lines.append("")
         desc = [f"{info.get('cameras', '?')} cameras", f"{info.get('frames', '?')} frames",
                 f"{nseeds} seed(s)"]
-        for t in ORDERED:
+        for t in (t for t in topo.TOPOLOGIES.names() if ordered(t)):
             if t in info.get("orderings", {}):
                 desc.append(f"{t} orderings: "
                             + ", ".join("-".join(map(str, o)) for o in info["orderings"][t]))
@@ -676,7 +685,7 @@ def main(args) -> int:
     scenarios = parse_list(args.scenarios, None, "scenario")
     seeds = parse_seeds(args.seeds)
     configs = parse_list(args.configs, CONFIG_NAMES, "config")
-    topologies = parse_list(args.topologies, TOPOLOGY_NAMES, "topology")
+    topologies = parse_list(args.topologies, topology_names(), "topology")
     if args.orderings < 1:
         raise AblationError(f"--orderings must be >= 1, got {args.orderings}")
     if args.frames is not None and args.frames < 1:
@@ -710,7 +719,7 @@ def main(args) -> int:
         info[sc]["orderings"] = {t: [list(tk.order) for tk in tasks
                                      if tk.scenario == sc and tk.topology == t
                                      and tk.seed == seeds[0] and tk.config == configs[0]]
-                                 for t in topologies if t in ORDERED}
+                                 for t in topologies if ordered(t)}
     meta = {"scenarios": info, "skipped": skipped, "failed": failed, "seeds": seeds,
             "configs": configs, "topologies": topologies, "orderings": args.orderings,
             "frames": args.frames, "runs": len(tasks),

@@ -38,7 +38,7 @@ from pathlib import Path
 from edge_node.core.config import CONFIG_NAMES
 from sim_cluster.evaluation.reid import scenario_reid
 from sim_cluster.experiments.ablation import (GROUND_COLS, IDENTITY_COLS, IMAGE_COLS,
-                                              TOPOLOGY_NAMES, AblationError, _csv_value, _hms,
+                                              AblationError, _csv_value, _hms, topology_names,
                                               _md_table, _num, execute, parse_list, parse_seeds,
                                               probe)
 from sim_cluster.experiments.provenance import provenance
@@ -310,7 +310,7 @@ def main(args) -> int:
     seeds = parse_seeds(args.seeds)
     levels = parse_levels(args.levels)
     config = parse_list(args.config, CONFIG_NAMES, "config")[0]
-    topology = parse_list(args.topology, TOPOLOGY_NAMES, "topology")[0]
+    topology = parse_list(args.topology, topology_names(), "topology")[0]
     if args.frames is not None and args.frames < 1:
         raise AblationError(f"--frames must be >= 1, got {args.frames}")
     jobs = (os.cpu_count() or 1) if args.jobs is None else args.jobs

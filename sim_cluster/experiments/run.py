@@ -82,7 +82,7 @@ def load_faults(path: str | Path | None, data: ScenarioData, topology: str,
 
 
 def adjacency(data: ScenarioData, topology: str, order=None):
-    """The network ``topology`` names on ``data``'s cameras: a name (``topology.NAMES``),
+    """The network ``topology`` names on ``data``'s cameras: a name (``topology.TOPOLOGIES``),
     ``centralized``, ``layout`` (the scenario's own neighbour graph) or an edge-list file."""
     if topology == LAYOUT:  # the scenario's own neighbour graph (a generated layout's lattice)
         if data.neighbours is None:
@@ -99,7 +99,7 @@ def run_once(data: ScenarioData, topology: str, cfg: TrackerConfig, *, order=Non
              trigger: TriggerConfig | None = None) -> tuple[RunResult, dict]:
     """One in-process run plus its evaluation; returns ``(RunResult, summary dict)``.
 
-    ``topology`` is a name (``topology.NAMES``), ``centralized``, ``layout`` (the scenario's
+    ``topology`` is a name (``topology.TOPOLOGIES``), ``centralized``, ``layout`` (the scenario's
     own neighbour graph) or an edge-list file; ``order``
     the camera ordering of a ring or chain; ``trigger`` the event trigger's settings in async
     mode (its defaults when ``None``)."""
@@ -107,7 +107,8 @@ def run_once(data: ScenarioData, topology: str, cfg: TrackerConfig, *, order=Non
     update, close = progress_bar(f"{data.name} {topology}", data.frames, show_progress)
     try:
         result = run_network(data, adj, cfg, topology_name=Path(topology).stem
-                             if topology not in topo.NAMES + (CENTRALIZED, LAYOUT) else topology,
+                             if topology not in (*topo.TOPOLOGIES.names(), CENTRALIZED, LAYOUT)
+                             else topology,
                              progress=update, mode=mode, faults=faults or NO_FAULTS,
                              trigger=trigger)
     finally:

@@ -3,23 +3,59 @@ disconnected; plus star and an explicit edge list).
 
 A topology is an undirected adjacency ``{node: (neighbours...)}``. Ring and chain take an optional
 ``order`` (a permutation of the nodes), as the paper's Fig. 4 averages several orderings.
+
+The named graphs are :class:`Topology` kinds in the registry :data:`TOPOLOGIES` (``edge_node/plugins.py``):
+adding one is one ``TOPOLOGIES.add(name, Topology(...))`` here, or an entry point in the group
+``dmtt.topologies`` of another package; every command's ``--topology`` choices and help come
+from it (:func:`help_text`).
 """
 from __future__ import annotations
 
 import itertools
 import re
-from collections.abc import Sequence
+from collections.abc import Callable, Iterable, Sequence
 from pathlib import Path
+from typing import NamedTuple
 
 from edge_node.formats.text import read_text
+from edge_node.plugins import Registry
 from protocol.errors import DmttError
 
 Adjacency = dict[int, tuple[int, ...]]
-NAMES = ("complete", "ring", "chain", "disconnected", "star")
 
 
 class TopologyError(DmttError, ValueError):
     """An unknown topology name or an edge list that does not describe a graph on ``0..N-1``."""
+
+
+class Topology(NamedTuple):
+    """A named graph: ``edges(n, order)`` the undirected edges on nodes ``0..n-1`` with the
+    cameras in ``order`` (a permutation); ``ordered``: experiments average it over several
+    camera orderings, as the paper's Fig. 4 does for ring and chain (``orderings``);
+    ``summary`` one line for the help."""
+
+    edges: Callable[[int, list[int]], Iterable[tuple[int, int]]]
+    ordered: bool
+    summary: str
+
+
+#: The named topologies (``--topology``), the paper's four first.
+TOPOLOGIES: Registry[Topology] = Registry("topology", "dmtt.topologies", TopologyError)
+TOPOLOGIES.add("complete", Topology(lambda n, o: itertools.combinations(range(n), 2), False,
+                                    "every camera linked to every other"))
+TOPOLOGIES.add("ring", Topology(lambda n, o: zip(o, o[1:] + o[:1]) if n > 2 else zip(o, o[1:]),
+                                True, "each camera linked to the next, the last to the first"))
+TOPOLOGIES.add("chain", Topology(lambda n, o: zip(o, o[1:]), True,
+                                 "each camera linked to the next"))
+TOPOLOGIES.add("disconnected", Topology(lambda n, o: (), False, "no links: lone cameras"))
+TOPOLOGIES.add("star", Topology(lambda n, o: ((o[0], x) for x in o[1:]), False,
+                                "the first camera linked to every other"))
+NAMES = TOPOLOGIES.builtin()  # the names this package ships
+
+
+def help_text(*extra: str) -> str:
+    """``--topology`` help: every registered name, then ``extra`` forms, then an edge list."""
+    return " | ".join((*TOPOLOGIES.names(), *extra, "edge-list file"))
 
 
 def _from_edges(n: int, edges) -> Adjacency:
@@ -39,20 +75,12 @@ def build(name: str, n: int, order: Sequence[int] | None = None) -> Adjacency:
     order = list(range(n)) if order is None else list(order)
     if sorted(order) != list(range(n)):
         raise TopologyError(f"order {order} is not a permutation of 0..{n - 1}")
-    if name == "complete":
-        return _from_edges(n, itertools.combinations(range(n), 2))
-    if name == "chain":
-        return _from_edges(n, zip(order, order[1:]))
-    if name == "ring":
-        return _from_edges(n, zip(order, order[1:] + order[:1]) if n > 2 else zip(order, order[1:]))
-    if name == "disconnected":
-        return _from_edges(n, ())
-    if name == "star":
-        return _from_edges(n, ((order[0], o) for o in order[1:]))
+    if name in TOPOLOGIES:
+        return _from_edges(n, TOPOLOGIES.get(name).edges(n, order))
     path = Path(name)
     if path.suffix or path.exists():
         return from_file(path, n)
-    raise TopologyError(f"unknown topology {name!r}: use one of {', '.join(NAMES)}, "
+    raise TopologyError(f"unknown topology {name!r}: use one of {', '.join(TOPOLOGIES.names())}, "
                         "'centralized', or a path to an edge-list file")
 
 
@@ -91,8 +119,9 @@ def from_file(path: Path, n: int) -> Adjacency:
 
 
 def orderings(name: str, n: int, count: int) -> list[list[int]]:
-    """Up to ``count`` distinct orderings of a ring or chain (distinct graphs), deterministic."""
-    if name not in ("ring", "chain"):
+    """Up to ``count`` distinct orderings of an ordered topology (ring, chain: distinct graphs),
+    deterministic."""
+    if name not in TOPOLOGIES or not TOPOLOGIES.get(name).ordered:
         return [list(range(n))]
     seen, out = set(), []
     for perm in itertools.permutations(range(n)):
