@@ -33,7 +33,7 @@ def _check(node: CameraNode, cfg: TrackerConfig, seen: dict) -> None:
     window = cfg.kappa + cfg.merge_announce_frames
     for sender, heard in screen.heard.items():
         assert all(node.frame - f <= window + 1 for f in heard.values())
-    assert len(node._taken) <= len(node.neighbours) * (cfg.kappa + 1)
+    assert len(node.inbound.taken) <= len(node.neighbours) * (cfg.kappa + 1)
     n = len(node.trackers)
     ev = node.manager.evidence  # co-motion evidence: pairs of trackers held, never more
     assert len(ev) <= n * (n - 1) // 2

@@ -30,15 +30,16 @@ import numpy as np
 
 import edge_node.core.dkf as dkf
 import edge_node.core.manager as manager
+import edge_node.core.registrar as registrar
 from edge_node.core.association import Candidates, LocalDataAssociation, Observation, Observations
 from edge_node.core.config import TrackerConfig
 from edge_node.core.entries import Entries, Inbox
 from edge_node.core.gallery import Gallery
 from edge_node.core.identity import IdentityBook
+from edge_node.core.inbound import Inbound
 from edge_node.core.initiator import Initiator, Pending
 from edge_node.core.manager import DistributedTrackerManager, IndependentTrackers, MergeView
-from edge_node.core.measurement import (BoxMeasurements, box_measurements, fixed_R, pixels_per_unit,
-                                        uncorrected_many)
+from edge_node.core.measurement import BoxMeasurements, box_measurements, fixed_R, uncorrected_many
 from edge_node.core.memory import NeighbourMemory
 from edge_node.core.model import STATE_DIM, birth_covariance, birth_state, process_noise, quantize, transition
 from edge_node.core.reappear import Gone, Young, gone_trackers
@@ -47,6 +48,7 @@ from edge_node.core.screen import Screen
 from edge_node.core.stacks import RowStack, stacked
 from edge_node.core.tracker import LocalInfo, Tracker, TrackerTable
 from edge_node.core.types import Detection, Track
+from edge_node.core.views import OwnViews, ViewSettings
 from edge_node.geometry import Camera
 from protocol.errors import DmttError
 from protocol.messages import MAX_DESCRIPTORS, FrameMessage, TrackerBlock, TrackerId, TrackerInfo
@@ -125,15 +127,17 @@ class CameraNode:
         self.initiators = {c.id: parts.initiator() for c in self.cameras}
         self.registrations: dict[int, Registration] = (
             {c.id: parts.registration(c) for c in self.cameras} if parts.registration else {})
+        self.own_views = OwnViews(ViewSettings.of(self.cfg), self.cameras, self.registrations)
         self.book = IdentityBook(self.id, self.cfg, first_counter)
         self.memory = NeighbourMemory(self.cfg, network)
         self.screen = Screen(self.cfg, self.cameras, self.id)
-        self._taken: dict[tuple[int, int], None] = {}  # (sender, frame) already used, recent
         self.A = transition(self.cfg.dt)
         self.Q = process_noise(self.cfg)
         self.P_birth = birth_covariance(self.cfg)
         self.trackers = TrackerTable()  # by id, the sorted order kept
         self.stats = NodeStats()
+        self.inbound = Inbound(self.neighbours, network, self.cfg.kappa,
+                               self.cfg.max_trackers_per_neighbour, self.screen, self.stats)
         self._frame: int | None = None
         self._prepared = False
         self._message_rows: list[Tracker] = []
@@ -268,12 +272,12 @@ class CameraNode:
             for i, j in pairs:
                 trs[i].gallery.offer(obs.descriptors[j], k, self.cfg.gallery_admit)
                 assigned.add(j)
-            self._saw_many([trs[i] for i in rows], cam_id, k, js)
+            self.own_views.saw([trs[i] for i in rows], cam_id, k, self._raws[cam_id].size[js])
         for i, j in self.associate.recover(cands, obs, pairs):
             # outside the gate: R grown until the innovation sits on it; no registration residual
             tr = self.trackers[ids[i]]
             tr.local.add(cam_id, *dkf.information(obs[j].z, self._on_gate(tr, obs[j])))
-            self._saw_many([tr], cam_id, k, [j])
+            self.own_views.saw([tr], cam_id, k, self._raws[cam_id].size[[j]])
             assigned.add(j)
         return [obs[j] for j in range(len(obs)) if j not in assigned]
 
@@ -338,7 +342,7 @@ class CameraNode:
         self.book.born[tid] = born
         tr.origin = np.asarray(last.z[:2], float).copy()
         tr.local.add(cam_id, *dkf.information(last.z, last.R), last.raw)
-        self._saw_many([tr], cam_id, k, [last.raw])
+        self.own_views.saw([tr], cam_id, k, self._raws[cam_id].size[[last.raw]])
         self.trackers[tid] = tr
 
     def _message(self, k: int) -> FrameMessage:
@@ -405,7 +409,7 @@ class CameraNode:
         if not self._prepared:
             raise NodeStateError(f"node {self.id}: update() without prepare()")
         k = self._frame
-        msgs = self.screen.messages(self._bounded(self._accept(inbox, k, stale_ok)), self.book)
+        msgs = self.inbound.take(inbox, k, stale_ok, self.book, self.trackers.__contains__)
         for m in msgs:
             for mg in m.merges:
                 self._merge(mg.loser, mg.winner, mg.winner_born)
@@ -432,7 +436,8 @@ class CameraNode:
         else:
             self._correct(entries)
         if self.registrations:
-            self._register(entries)
+            registrar.learn(self.registrations, entries,
+                            [self.trackers[t].local.per_camera for t in entries.ids], self._raws)
         mine = {c.id for c in self.cameras}
         none: frozenset[int] = frozenset()
         views = [MergeView(t.id, t.x_hat[:2], t.gallery, t.since == k, frozenset(t.local.seen_by),
@@ -457,44 +462,6 @@ class CameraNode:
         self._prepared = False
         self.book.forget(set(self.trackers))
         return self.tracks()
-
-    def _accept(self, inbox: Iterable[FrameMessage], k: int, stale_ok: bool) -> list[FrameMessage]:
-        """The messages this frame may use, in a deterministic order (sender, frame): one per
-        sender and frame (the first one; later copies are duplicates)."""
-        msgs: list[FrameMessage] = []
-        for m in inbox:
-            ok = (m.sender in self.neighbours and m.network == self.network
-                  and (m.frame == k or (stale_ok and k - self.cfg.kappa <= m.frame < k)))
-            if not ok:
-                self.stats.ignored_messages += 1
-                continue
-            if (m.sender, m.frame) in self._taken:
-                self.stats.duplicate_messages += 1
-                continue
-            self._taken[(m.sender, m.frame)] = None
-            msgs.append(m)
-        for key in [key for key in self._taken if key[1] < k - self.cfg.kappa]:
-            del self._taken[key]  # older frames are ignored anyway: bounded memory
-        return sorted(msgs, key=lambda m: (m.sender, m.frame))
-
-    def _bounded(self, msgs: list[FrameMessage]) -> list[FrameMessage]:
-        """Each message cut to ``max_trackers_per_neighbour`` entries: the ids this node holds
-        first, then the others in the sender's order; the rest dropped and counted
-        (``too_many_trackers``). One message of thousands of plausible phantoms under fresh
-        ids must not make a node hold them all (it stalled two nodes for good)."""
-        cap = self.cfg.max_trackers_per_neighbour
-        out = []
-        for m in msgs:
-            n = len(m.block)
-            if n <= cap:
-                out.append(m)
-                continue
-            held = [self.book.resolve(t) in self.trackers for t in m.block.ids()]
-            order = [i for i in range(n) if held[i]] + [i for i in range(n) if not held[i]]
-            keep = sorted(order[:cap])
-            out.append(replace(m, _block=m.block.take(keep), _infos=None))
-            self.screen.rejected["too_many_trackers"] += n - len(keep)
-        return out
 
     def _correct(self, entries: Entries, lagless: dict[TrackerId, int] | None = None,
                  news: set[TrackerId] | frozenset[TrackerId] = frozenset()) -> None:
@@ -570,58 +537,6 @@ class CameraNode:
                     tr.coast = 0
             if tr.coast == 0 and k > tr.since:
                 tr.held += 1
-
-    def _register(self, entries: Entries) -> None:
-        """Registration residuals of this frame (``registration``, R2-R3): each of this node's
-        cameras against what the other cameras measured of the same targets in the same frame:
-        the neighbours' ``u, U`` and this node's other cameras (their information summed, eq. 3,
-        the ground position's block: ``z_o = U_o^-1 u_o``, ``V_o = U_o^-1``)."""
-        n = len(entries.ids)
-        u_o, U_o = np.zeros((n, 2)), np.zeros((n, 2, 2))  # the neighbours' measured entries
-        count = np.zeros(n, np.intp)
-        if len(entries.rows):  # (rows of 2: np.add.at costs less than Entries.summed)
-            seen = (entries.U[:, 0, 0] > 0).nonzero()[0]
-            at = entries.rows.take(seen)
-            np.add.at(u_o, at, entries.u[:, :2].take(seen, axis=0))
-            np.add.at(U_o, at, entries.U[:, :2, :2].take(seen, axis=0))
-            np.add.at(count, at, 1)
-        # per camera: its raw measurements, the trackers' rows, and this node's other cameras'
-        # information on them (None: the neighbours' alone)
-        rows: dict[int, tuple[list, list, list]] = {c: ([], [], []) for c in self.registrations}
-        for i, tid in enumerate(entries.ids):
-            mine = sorted(self.trackers[tid].local.per_camera.items())
-            for cam_id, (_, _, raw) in mine:
-                # (a node of one camera has no other of its own: no list to build)
-                own = [(u, U) for c, (u, U, _) in mine if c != cam_id] if len(mine) > 1 else ()
-                if raw is None or not (count[i] or own):
-                    continue
-                raws, idx, others = rows[cam_id]
-                raws.append(raw)
-                idx.append(i)
-                others.append((sum(u[:2] for u, _ in own), sum(U[:2, :2] for _, U in own))
-                              if own else None)
-        for cam_id in sorted(self.registrations):
-            raws, idx, others = rows[cam_id]
-            if raws:
-                at = np.array(idx, np.intp)
-                # copies: the other cameras' part is added in place
-                us, Us = u_o.take(at, axis=0), U_o.take(at, axis=0)
-                for j, other in enumerate(others):
-                    if other is not None:
-                        us[j] += other[0]
-                        Us[j] += other[1]
-                # only where the others measured the ground position in both directions: a
-                # neighbour's U may honestly be PSD with a singular position block (one
-                # direction only), and z_o needs U_o^-1 (a wire-valid entry like that crashed
-                # update before)
-                det = Us[:, 0, 0] * Us[:, 1, 1] - Us[:, 0, 1] * Us[:, 1, 0]
-                ok = (det > 1e-9 * (Us[:, 0, 0] + Us[:, 1, 1]) ** 2).nonzero()[0]
-                if len(ok):
-                    V_o = np.linalg.inv(Us.take(ok, axis=0))
-                    z_o = (V_o @ us.take(ok, axis=0)[..., None])[..., 0]
-                    self.registrations[cam_id].observe_many(self._raws[cam_id].take(np.array(raws)[ok]),
-                                                            z_o, V_o)
-            self.registrations[cam_id].end_frame()
 
     def _adopt(self, k: int, tid: TrackerId, infos: list[TrackerInfo], heard: int | None = None) -> bool:
         """A tracker heard of from neighbours but not held here (paper III-C, case 1);
@@ -805,85 +720,12 @@ class CameraNode:
             shown = [t for t in shown if t.id not in waiting]
         if not shown:
             return []
-        boxes = self.views(shown)
-        x_hat = stacked([t.x_hat for t in shown], self._rows.get("x_hat")).copy()  # the tracks' own
+        x_hat = stacked([t.x_hat for t in shown], self._rows.get("x_hat"))
+        boxes = self.own_views.boxes(shown, self._frame, x_hat)
+        x_hat = x_hat.copy()  # the tracks' own
         M = stacked([t.M for t in shown], self._rows.get("M")).copy()
         return [Track._built(t.id, self._frame, x, M_i, bool(t.local.seen_by), t.ell, b)
                 for t, x, M_i, b in zip(shown, x_hat, M, boxes)]
-
-    def _saw_many(self, trs: list[Tracker], cam_id: int, k: int, rows: list[int]) -> None:
-        """Camera ``cam_id`` measured each of ``trs`` at frame ``k`` (its box measurement
-        ``rows`` of the frame): the box size it draws the tracker at is smoothed towards the
-        measured one at ``view_rate``, all pairs at once (``Tracker.views``)."""
-        size = self._raws[cam_id].size[rows]
-        old = [tr.views.get(cam_id) for tr in trs]
-        held = [i for i, v in enumerate(old) if v is not None]
-        if held:
-            before = np.array([old[i][1] for i in held])
-            size[held] = before + self.cfg.view_rate * (size[held] - before)
-        for tr, s in zip(trs, size):
-            tr.views[cam_id] = (k, s)
-
-    def views(self, trackers: Sequence[Tracker]) -> list[dict[int, np.ndarray]]:
-        """Each tracker in this node's own image(s): for every camera that measured it within
-        ``view_frames``, the estimate's ground point mapped back through the camera's own
-        registration (where its box's bottom edge lies) with the box size the camera itself
-        measures, smoothed (``Track.boxes``). All trackers of a camera at once."""
-        out: list[dict[int, np.ndarray]] = [{} for _ in trackers]
-        for cam in self.cameras:
-            rows, sizes, ages = [], [], []
-            for i, tr in enumerate(trackers):
-                seen = tr.views.get(cam.id)
-                if seen is None or self._frame - seen[0] > self.cfg.view_frames:
-                    if not self.cfg.view_unseen:
-                        continue
-                    seen = (self._frame - self.cfg.view_frames - 1, tr.x_hat[2:4])
-                rows.append(i)
-                sizes.append(seen[1])
-                ages.append(self._frame - seen[0])
-            if not rows:
-                continue
-            xy = stacked([trackers[i].x_hat for i in rows], self._rows.get("x_hat"))[:, :2]
-            reg = self.registrations.get(cam.id)
-            g = xy if reg is None else reg.to_camera_many(xy)
-            with np.errstate(invalid="ignore", divide="ignore", over="ignore"):
-                foot, J = cam.image_and_jacobians(g)
-                wh = np.array(sizes) * pixels_per_unit(J)[:, None]
-            box = np.concatenate([foot[:, :1] - wh[:, :1] / 2.0, foot[:, 1:] - wh[:, 1:], wh], axis=1)
-            drawn = self._visible(cam, box, np.array(ages))
-            for i, b, ok in zip(rows, box, drawn.tolist()):
-                if ok:
-                    out[i][cam.id] = b
-        return out
-
-    def _visible(self, cam: Camera, box: np.ndarray, age: np.ndarray) -> np.ndarray:
-        """Which of a camera's boxes ``(n, 4)`` it can see (``age``: frames since it last
-        measured each target): finite, overlapping the image with at least ``view_inside`` of
-        the box's width between its left and right edges (people walk in and out of a view
-        sideways; one whose head or feet the frame cuts off is still there), and not hidden. A target the camera has not measured for more than
-        ``view_fresh`` frames is hidden when a nearer visible box (its bottom edge lower in the
-        image: the target stands closer on the ground plane) covers ``view_hidden`` of it; the
-        camera's detector would not report it either, so drawing it could only add a false
-        box. A target the camera measures now is drawn however crowded the scene."""
-        cfg = self.cfg
-        W, H = cam.image_size
-        with np.errstate(invalid="ignore", over="ignore"):
-            x0, y0 = box[:, 0], box[:, 1]
-            x1, y1 = x0 + box[:, 2], y0 + box[:, 3]
-            area = box[:, 2] * box[:, 3]
-            across = (np.minimum(x1, W) - np.maximum(x0, 0.0)).clip(0.0)  # width in the image
-            ok = np.isfinite(box).all(axis=1) & (area > 0) & (y1 > 0) & (y0 < H)
-            ok &= (across > 0) & (across >= cfg.view_inside * box[:, 2])
-        stale = ok & (age > cfg.view_fresh)
-        if cfg.view_hidden >= 1.0 or not stale.any() or ok.sum() < 2:
-            return ok
-        a, b = np.flatnonzero(stale), np.flatnonzero(ok)
-        cover = ((np.minimum(x1[a, None], x1[None, b]) - np.maximum(x0[a, None], x0[None, b])).clip(0.0)
-                 * (np.minimum(y1[a, None], y1[None, b]) - np.maximum(y0[a, None], y0[None, b])).clip(0.0))
-        nearer = y1[None, b] > y1[a, None]
-        hidden = ((cover * nearer) >= cfg.view_hidden * area[a, None]).any(axis=1)
-        ok[a[hidden]] = False
-        return ok
 
     def _reported(self, tr: Tracker) -> bool:
         """A tracker is reported (returned by ``update``, written, drawn, evaluated) unless it

@@ -1,0 +1,69 @@
+"""The registrar: one frame's registration residuals of a node's cameras (``registration``,
+R2-R3), each camera against what the other cameras measured of the same targets in the same
+frame: the neighbours' ``u, U`` and this node's other cameras (their information summed, eq. 3,
+the ground position's block: ``z_o = U_o^-1 u_o``, ``V_o = U_o^-1``). Pure and deterministic.
+"""
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
+
+import numpy as np
+
+from edge_node.core.entries import Entries
+from edge_node.core.measurement import BoxMeasurements
+from edge_node.core.registration import Registration
+
+
+def learn(registrations: Mapping[int, Registration], entries: Entries,
+          per_camera: Sequence[Mapping[int, tuple]], raws: Mapping[int, BoxMeasurements]) -> None:
+    """Feed each camera's :class:`Registration` this frame's residuals and end its frame.
+
+    ``entries``: the neighbours' entries of the frame, gathered per tracker (``entries.ids``);
+    ``per_camera[i]``: what this node's cameras measured of tracker ``entries.ids[i]`` (camera
+    -> ``(u, U, raw)``, ``raw`` its row of the camera's box measurements ``raws[camera]``)."""
+    n = len(entries.ids)
+    u_o, U_o = np.zeros((n, 2)), np.zeros((n, 2, 2))  # the neighbours' measured entries
+    count = np.zeros(n, np.intp)
+    if len(entries.rows):  # (rows of 2: np.add.at costs less than Entries.summed)
+        seen = (entries.U[:, 0, 0] > 0).nonzero()[0]
+        at = entries.rows.take(seen)
+        np.add.at(u_o, at, entries.u[:, :2].take(seen, axis=0))
+        np.add.at(U_o, at, entries.U[:, :2, :2].take(seen, axis=0))
+        np.add.at(count, at, 1)
+    # per camera: its raw measurements, the trackers' rows, and this node's other cameras'
+    # information on them (None: the neighbours' alone)
+    rows: dict[int, tuple[list, list, list]] = {c: ([], [], []) for c in registrations}
+    for i in range(n):
+        mine = sorted(per_camera[i].items())
+        for cam_id, (_, _, raw) in mine:
+            # (a node of one camera has no other of its own: no list to build)
+            own = [(u, U) for c, (u, U, _) in mine if c != cam_id] if len(mine) > 1 else ()
+            if raw is None or not (count[i] or own):
+                continue
+            picked, idx, others = rows[cam_id]
+            picked.append(raw)
+            idx.append(i)
+            others.append((sum(u[:2] for u, _ in own), sum(U[:2, :2] for _, U in own))
+                          if own else None)
+    for cam_id in sorted(registrations):
+        picked, idx, others = rows[cam_id]
+        if picked:
+            at = np.array(idx, np.intp)
+            # copies: the other cameras' part is added in place
+            us, Us = u_o.take(at, axis=0), U_o.take(at, axis=0)
+            for j, other in enumerate(others):
+                if other is not None:
+                    us[j] += other[0]
+                    Us[j] += other[1]
+            # only where the others measured the ground position in both directions: a
+            # neighbour's U may honestly be PSD with a singular position block (one
+            # direction only), and z_o needs U_o^-1 (a wire-valid entry like that crashed
+            # update before)
+            det = Us[:, 0, 0] * Us[:, 1, 1] - Us[:, 0, 1] * Us[:, 1, 0]
+            ok = (det > 1e-9 * (Us[:, 0, 0] + Us[:, 1, 1]) ** 2).nonzero()[0]
+            if len(ok):
+                V_o = np.linalg.inv(Us.take(ok, axis=0))
+                z_o = (V_o @ us.take(ok, axis=0)[..., None])[..., 0]
+                registrations[cam_id].observe_many(raws[cam_id].take(np.array(picked)[ok]),
+                                                   z_o, V_o)
+        registrations[cam_id].end_frame()
