@@ -301,3 +301,64 @@ def test_a_node_runs_with_a_fake_association():
         real.prepare(k, [det(3.0, 3.0, 1)])
         real.update([])
     assert real.stats.births == 1
+
+
+# -- each camera's own view (views.OwnViews) ----------------------------------------------------
+def test_own_view_smooths_the_size_a_camera_measures_at_view_rate():
+    from edge_node.core.tracker import Tracker
+    from edge_node.core.views import OwnViews, ViewSettings
+    views = OwnViews(ViewSettings(view_rate=0.25), [topdown_camera(0)], {})
+    tr = Tracker((0, 0), np.zeros(6), np.eye(6), Gallery())
+    views.saw([tr], 0, 3, np.array([[0.5, 1.7]]))
+    assert tr.views[0][0] == 3 and tr.views[0][1].tolist() == [0.5, 1.7]  # the first, as measured
+    views.saw([tr], 0, 4, np.array([[0.9, 1.3]]))
+    np.testing.assert_allclose(tr.views[0][1], [0.5 + 0.25 * 0.4, 1.7 - 0.25 * 0.4])
+    assert tr.views[0][0] == 4
+
+
+def test_own_view_draws_a_box_only_while_enough_of_it_is_in_the_image():
+    from edge_node.core.views import OwnViews, ViewSettings
+    cam = Camera(0, (100, 80), np.eye(3))
+    views = OwnViews(ViewSettings(view_inside=0.9, view_hidden=0.5, view_fresh=10), [cam], {})
+    boxes = np.array([[10.0, 10, 20, 40],    # inside
+                      [-1.0, 10, 20, 40],    # 19 of 20 px across: 0.95 >= 0.9
+                      [-3.0, 10, 20, 40],    # 17 of 20: 0.85, left out
+                      [90.0, 70, 20, 40],    # 10 of 20 across, left out
+                      [10.0, 12, 20, 30]])   # inside, but behind the first (bottom edge higher)
+    fresh = np.zeros(5)
+    assert views.visible(cam, boxes, fresh).tolist() == [True, True, False, False, True]
+    # unmeasured for longer than view_fresh: the nearer first box covers 100 % of the last
+    stale = np.array([0, 0, 0, 0, 11])
+    assert views.visible(cam, boxes, stale).tolist() == [True, True, False, False, False]
+
+
+class NoViews:
+    """A fake views role: draws nothing, counts the frames it was asked."""
+
+    def __init__(self, cameras, registrations):
+        self.asked = 0
+
+    def saw(self, trs, cam_id, k, size):
+        pass
+
+    def boxes(self, trackers, k, x_hat):
+        self.asked += 1
+        return [{} for _ in trackers]
+
+
+def test_a_node_runs_with_a_fake_views_role():
+    """The own-view role is injected like the others: the fake's (empty) boxes are what the
+    tracks carry, and the default draws the person in camera 0."""
+    cfg = TrackerConfig()
+    parts = assemble(cfg)
+    made = []
+    node = CameraNode(topdown_camera(0), (), cfg, "t", components=Components(
+        parts.associate, parts.manager, parts.initiator, parts.registration,
+        views=lambda cams, regs: made.append(NoViews(cams, regs)) or made[-1]))
+    real = CameraNode(topdown_camera(0), (), cfg, "t")
+    for k in range(6):
+        for n in (node, real):
+            n.prepare(k, [det(3.0, 3.0, 1)])
+            tracks = n.update([])
+    assert made[0].asked >= 4 and all(t.boxes == {} for t in node.tracks())
+    assert len(tracks) == 1 and set(tracks[0].boxes) == {0}

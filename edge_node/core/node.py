@@ -25,6 +25,7 @@ from __future__ import annotations
 from collections import Counter
 from collections.abc import Callable, Iterable, Mapping, Sequence
 from dataclasses import dataclass, field, replace
+from functools import partial
 
 import numpy as np
 
@@ -93,6 +94,9 @@ class Components:
     manager: Manager
     initiator: Callable[[], Initiator]  # one per camera
     registration: Callable[[Camera], Registration] | None = None  # one per camera, or none
+    #: what each camera draws (``views.OwnViews``), from the node's cameras and registrations;
+    #: ``None``: the configuration's ``view_*`` rules
+    views: Callable[[Sequence[Camera], Mapping[int, Registration]], OwnViews] | None = None
 
 
 def assemble(cfg: TrackerConfig) -> Components:
@@ -127,7 +131,8 @@ class CameraNode:
         self.initiators = {c.id: parts.initiator() for c in self.cameras}
         self.registrations: dict[int, Registration] = (
             {c.id: parts.registration(c) for c in self.cameras} if parts.registration else {})
-        self.own_views = OwnViews(ViewSettings.of(self.cfg), self.cameras, self.registrations)
+        self.own_views = (parts.views or partial(OwnViews, ViewSettings.of(self.cfg)))(
+            self.cameras, self.registrations)
         self.book = IdentityBook(self.id, self.cfg, first_counter)
         self.memory = NeighbourMemory(self.cfg, network)
         self.screen = Screen(self.cfg, self.cameras, self.id)
