@@ -84,7 +84,8 @@ from typing import Any, Callable
 
 from edge_node.core.config import ConfigError
 from edge_node.core.node import CameraNode, NodeStats
-from edge_node.core.trigger import EventTrigger, TriggerConfig
+from edge_node.core.trigger import TriggerConfig
+from edge_node.driver import FrameDriver
 from edge_node.faults import NO_FAULTS, FaultPlan
 from edge_node.formats.tracks import TrackWriter
 from edge_node.outbox import Delivery, Outbox, OutboxCounters
@@ -235,7 +236,6 @@ class FrameLoop:
                                   "CameraNode.update accepts stale_ok=True; this one does not")
         self.cfg = cfg
         self.rt = cfg.runtime
-        self.node = node
         self.source = source
         self.transport = transport
         self.mode = mode
@@ -264,24 +264,25 @@ class FrameLoop:
         self._output_error: dict[str, str] = {}  # file kind -> why its last write failed
         self._logged_at: dict[str, float] = {}
         self._last_status: dict | None = None
-        self.outbox = self._new_outbox()
+        self.driver = self._new_driver(node)
         self.stats.wire = self.outbox.counters
 
-    def _new_outbox(self, counters: OutboxCounters | None = None) -> Outbox:
-        trigger = None
-        if self.mode == "async":
-            c = self.node.cfg
-            try:
-                trigger = EventTrigger(TriggerConfig(self.rt.heartbeat_frames, self.rt.drift_m,
-                                                     self.rt.gain_nats),
-                                       c.dt, c.units_per_metre, c.kappa, c.hold_frames)
-            except ConfigError as e:
-                raise NodeConfigError(self.cfg.name, "runtime.heartbeat_frames", e.message) from None
-        ob = Outbox(self.node.id, self.transport.neighbours, self.faults, trigger,
-                    rejoin_gap=self.node.cfg.kappa)
-        if counters is not None:
-            ob.counters = counters
-        return ob
+    def _new_driver(self, node: CameraNode, counters: OutboxCounters | None = None) -> FrameDriver:
+        """The node's frame driver (``edge_node.driver``, the in-process network's too)."""
+        try:
+            trigger = TriggerConfig(self.rt.heartbeat_frames, self.rt.drift_m, self.rt.gain_nats) \
+                if self.mode == "async" else None
+            return FrameDriver(node, self.transport.neighbours, self.faults, trigger, counters)
+        except ConfigError as e:
+            raise NodeConfigError(self.cfg.name, "runtime.heartbeat_frames", e.message) from None
+
+    @property
+    def node(self) -> CameraNode:
+        return self.driver.node
+
+    @property
+    def outbox(self) -> Outbox:
+        return self.driver.outbox
 
     @property
     def node_stats(self) -> NodeStats:
@@ -290,17 +291,15 @@ class FrameLoop:
 
     # -- one frame -----------------------------------------------------------------------------
     def _send(self, msg: FrameMessage) -> None:
-        """The frame's message through the outbox (trigger, resync, faults, counting)."""
+        """The frame's message through the driver's outbox (trigger, resync, faults, counting)."""
         errors, cut = self.outbox.counters.encode_errors, self.outbox.counters.trackers_cut
-        resync = self._resync & set(self.transport.neighbours)
+        self.driver.rejoined(self._resync)
+        self._resync = set()
+        deliveries, resync = self.driver.send(msg, sent_at=time.time())
         if resync:
             log.info("node %d: frame %d: resync for rejoined neighbour(s) %s",
                      self.node.id, msg.frame, sorted(resync))
-        self._publish(self.outbox.send(msg, resync=resync,
-                                       resync_message=self.node.resync_message,
-                                       sent_at=time.time(),
-                                       covariance=self.node.covariances))
-        self._resync -= resync
+        self._publish(deliveries)
         if self.outbox.counters.encode_errors > errors:
             self._say("encode", logging.ERROR, f"node {self.node.id}: cannot encode our message "
                       f"({self.outbox.last_error}): not sent")
@@ -372,16 +371,16 @@ class FrameLoop:
         t0, c0 = time.perf_counter(), time.thread_time()
         self._dets = self.source(k)
         c1 = time.thread_time()
-        msg = self.node.prepare(k, self._dets)
+        msg = self.driver.prepare(k, self._dets)
         t1, c2 = time.perf_counter(), time.thread_time()
         c3, inbox = c2, []
         if self.transport.neighbours:
             self._send(msg)
             c3 = time.thread_time()
             inbox = gather()
-            self.outbox.heard(inbox, k, stale_ok)  # a neighbour whose frames jumped: resync it
         t2, c4 = time.perf_counter(), time.thread_time()
-        tracks = self.node.update(inbox, stale_ok=stale_ok)
+        # (a neighbour whose frames jumped is resynced at the next send: Outbox.heard)
+        tracks = self.driver.receive(k, inbox, stale_ok=stale_ok)
         t3, c5 = time.perf_counter(), time.thread_time()
         st.prepare_s += t1 - t0
         st.wait_s += t2 - t1
@@ -552,8 +551,7 @@ class FrameLoop:
         st.catch_ups += 1
         if restart:
             self.retired = self.retired.add(self.node.stats)
-            self.node = self.restart_core(self.node)
-            self.outbox = self._new_outbox(self.outbox.counters)
+            self.driver = self._new_driver(self.restart_core(self.node), self.outbox.counters)
             st.core_restarts += 1
         skip_to = getattr(self.transport, "skip_to", None)
         if skip_to is not None:

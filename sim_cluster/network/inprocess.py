@@ -16,7 +16,8 @@ import numpy as np
 
 from edge_node.core.config import TrackerConfig
 from edge_node.core.node import CameraNode, NodeStats
-from edge_node.core.trigger import EventTrigger, TriggerConfig, check_heartbeat
+from edge_node.core.trigger import TriggerConfig, check_heartbeat
+from edge_node.driver import FrameDriver
 from edge_node.faults import NO_FAULTS, FaultPlan
 from edge_node.outbox import Outbox, OutboxCounters
 from edge_node.core.types import Track
@@ -162,15 +163,11 @@ def run_network(data: ScenarioData, adjacency: Adjacency | str, cfg: TrackerConf
     if mode == "async":
         check_heartbeat(trigger, cfg.kappa, cfg.hold_frames)
 
-    def fresh(i: int, first_counter: int = 0) -> CameraNode:
-        return CameraNode(data.cameras[i], adjacency[i], cfg, network, first_counter=first_counter)
+    def fresh(i: int, first_counter: int = 0) -> FrameDriver:
+        node = CameraNode(data.cameras[i], adjacency[i], cfg, network, first_counter=first_counter)
+        return FrameDriver(node, adjacency[i], faults, trigger if mode == "async" else None)
 
-    def outbox(i: int) -> Outbox:
-        trig = EventTrigger(trigger, cfg.dt, cfg.units_per_metre) if mode == "async" else None
-        return Outbox(i, adjacency[i], faults, trig, rejoin_gap=cfg.kappa)
-
-    nodes: dict[int, CameraNode | None] = {i: fresh(i) for i in range(n)}
-    outboxes = {i: outbox(i) for i in range(n)}
+    drivers: dict[int, FrameDriver | None] = {i: fresh(i) for i in range(n)}
     retired: dict[int, NodeStats] = {}  # counters of a node's earlier lives (before a crash)
     retired_wire: dict[int, OutboxCounters] = {}
     retired_sends: dict[int, tuple[int, int]] = {}
@@ -180,51 +177,47 @@ def run_network(data: ScenarioData, adjacency: Adjacency | str, cfg: TrackerConf
     history: dict[int, list[dict]] = {i: [] for i in range(n)} if registration_history else {}
     for k in range(frames):
         for i in range(n):  # crashes and restarts
-            node = nodes[i]
-            if not faults.alive(i, k) and node is not None:
-                next_counter[i] = node.next_counter
-                retired[i] = _add_stats(retired.get(i), node.stats)
-                retired_wire[i] = retired_wire.get(i, OutboxCounters()).add(outboxes[i].counters)
-                retired_sends[i] = _sends(outboxes[i], retired_sends.get(i))
-                nodes[i] = None
-                outboxes[i] = outbox(i)  # what the dead process held (late messages) is gone
-            elif faults.alive(i, k) and node is None:  # a fresh process with an empty state
-                nodes[i] = fresh(i, next_counter.get(i, 0))
+            d = drivers[i]
+            if not faults.alive(i, k) and d is not None:
+                next_counter[i] = d.node.next_counter
+                retired[i] = _add_stats(retired.get(i), d.node.stats)
+                retired_wire[i] = retired_wire.get(i, OutboxCounters()).add(d.outbox.counters)
+                retired_sends[i] = _sends(d.outbox, retired_sends.get(i))
+                drivers[i] = None  # what the dead process held (late messages) is gone
+            elif faults.alive(i, k) and d is None:  # a fresh process with an empty state
+                drivers[i] = fresh(i, next_counter.get(i, 0))
                 for j in adjacency[i]:  # its neighbours see it come back and resync it
                     resync[j].add(i)
         arrived: dict[int, list[FrameMessage]] = {i: [] for i in range(n)}
         cpu: dict[int, float] = {}  # probe: each node's prepare time this frame
         dets = data.frame(k).detections
-        for i, node in nodes.items():
-            if node is None:
+        for i, d in drivers.items():
+            if d is None:
                 continue
-            ob = outboxes[i]
-            deliveries = ob.due(k)
+            deliveries = d.due(k)
             t0 = time.process_time() if probe else 0.0
-            msg = node.prepare(k, dets[i])
+            msg = d.prepare(k, dets[i])
             if probe:
                 cpu[i] = time.process_time() - t0
-            deliveries += ob.send(msg, resync={j for j in resync[i] if nodes[j] is not None},
-                                  resync_message=node.resync_message, covariance=node.covariances)
+            d.rejoined(resync[i])
             resync[i].clear()
+            deliveries += d.send(msg, live={j for j in adjacency[i] if drivers[j] is not None})[0]
             for dst, payload in deliveries:
-                if nodes[dst] is not None:  # a dead process receives nothing
+                if drivers[dst] is not None:  # a dead process receives nothing
                     arrived[dst].append(codec.decode(payload, expect_network=network,
                                                      expect_sender=i,
                                                      allowed_senders=adjacency[dst]))
         now: dict[int, list[Track]] = {}
-        for i, node in nodes.items():
-            if node is None:
+        for i, d in drivers.items():
+            if d is None:
                 now[i] = []
                 continue
             t0 = time.process_time() if probe else 0.0
-            outboxes[i].heard(arrived[i], k, mode == "async")  # frames that jumped: resync
-            now[i] = node.update(arrived[i], stale_ok=True) if mode == "async" \
-                else node.update(arrived[i])
+            now[i] = d.receive(k, arrived[i], stale_ok=mode == "async")
             if probe:
-                probe(k, i, cpu[i] + time.process_time() - t0, node)
+                probe(k, i, cpu[i] + time.process_time() - t0, d.node)
             if registration_history:
-                history[i].append({c: r.snapshot() for c, r in node.registrations.items()})
+                history[i].append({c: r.snapshot() for c, r in d.node.registrations.items()})
         if on_frame is not None:
             on_frame(k, now)
         else:
@@ -232,21 +225,23 @@ def run_network(data: ScenarioData, adjacency: Adjacency | str, cfg: TrackerConf
                 tracks[i].append(now[i])
         if progress:
             progress(k + 1, frames)
-    stats = {i: _add_stats(retired.get(i), nodes[i].stats if nodes[i] else None) for i in range(n)}
-    wire = WireCounters.of({i: retired_wire.get(i, OutboxCounters()).add(outboxes[i].counters)
-                            for i in range(n)})
+    stats = {i: _add_stats(retired.get(i), drivers[i].node.stats if drivers[i] else None)
+             for i in range(n)}
+    wire = WireCounters.of({i: retired_wire.get(i, OutboxCounters()).add(
+        drivers[i].outbox.counters if drivers[i] else OutboxCounters()) for i in range(n)})
     result = RunResult(data.name, topology_name or "custom", cfg.ablation, data.seed, frames,
                        adjacency, tracks, wire, stats, data, mode=mode,
-                       sends={i: _sends(outboxes[i], retired_sends.get(i)) for i in range(n)},
-                       registration={i: dict(nodes[i].registrations) for i in range(n)
-                                     if nodes[i] is not None},
+                       sends={i: _sends(drivers[i].outbox if drivers[i] else None,
+                                        retired_sends.get(i)) for i in range(n)},
+                       registration={i: dict(drivers[i].node.registrations) for i in range(n)
+                                     if drivers[i] is not None},
                        registration_history=history)
     return result
 
 
-def _sends(ob: Outbox, before: tuple[int, int] | None) -> tuple[int, int]:
+def _sends(ob: Outbox | None, before: tuple[int, int] | None) -> tuple[int, int]:
     """Event-triggered: tracker entries (sent, withheld) over every life of a node."""
-    a = (ob.trigger.entries_sent, ob.trigger.entries_skipped) if ob.trigger else (0, 0)
+    a = (ob.trigger.entries_sent, ob.trigger.entries_skipped) if ob and ob.trigger else (0, 0)
     b = before or (0, 0)
     return (a[0] + b[0], a[1] + b[1])
 
