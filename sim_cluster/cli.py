@@ -456,8 +456,9 @@ def build_parser() -> argparse.ArgumentParser:
                     help="comma-separated cross-camera rank-1 levels in (0, 1] (with 20 people) "
                          f"and 'none' for no descriptors (default {reid_sweep.DEFAULT_LEVELS})")
     rs.add_argument("--seeds", default="0-1", help="e.g. 0-4 or 0,2,5 (default 0-1)")
-    rs.add_argument("--topology", default="ring",
-                    help=" | ".join(ablation.topology_names()) + " (default ring)")
+    rs.add_argument("--topologies", "--topology", dest="topologies", default="ring",
+                    help="comma-separated: " + " | ".join(ablation.topology_names())
+                    + " (default ring)")
     rs.add_argument("--config", default="dkf+lda+dtm", choices=CONFIG_NAMES,
                     help="tracker configuration at the rank-1 levels ('none' drops appearance: "
                          "dkf+lda+dtm becomes dkf+dtm)")

@@ -209,27 +209,52 @@ def test_a_presets_scene_has_that_reid_and_takes_a_stated_one(tmp_path):
 def test_reid_sweep_end_to_end(tmp_path, capsys):
     out = tmp_path / "reid"
     rc = cli.main(["reid-sweep", "--scenarios", "campus-sim", "--seeds", "0", "--frames", "30",
-                   "--levels", "1,0.5,none", "--jobs", "1", "--quiet", "--out", str(out)])
+                   "--levels", "1,0.5,none", "--topologies", "ring,chain", "--jobs", "1",
+                   "--quiet", "--out", str(out)])
     assert rc == 0
     printed = capsys.readouterr().out
-    assert "campus-sim" in printed and "none" in printed
+    assert "campus-sim/ring" in printed and "campus-sim/chain" in printed and "none" in printed
     with open(out / "reid_sweep.csv", newline="") as fh:
         rows = list(csv.DictReader(fh))
     assert list(rows[0]) == list(reid_sweep.CSV_COLS)
-    assert [r["level"] for r in rows] == ["1", "0.5", "none"]
-    assert [r["config"] for r in rows] == ["dkf+lda+dtm", "dkf+lda+dtm", "dkf+dtm"]
-    assert rows[0]["decay"] == "0.0" and float(rows[1]["decay"]) > 0 and rows[2]["decay"] == ""
-    assert rows[0]["scene_rank1"] == "1.0" and rows[2]["scene_rank1"] == ""
+    assert [r["level"] for r in rows] == ["1", "1", "0.5", "0.5", "none", "none"]
+    assert [r["topology"] for r in rows] == ["ring", "chain"] * 3
+    assert [r["config"] for r in rows] == ["dkf+lda+dtm"] * 4 + ["dkf+dtm"] * 2
+    assert rows[0]["decay"] == "0.0" and float(rows[2]["decay"]) > 0 and rows[4]["decay"] == ""
+    assert rows[0]["scene_rank1"] == "1.0" and rows[4]["scene_rank1"] == ""
     for r in rows:
-        assert r["frames"] == "30" and r["topology"] == "ring"
+        assert r["frames"] == "30"
         for col in ("ground_mota", "ground_idf1", "image_mota", "image_idf1"):
             float(r[col])
     md = (out / "reid_sweep.md").read_text()
-    assert "## campus-sim" in md and "| none |" in md and "| 0.5 |" in md
+    assert "## campus-sim/ring" in md and "## campus-sim/chain" in md
+    assert "| none |" in md and "| 0.5 |" in md
+    # the "vs none" column is each level's ground IDF1 minus none's, from the csv's own rows
+    for topo in ("ring", "chain"):
+        mine = {r["level"]: float(r["ground_idf1"]) for r in rows if r["topology"] == topo}
+        table = md.split(f"## campus-sim/{topo}")[1].split("##")[0]
+        for level in ("1", "0.5"):
+            line = next(ln for ln in table.splitlines() if ln.startswith(f"| {level} |"))
+            assert line.rstrip(" |").endswith(f"{mine[level] - mine['none']:+.3f}")
     assert (out / "reid_sweep.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
-    assert '"quality_people": 20' in (out / "summary.json").read_text()
-    prov = json.loads((out / "summary.json").read_text())["meta"]["provenance"]
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["meta"]["quality_people"] == 20
+    assert summary["meta"]["topologies"] == ["ring", "chain"]
+    prov = summary["meta"]["provenance"]
     assert prov["machine"] and prov["commit"] and prov["date"]
+
+
+def test_worse_than_none_lists_the_levels_below_no_descriptors():
+    rows = [{"scenario": "a", "topology": "ring", "level": lv, "ground_idf1": v}
+            for lv, v in (("1", 0.95), ("0.6", 0.899), ("0.5", 0.90), ("none", 0.90))]
+    rows += [{"scenario": "a", "topology": "chain", "level": lv, "ground_idf1": v}
+             for lv, v in (("1", 0.80), ("none", 0.85))]
+    agg = reid_sweep.aggregate(rows)
+    assert list(agg) == ["a/ring", "a/chain"]
+    assert reid_sweep.vs_none(agg["a/ring"]) == pytest.approx({"1": 0.05, "0.6": -0.001,
+                                                               "0.5": 0.0})
+    assert reid_sweep.worse_than_none(agg) == {"a/ring": ["0.6"], "a/chain": ["1"]}
+    assert reid_sweep.worse_than_none(agg, tolerance=0.002) == {"a/ring": [], "a/chain": ["1"]}
 
 
 def test_reid_sweep_bad_levels_exit_2(tmp_path, capsys):

@@ -1,7 +1,7 @@
 """``sim_cluster reid-sweep``: tracking quality against re-id quality, from perfect re-id to none.
 
     sim_cluster reid-sweep --scenarios terrace-sim,campus-sim --seeds 0-1 --out docs/results/reid \\
-        [--levels 1,0.99,0.98,0.95,0.9,0.8,0.7,0.6,0.5,0.4,0.3,none] [--topology ring]
+        [--levels 1,0.99,0.98,0.95,0.9,0.8,0.7,0.6,0.5,0.4,0.3,none] [--topologies ring,chain]
         [--tracker-config FILE] [--frames N] [--jobs N]
 
 Each level is a stated cross-camera rank-1 of the simulated descriptors (``[appearance] rank1``,
@@ -19,7 +19,10 @@ stated one where the scene has another number of people.
 
 Outputs in ``--out``: ``reid_sweep.csv`` (one row per run), ``reid_sweep.md`` (per scenario, mean
 ± std over seeds), ``reid_sweep.png`` (ground and image MOTA and IDF1 against rank-1, ``none`` a
-dashed line) and ``summary.json`` (the aggregates and the command's settings). Runs execute in a
+dashed line) and ``summary.json`` (the aggregates and the command's settings). Each scenario and
+topology is one group (``terrace-sim/ring``); beside each level the tables give its ground IDF1
+minus that of ``none`` in the same group (the question "is this re-id worth having at all":
+negative means the descriptors cost identity). Runs execute in a
 process pool (``--jobs``), results ordered by the plan, so the outputs do not depend on ``--jobs``.
 """
 from __future__ import annotations
@@ -110,12 +113,21 @@ def level_name(level: float | None) -> str:
 
 
 def plan(scenarios: Sequence[str], seeds: Sequence[int], levels: Sequence[float | None],
-         topology: str = "ring", config: str = "dkf+lda+dtm",
+         topologies: Sequence[str] = ("ring",), config: str = "dkf+lda+dtm",
          frames: int | None = None, tracker_file: str | None = None) -> list[Task]:
-    """Every run, in the order scenario, seed, level (a worker's scenario cache keeps hitting)."""
-    grid = [(sc, int(s), lv) for sc in scenarios for s in seeds for lv in levels]
-    return [Task(i, sc, s, lv, topology, config, frames, tracker_file)
-            for i, (sc, s, lv) in enumerate(grid)]
+    """Every run, in the order scenario, seed, level, topology (a worker's scenario cache keeps
+    hitting: one scenario load serves every topology)."""
+    if isinstance(topologies, str):
+        topologies = (topologies,)
+    grid = [(sc, int(s), lv, tp) for sc in scenarios for s in seeds for lv in levels
+            for tp in topologies]
+    return [Task(i, sc, s, lv, tp, config, frames, tracker_file)
+            for i, (sc, s, lv, tp) in enumerate(grid)]
+
+
+def group_of(scenario: str, topology: str) -> str:
+    """The aggregates' group of a run: ``"terrace-sim/ring"``."""
+    return f"{scenario}/{topology}"
 
 
 @functools.lru_cache(maxsize=2)
@@ -155,7 +167,7 @@ def run_task(task: Task) -> dict:
 
 
 def _label(t: Task) -> str:
-    return f"{t.scenario} s{t.seed} rank-1 {level_name(t.level)}"
+    return f"{t.scenario} {t.topology} s{t.seed} rank-1 {level_name(t.level)}"
 
 
 def row_of(result: Mapping) -> dict:
@@ -180,11 +192,13 @@ def row_of(result: Mapping) -> dict:
 
 
 def aggregate(rows: Sequence[Mapping]) -> dict:
-    """``{scenario: {level name: {column: {"mean", "std", "n"}}}}`` over seeds (sample std,
-    0 with one seed; undefined values left out), levels in the order of the rows."""
+    """``{group: {level name: {column: {"mean", "std", "n"}}}}`` over seeds (sample std,
+    0 with one seed; undefined values left out), groups (:func:`group_of`) and levels in the
+    order of the rows."""
     acc: dict[str, dict[str, dict[str, list[float]]]] = {}
     for r in rows:
-        cell = acc.setdefault(str(r["scenario"]), {}).setdefault(str(r["level"]), {})
+        cell = acc.setdefault(group_of(str(r["scenario"]), str(r["topology"])), {}) \
+            .setdefault(str(r["level"]), {})
         for col in AGG_COLS:
             v = _num(r.get(col))
             if v is not None:
@@ -204,6 +218,26 @@ def write_csv(path: Path, rows: Sequence[Mapping]) -> None:
             w.writerow([_csv_value(r.get(c)) for c in CSV_COLS])
 
 
+def vs_none(levels: Mapping[str, Mapping]) -> dict[str, float | None]:
+    """Per level of one group: its mean ground IDF1 minus that of ``none`` (None where either
+    is missing; ``none`` itself left out)."""
+    base = levels.get(NONE, {}).get("ground_idf1")
+    return {lv: (None if base is None or "ground_idf1" not in cells
+                 else cells["ground_idf1"]["mean"] - base["mean"])
+            for lv, cells in levels.items() if lv != NONE}
+
+
+def worse_than_none(agg: Mapping, tolerance: float = 0.0) -> dict[str, list[str]]:
+    """Per group, the levels whose ground IDF1 is below that of ``none`` by more than
+    ``tolerance`` (the re-id sweep's "never worse" goal)."""
+    return {g: [lv for lv, d in vs_none(levels).items() if d is not None and d < -tolerance]
+            for g, levels in agg.items()}
+
+
+def _delta(d: float | None) -> str:
+    return "–" if d is None else f"{d:+.3f}"
+
+
 def _cell(cell: Mapping | None, fmt: str, pm: bool) -> str:
     if not cell:
         return "–"
@@ -218,45 +252,55 @@ def markdown(agg: Mapping, meta: Mapping) -> str:
         f"Stated level: cross-camera rank-1 of the simulated descriptors with "
         f"{meta['quality_people']} people (`[appearance] rank1`); `none`: no descriptors, the "
         f"geometry-only path (dkf+dtm). Scene rank-1 / mAP: the same measurement on each run's "
-        f"own detections (two per person and camera). Topology {meta['topology']}, "
-        f"configuration {meta['config']}"
+        f"own detections (two per person and camera). Topologies "
+        f"{', '.join(meta['topologies'])}, configuration {meta['config']}"
         + (f" with the parameters of `{Path(meta['tracker_config']).name}`"
            if meta.get("tracker_config") else " with the default parameters")
         + f", seeds {', '.join(map(str, meta['seeds']))}, frames: "
         f"{meta['frames'] or 'each scenario’s default'}. Cells: mean over seeds of the median "
-        "over nodes (± the sample std when there are several seeds).")
+        "over nodes (± the sample std when there are several seeds); vs none: ground IDF1 minus "
+        "that of no descriptors in the same scenario and topology.")
     lines.append("")
+    worse = {g: lv for g, lv in worse_than_none(agg).items() if lv}
+    lines += ["Levels below no descriptors in ground IDF1: "
+              + ("; ".join(f"{g} at {', '.join(lv)}" for g, lv in worse.items()) if worse
+                 else "none") + ".", ""]
     if meta.get("failed"):
         lines += [f"- **{len(meta['failed'])} run(s) failed** and are left out: "
                   + "; ".join(meta["failed"][:10]), ""]
     pm = len(meta["seeds"]) > 1
-    for sc, levels in agg.items():
-        info = meta.get("scenarios", {}).get(sc, {})
-        lines += [f"## {sc}", "",
+    for g, levels in agg.items():
+        info = meta.get("scenarios", {}).get(g.split("/")[0], {})
+        delta = vs_none(levels)
+        lines += [f"## {g}", "",
                   f"{info.get('cameras', '?')} cameras, {info.get('frames', '?')} frames.", ""]
-        lines += _md_table(["rank-1"] + [h for _, h, _ in TABLE],
+        lines += _md_table(["rank-1"] + [h for _, h, _ in TABLE] + ["vs none"],
                            [[lv] + [_cell(cells.get(col), fmt, pm) for col, _, fmt in TABLE]
-                            for lv, cells in levels.items()])
+                            + [_delta(delta.get(lv))] for lv, cells in levels.items()])
         lines.append("")
     return "\n".join(lines)
 
 
 def table_text(agg: Mapping) -> str:
     """The tables as plain text (what the command prints)."""
-    header = ["scenario", "rank-1"] + [h for _, h, _ in TABLE]
-    rows = [header] + [[sc, lv] + [_cell(cells.get(col), fmt, False) for col, _, fmt in TABLE]
-                       for sc, levels in agg.items() for lv, cells in levels.items()]
+    header = ["group", "rank-1"] + [h for _, h, _ in TABLE] + ["vs none"]
+    rows = [header]
+    for g, levels in agg.items():
+        delta = vs_none(levels)
+        rows += [[g, lv] + [_cell(cells.get(col), fmt, False) for col, _, fmt in TABLE]
+                 + [_delta(delta.get(lv))] for lv, cells in levels.items()]
     width = [max(len(r[i]) for r in rows) for i in range(len(header))]
     return "\n".join("  ".join(v.ljust(w) if i < 2 else v.rjust(w)
                                for i, (v, w) in enumerate(zip(r, width))) for r in rows)
 
 
-_COLORS = ("#08306b", "#e6550d", "#31a354", "#756bb1", "#636363")
+_COLORS = ("#08306b", "#e6550d", "#31a354", "#756bb1", "#636363", "#d6616b", "#17becf",
+           "#8c6d31")
 
 
 def plot(path: Path, agg: Mapping, meta: Mapping) -> None:
     """``reid_sweep.png``: ground / image (rows) MOTA and IDF1 (columns) against the stated
-    rank-1, one line per scenario (error bars: std over seeds); ``none`` a dashed line."""
+    rank-1, one line per group (error bars: std over seeds); ``none`` a dashed line."""
     import matplotlib  # plotting only here: keeps matplotlib out of every other command
 
     matplotlib.use("Agg")
@@ -284,9 +328,10 @@ def plot(path: Path, agg: Mapping, meta: Mapping) -> None:
             ax.set_title(title, fontsize=10)
             ax.grid(alpha=0.3)
     handles, labels = axes[0][0].get_legend_handles_labels()
+    ncol = 2 if len(agg) < 3 else 3
     if handles:
-        fig.legend(handles, labels, loc="upper center", ncol=2, frameon=False, fontsize=9)
-    fig.tight_layout(rect=(0, 0, 1, 0.9))
+        fig.legend(handles, labels, loc="upper center", ncol=ncol, frameon=False, fontsize=9)
+    fig.tight_layout(rect=(0, 0, 1, 0.96 - 0.03 * -(-len(labels) // ncol)))
     fig.savefig(path, dpi=110)
     plt.close(fig)
 
@@ -310,7 +355,7 @@ def main(args) -> int:
     seeds = parse_seeds(args.seeds)
     levels = parse_levels(args.levels)
     config = parse_list(args.config, CONFIG_NAMES, "config")[0]
-    topology = parse_list(args.topology, topology_names(), "topology")[0]
+    topologies = parse_list(args.topologies, topology_names(), "topology")
     if args.frames is not None and args.frames < 1:
         raise AblationError(f"--frames must be >= 1, got {args.frames}")
     jobs = (os.cpu_count() or 1) if args.jobs is None else args.jobs
@@ -324,11 +369,11 @@ def main(args) -> int:
     if tracker_file:
         tracker_config(config, tracker_file)  # a bad file is one error now, not one per run
         tracker_file = str(Path(tracker_file).expanduser().resolve())
-    tasks = plan(runnable, seeds, levels, topology, config, args.frames, tracker_file)
+    tasks = plan(runnable, seeds, levels, topologies, config, args.frames, tracker_file)
     quiet = getattr(args, "quiet", False)
     if not quiet:
         print(f"reid-sweep: {len(tasks)} runs ({len(runnable)} scenario(s) x {len(seeds)} "
-              f"seed(s) x {len(levels)} levels) on {min(jobs, len(tasks))} process(es)",
+              f"seed(s) x {len(levels)} levels x {len(topologies)} topologies) on {min(jobs, len(tasks))} process(es)",
               file=sys.stderr, flush=True)
     results = execute(tasks, jobs, progress=not quiet, run=run_task, label=_label,
                       name="reid-sweep")
@@ -338,7 +383,7 @@ def main(args) -> int:
         info[r["task"]["scenario"]].setdefault("frames", r["summary"]["frames"])
     rows = [row_of(r) for r in ok]
     meta = {"scenarios": info, "skipped": skipped, "failed": failed, "seeds": seeds,
-            "levels": [level_name(lv) for lv in levels], "topology": topology,
+            "levels": [level_name(lv) for lv in levels], "topologies": topologies,
             "config": config, "tracker_config": tracker_file, "frames": args.frames,
             "quality_people": QUALITY_PEOPLE,
             "std": "sample standard deviation over seeds (ddof=1; 0 with one seed)",
