@@ -17,7 +17,9 @@ from dataclasses import dataclass
 import numpy as np
 
 from edge_node.core.config import TrackerConfig
+import edge_node.core.reidquality as reidquality
 from edge_node.core.gallery import Gallery
+from edge_node.core.reidquality import ReidQuality, Thresholds
 from edge_node.core.stacks import Columns
 from edge_node.geometry import norms
 
@@ -169,9 +171,12 @@ def appearance_matrix(trackers: Sequence[Candidate], obs: Sequence[Observation],
 
 
 def cost_matrix(trackers: Sequence[Candidate], obs: Sequence[Observation],
-                cfg: TrackerConfig, appearance: bool = True) -> np.ndarray:
+                cfg: TrackerConfig, appearance: bool = True, gate: float | None = None,
+                learn: ReidQuality | None = None) -> np.ndarray:
     """Eqs. 5-7: ``s_a * s_d`` inside the gate, ``FORBIDDEN`` outside (``s_d`` alone without
-    appearance, the paper's ``dkf`` configuration)."""
+    appearance, the paper's ``dkf`` configuration). ``gate``: the appearance gate (default
+    ``appearance_gate``); ``learn``: a node's :class:`ReidQuality`, given this frame's
+    distances of one person (:func:`reidquality.samples`)."""
     if not trackers or not obs:
         return np.zeros((len(trackers), len(obs)))
     d = mahalanobis_matrix(trackers, obs)
@@ -179,12 +184,21 @@ def cost_matrix(trackers: Sequence[Candidate], obs: Sequence[Observation],
     allowed = d < cfg.tau
     cost = s_d
     if appearance:
-        s_a = appearance_matrix(trackers, obs, cfg.unknown_appearance, where=allowed)
+        s_a = appearance_matrix(trackers, obs, np.nan, where=allowed)
+        if learn is not None:
+            _learn(learn, allowed, s_a)
+        s_a = np.where(np.isnan(s_a), cfg.unknown_appearance, s_a)
         cost = s_a * s_d
         # With s_d close to 0 the product ignores appearance; a pair that is clearly two
         # different people (s_a above the gate) is never assigned, however close.
-        allowed &= s_a <= cfg.appearance_gate
+        allowed &= s_a <= (cfg.appearance_gate if gate is None else gate)
     return np.where(allowed, cost, FORBIDDEN)
+
+
+def _learn(quality: ReidQuality, allowed: np.ndarray, s_a: np.ndarray) -> None:
+    """One camera's frame into ``quality``: the lone pairs' distances (one person)."""
+    _, _, same = reidquality.samples(allowed, s_a)
+    quality.learn(same, np.zeros(0))
 
 
 def assign(cost: np.ndarray) -> list[tuple[int, int]]:
@@ -196,7 +210,8 @@ def assign(cost: np.ndarray) -> list[tuple[int, int]]:
 
 
 def recover(trackers: Sequence[Candidate], obs: Sequence[Observation],
-            taken: Sequence[tuple[int, int]], cfg: TrackerConfig) -> list[tuple[int, int]]:
+            taken: Sequence[tuple[int, int]], cfg: TrackerConfig,
+            th: Thresholds | None = None) -> list[tuple[int, int]]:
     """Second stage of the LDA (our addition): a measurement no tracker took, next to a tracker
     that took none, within the distributed global association's gate ``tau_gda`` (Euclidean,
     ``V = I``, paper III-C) and looking like it (``s_a <= merge_appearance``), is that tracker.
@@ -205,8 +220,10 @@ def recover(trackers: Sequence[Candidate], obs: Sequence[Observation],
     ``R`` and ``P`` allow (a fused ``P`` is small; a real calibration can be off by up to 1 m at
     some places of an image, which no global correction removes). Rejected, such a measurement
     would start a duplicate tracker every other frame, merged again at once. Without appearance
-    the pair must be within the co-motion gate instead.
+    the pair must be within the co-motion gate instead, and so it must where appearance cannot
+    tell (``s_a`` between the learned ``match`` and ``veto``, ``reidquality``).
     """
+    th = th or Thresholds.of(cfg)
     rows = sorted(set(range(len(trackers))) - {i for i, _ in taken})
     cols = sorted(set(range(len(obs))) - {j for _, j in taken})
     if not rows or not cols:
@@ -217,10 +234,11 @@ def recover(trackers: Sequence[Candidate], obs: Sequence[Observation],
               - _column(trackers, "x_bar")[rows][:, None, :2], axis=2)
     s_a = appearance_matrix(sub_t, sub_o, np.nan)
     known = ~np.isnan(s_a)
-    # appearance known: the GDA's gate and threshold; unknown: the co-motion gate, tighter
-    allowed = np.where(known, (d < cfg.m(cfg.tau_gda)) & (s_a <= cfg.merge_appearance),
-                       d < cfg.m(cfg.comotion_gate))
-    s = np.where(known, np.maximum(np.nan_to_num(s_a), 1e-3), cfg.unknown_appearance)
+    like = known & (s_a <= th.match)  # looks like it
+    unsure = ~known | ((s_a > th.match) & (s_a <= th.veto))  # appearance cannot tell
+    # appearance matching: the GDA's gate; unknown or undecided: the co-motion gate, tighter
+    allowed = (like & (d < cfg.m(cfg.tau_gda))) | (unsure & (d < cfg.m(cfg.comotion_gate)))
+    s = np.where(like, np.maximum(np.nan_to_num(s_a), 1e-3), cfg.unknown_appearance)
     cost = np.where(allowed, s * d / cfg.m(cfg.alpha_gda), FORBIDDEN)
     return [(rows[a], cols[b]) for a, b in assign(cost)]
 
@@ -228,11 +246,19 @@ def recover(trackers: Sequence[Candidate], obs: Sequence[Observation],
 class LocalDataAssociation:
     """LDA of one camera's frame: the optimal tracker-measurement pairs under the cost of eqs.
     5-7. ``appearance=False`` is the paper's ``dkf`` configuration: geometry only, and the node
-    keeps no descriptors (``descriptor`` drops them on intake)."""
+    keeps no descriptors (``descriptor`` drops them on intake). ``quality``: the node's measured
+    re-id (``reidquality``), which learns from every frame and sets the appearance thresholds;
+    None: the configured ones."""
 
-    def __init__(self, cfg: TrackerConfig, appearance: bool = True):
+    def __init__(self, cfg: TrackerConfig, appearance: bool = True,
+                 quality: ReidQuality | None = None):
         self.cfg = cfg
         self.appearance = appearance
+        self.quality = quality if appearance else None
+
+    @property
+    def thresholds(self) -> Thresholds:
+        return self.quality.thresholds if self.quality is not None else Thresholds.of(self.cfg)
 
     def descriptor(self, d: np.ndarray | None) -> np.ndarray | None:
         """A detection's or a neighbour's descriptor as this node keeps it (float64), or None."""
@@ -240,11 +266,12 @@ class LocalDataAssociation:
 
     def __call__(self, trackers: Sequence[Candidate], obs: Sequence[Observation]
                  ) -> list[tuple[int, int]]:
-        return assign(cost_matrix(trackers, obs, self.cfg, self.appearance))
+        gate = self.thresholds.gate  # this frame's, before it learns from it
+        return assign(cost_matrix(trackers, obs, self.cfg, self.appearance, gate, self.quality))
 
     def recover(self, trackers: Sequence[Candidate], obs: Sequence[Observation],
                 taken: Sequence[tuple[int, int]]) -> list[tuple[int, int]]:
         """Pairs of the second stage (:func:`recover`)."""
         if not self.cfg.recover:
             return []
-        return recover(trackers, obs, taken, self.cfg)
+        return recover(trackers, obs, taken, self.cfg, self.thresholds)

@@ -27,6 +27,7 @@ from edge_node.core.config import TrackerConfig
 from edge_node.core.gallery import Gallery
 from edge_node.core.identity import rank
 from edge_node.core.reappear import Gone, Young, awaiting, reappearances
+from edge_node.core.reidquality import ReidQuality, Thresholds
 from edge_node.geometry import norms
 from protocol.messages import TrackerId
 
@@ -99,7 +100,8 @@ def merge_reach(cfg: TrackerConfig) -> float:
     return max(cfg.m(cfg.comotion_gate), cfg.m(cfg.tau_gda))
 
 
-def pair_score(a: MergeView, b: MergeView, cfg: TrackerConfig) -> tuple[float, bool] | None:
+def pair_score(a: MergeView, b: MergeView, cfg: TrackerConfig, th: Thresholds | None = None
+               ) -> tuple[float, bool] | None:
     """Global association of two trackers on this node: ``(score, at_once)`` when they may be
     one target, the score ``s_a * d / alpha_gda`` (eqs. 5-7 with ``V = I``; ``s_a`` is
     ``unknown_appearance`` where a gallery is missing) and whether they merge this frame
@@ -110,8 +112,8 @@ def pair_score(a: MergeView, b: MergeView, cfg: TrackerConfig) -> tuple[float, b
     and co-motion decide and appearance can only forbid (the paper merges on appearance
     within a distance gate):
 
-    * Appearance known on both sides and ``s_a > merge_appearance``: two people.
-    * At once within ``tau_gda``, appearance matching, no camera seeing them as two (neither
+    * Appearance known on both sides and ``s_a > veto``: two people.
+    * At once within ``tau_gda``, appearance matching (``s_a <= match``), no camera seeing them as two (neither
       this node's, which associated them to two different measurements this frame, nor a
       neighbour's whose camera saw both: its entries carry measurement information or say
       ``ell`` 0): a tracker this node's camera started this frame (the camera sees the target
@@ -135,17 +137,23 @@ def pair_score(a: MergeView, b: MergeView, cfg: TrackerConfig) -> tuple[float, b
     for trackers adopted from neighbours, ring8-sim issued 13.3 ids per person (0.890). With
     this rule 1.7 and 7.1, ground MOTA 0.967 and 0.943, and with perfect re-id the same figures
     as before on terrace-sim, terrace-gt and ring8-sim (docs/tuning.md).
+
+    ``th``: the node's appearance thresholds (``reidquality``: ``veto`` and ``match`` learned
+    from its re-id; default both ``merge_appearance``). Where ``s_a`` lies between them
+    appearance cannot tell, and co-motion decides as without descriptors.
     """
+    th = th or Thresholds.of(cfg)
     d = float(np.linalg.norm(a.xy - b.xy))
     if d >= merge_reach(cfg):
         return None
     s_a = a.gallery.distance_to(b.gallery)
     known = not np.isnan(s_a)
-    if known and s_a > cfg.merge_appearance:
+    if known and s_a > th.veto:
         return None
     score = max(s_a if known else cfg.unknown_appearance, 1e-3) * d / cfg.m(cfg.alpha_gda)
     seen_as_two = bool(a.seen_by & b.seen_by or a.measured_by & b.measured_by)
-    if (not seen_as_two and known and (a.started or b.started or simultaneous(a, b))
+    if (not seen_as_two and known and s_a <= th.match
+            and (a.started or b.started or simultaneous(a, b))
             and d < cfg.m(cfg.tau_gda)):
         return score, True
     if d >= cfg.m(cfg.comotion_gate):
@@ -173,7 +181,8 @@ def comotion_llr(a: MergeView, b: MergeView, cfg: TrackerConfig) -> float:
 
 
 def find_merges(views: Sequence[MergeView], evidence: dict[tuple[TrackerId, TrackerId], float],
-                cfg: TrackerConfig) -> list[tuple[TrackerId, TrackerId]]:
+                cfg: TrackerConfig, th: Thresholds | None = None,
+                learn: ReidQuality | None = None) -> list[tuple[TrackerId, TrackerId]]:
     """Pairs ``(loser, winner)`` to merge this frame; updates ``evidence`` in place.
 
     ``evidence`` holds, per pair of trackers, the co-motion log-likelihood ratio summed over
@@ -190,8 +199,13 @@ def find_merges(views: Sequence[MergeView], evidence: dict[tuple[TrackerId, Trac
     ids, so the outcome is deterministic); two groups join only if every pair across them may
     be one target (scored this frame, with no evidence against). Each group keeps its oldest
     tracker, ``(born, id)`` smallest; every other member is merged into it.
+
+    ``th``: the appearance thresholds (:func:`pair_score`); ``learn``: the node's measured
+    re-id, given the gallery distances of the nearby pairs some camera sees as two people this
+    frame (the look-alikes an appearance match must tell apart, ``reidquality``).
     """
     scored: list[tuple[float, MergeView, MergeView, bool]] = []
+    two: list[float] = []  # gallery distances of nearby pairs seen as two people
     alive: set[tuple[TrackerId, TrackerId]] = set()
     ordered = sorted(views, key=lambda v: v.id)
     if len(ordered) > 1:
@@ -201,7 +215,9 @@ def find_merges(views: Sequence[MergeView], evidence: dict[tuple[TrackerId, Trac
         rows, cols = (near & (idx[:, None] < idx)).nonzero()  # nearby pairs i < j alone are scored
         for i, j in zip(rows.tolist(), cols.tolist()):
             a, b = ordered[i], ordered[j]
-            scored_pair = pair_score(a, b, cfg)
+            if learn is not None and (a.seen_by & b.seen_by or a.measured_by & b.measured_by):
+                two.append(a.gallery.distance_to(b.gallery))
+            scored_pair = pair_score(a, b, cfg, th)
             if scored_pair is None:
                 continue
             s, at_once = scored_pair
@@ -211,6 +227,8 @@ def find_merges(views: Sequence[MergeView], evidence: dict[tuple[TrackerId, Trac
             if at_once or e >= 0.0:
                 alive.add(key)
                 scored.append((s, a, b, at_once or e >= cfg.merge_llr))
+    if learn is not None and two:
+        learn.learn(np.zeros(0), np.array(two))
     held = {v.id for v in ordered}
     for key in list(evidence):
         if key in alive:
@@ -243,9 +261,10 @@ def find_merges(views: Sequence[MergeView], evidence: dict[tuple[TrackerId, Trac
 
 def reidentify(gallery: Gallery, old: Mapping[TrackerId, Gallery], cfg: TrackerConfig,
                k: int = 0, xy: np.ndarray | None = None,
-               last: Mapping[TrackerId, tuple[int, np.ndarray]] | None = None
-               ) -> TrackerId | None:
-    """The old tracker whose gallery best matches ``gallery`` with ``s_a < epsilon`` (eq. 7),
+               last: Mapping[TrackerId, tuple[int, np.ndarray]] | None = None,
+               epsilon: float | None = None) -> TrackerId | None:
+    """The old tracker whose gallery best matches ``gallery`` with ``s_a < epsilon`` (eq. 7;
+    default ``cfg.epsilon``, a node's learned one from ``reidquality``),
     among those that could have walked from where they were dropped to ``xy``, where the new
     tracker is born at frame ``k`` (within ``reid_gate`` plus ``reid_speed`` times the time
     since; ours: with a real re-id's look-alikes, appearance alone handed a person entering late
@@ -254,7 +273,7 @@ def reidentify(gallery: Gallery, old: Mapping[TrackerId, Gallery], cfg: TrackerC
     best: tuple[float, TrackerId] | None = None
     for tid, g in old.items():
         s = gallery.distance_to(g)
-        if np.isnan(s) or s >= cfg.epsilon:
+        if np.isnan(s) or s >= (cfg.epsilon if epsilon is None else epsilon):
             continue
         if xy is not None and last is not None and tid in last:
             frame, where = last[tid]
@@ -267,8 +286,8 @@ def reidentify(gallery: Gallery, old: Mapping[TrackerId, Gallery], cfg: TrackerC
 
 
 def heir(lost: MergeView, ell: int, others: Sequence[MergeView], k: int,
-         evidence: Mapping[tuple[TrackerId, TrackerId], float], cfg: TrackerConfig
-         ) -> TrackerId | None:
+         evidence: Mapping[tuple[TrackerId, TrackerId], float], cfg: TrackerConfig,
+         veto: float | None = None) -> TrackerId | None:
     """The tracker that took over the target of ``lost``, dropped at frame ``k`` after nobody
     saw it for ``ell`` frames (eq. 8), or ``None`` (ours; tracklet stitching). A duplicate born
     beside a tracker while both were measured can take the person's measurements (they go to
@@ -280,7 +299,7 @@ def heir(lost: MergeView, ell: int, others: Sequence[MergeView], k: int,
     ago, within ``reid_gate`` plus ``reid_speed`` times the ``ell`` frames unseen of where
     ``lost`` was estimated last, that no camera ever saw beside it as a second person (the
     pair's co-motion ``evidence`` is not negative), and whose gallery, where both are known, is
-    within ``merge_appearance`` of the lost one's. It takes the older id by a merge,
+    within ``veto`` (default ``merge_appearance``) of the lost one's. It takes the older id by a merge,
     announced like any other, so every node ends with the same id."""
     reach = cfg.m(cfg.reid_gate) + cfg.m(cfg.reid_speed) * ell * cfg.dt
     since = k - ell - 2 * cfg.kappa
@@ -290,7 +309,7 @@ def heir(lost: MergeView, ell: int, others: Sequence[MergeView], k: int,
             continue
         if evidence.get((min(v.id, lost.id), max(v.id, lost.id)), 0.0) < 0.0:
             continue
-        if v.gallery.unlike(lost.gallery, cfg.merge_appearance):
+        if v.gallery.unlike(lost.gallery, cfg.merge_appearance if veto is None else veto):
             continue  # looks like someone else
         d = float(np.linalg.norm(v.xy - lost.xy))
         if d < reach and (best is None or (d, v.id) < best):
@@ -322,10 +341,17 @@ class DistributedTrackerManager:
 
     keeps_galleries = True  # dropped trackers' galleries are kept for re-identification
 
-    def __init__(self, cfg: TrackerConfig):
+    def __init__(self, cfg: TrackerConfig, quality: ReidQuality | None = None):
         self.cfg = cfg
         #: co-motion evidence per pair of trackers (:func:`find_merges`)
         self.evidence: dict[tuple[TrackerId, TrackerId], float] = {}
+        #: the node's measured re-id, shared with its association (``reidquality``), or None
+        self.quality = quality
+
+    @property
+    def thresholds(self) -> Thresholds:
+        """The appearance thresholds this node decides with now."""
+        return self.quality.thresholds if self.quality is not None else Thresholds.of(self.cfg)
 
     def ell(self, own: int, received: Sequence[int]) -> int:
         return ell_consensus(own, received)
@@ -335,7 +361,7 @@ class DistributedTrackerManager:
         return ell_consensus_many(own, rows, received)
 
     def merges(self, views: Sequence[MergeView]) -> list[tuple[TrackerId, TrackerId]]:
-        return find_merges(views, self.evidence, self.cfg)
+        return find_merges(views, self.evidence, self.cfg, self.thresholds, self.quality)
 
     def pending(self, born: Mapping[TrackerId, int]) -> list[tuple[TrackerId, TrackerId]]:
         """Pairs ``(younger, older)`` on their way to being merged: every pair agreeing towards
@@ -366,18 +392,20 @@ class DistributedTrackerManager:
         took over its target (:func:`heir`), else with ``heir_pending`` the one on its way to
         merging into it (:func:`partner`)."""
         if self.cfg.stitch:
-            return heir(lost, ell, others, k, self.evidence, self.cfg)
+            return heir(lost, ell, others, k, self.evidence, self.cfg, self.thresholds.veto)
         return partner(lost, others, self.evidence) if self.cfg.heir_pending else None
 
     def reappearances(self, young: Sequence[Young], gone: Sequence[Gone], k: int
                       ) -> list[tuple[TrackerId, TrackerId]]:
         """New trackers that go on where dropped ones were heading, ``(new, dropped)``
         (:func:`edge_node.core.reappear.reappearances`; none unless ``reappear``)."""
-        return reappearances(young, gone, k, self.cfg) if self.cfg.reappear else []
+        if not self.cfg.reappear:
+            return []
+        return reappearances(young, gone, k, self.cfg, self.thresholds.veto)
 
     def awaiting(self, young: Young, gone: Sequence[Gone], k: int) -> bool:
         """Whether ``young`` may still be linked to a dropped tracker (:func:`awaiting`)."""
-        return self.cfg.reappear and awaiting(young, gone, k, self.cfg)
+        return self.cfg.reappear and awaiting(young, gone, k, self.cfg, self.thresholds.veto)
 
     def reidentify(self, gallery: Gallery, old: Mapping[TrackerId, Gallery],
                    k: int = 0, xy: np.ndarray | None = None,
@@ -389,7 +417,7 @@ class DistributedTrackerManager:
         if not old:
             return None
         if len(gallery):
-            return reidentify(gallery, old, self.cfg, k, xy, last)
+            return reidentify(gallery, old, self.cfg, k, xy, last, self.thresholds.epsilon)
         if xy is None or not last:
             return None
         best = None

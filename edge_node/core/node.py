@@ -45,6 +45,7 @@ from edge_node.core.memory import NeighbourMemory
 from edge_node.core.model import STATE_DIM, birth_covariance, birth_state, process_noise, quantize, transition
 from edge_node.core.reappear import Gone, Young, gone_trackers
 from edge_node.core.registration import Registration
+from edge_node.core.reidquality import ReidQuality
 from edge_node.core.screen import Screen
 from edge_node.core.stacks import RowStack, stacked
 from edge_node.core.tracker import LocalInfo, Tracker, TrackerTable
@@ -104,9 +105,12 @@ def assemble(cfg: TrackerConfig) -> Components:
     (appearance in the association), ``dkf+lda+dtm`` (with the distributed tracker manager);
     each with or without online registration of the cameras (``cfg.registration``)."""
     appearance = cfg.use_appearance
+    # the node's measured re-id, one for its association and its manager (reidquality)
+    quality = ReidQuality(cfg) if appearance and cfg.reid_learn else None
     return Components(
-        associate=LocalDataAssociation(cfg, appearance),
-        manager=DistributedTrackerManager(cfg) if cfg.use_manager else IndependentTrackers(cfg),
+        associate=LocalDataAssociation(cfg, appearance, quality),
+        manager=(DistributedTrackerManager(cfg, quality) if cfg.use_manager
+                 else IndependentTrackers(cfg)),
         initiator=lambda: Initiator(cfg, appearance),
         registration=(lambda camera: Registration(camera, cfg)) if cfg.registration else None)
 

@@ -82,21 +82,24 @@ def d_mid(young: Young, gone: Gone, k: int, cfg: TrackerConfig) -> float:
     return float(np.linalg.norm(forward - backward))
 
 
-def candidates(young: Young, gone: Sequence[Gone], cfg: TrackerConfig) -> list[Gone]:
+def candidates(young: Young, gone: Sequence[Gone], cfg: TrackerConfig,
+               veto: float | None = None) -> list[Gone]:
     """The dropped trackers ``young`` may be: dropped before it was born, at most
-    ``reappear_frames`` before, and alike where both have galleries."""
+    ``reappear_frames`` before, and alike where both have galleries (within ``veto``, default
+    ``merge_appearance``)."""
+    veto = cfg.merge_appearance if veto is None else veto
     out = []
     for g in gone:
         if not (g.frame < young.born and young.born - g.seen <= cfg.reappear_frames):
             continue
-        if young.gallery.unlike(g.gallery, cfg.merge_appearance):
+        if young.gallery.unlike(g.gallery, veto):
             continue  # looks like someone else
         out.append(g)
     return out
 
 
-def reappearances(young: Sequence[Young], gone: Sequence[Gone], k: int, cfg: TrackerConfig
-                  ) -> list[tuple[TrackerId, TrackerId]]:
+def reappearances(young: Sequence[Young], gone: Sequence[Gone], k: int, cfg: TrackerConfig,
+                  veto: float | None = None) -> list[tuple[TrackerId, TrackerId]]:
     """``(new, dropped)`` pairs decided at frame ``k``: the trackers of ``young`` created on
     this node (they have an ``origin``) that are ``reappear_age`` frames old now, linked to the dropped tracker whose course they continue
     (module docstring), nearest pair first, each tracker at most once."""
@@ -104,7 +107,7 @@ def reappearances(young: Sequence[Young], gone: Sequence[Gone], k: int, cfg: Tra
     for y in young:
         if y.origin is None or k - y.born != cfg.reappear_age:
             continue
-        for g in candidates(y, gone, cfg):
+        for g in candidates(y, gone, cfg, veto):
             d = d_mid(y, g, k, cfg)
             if d < reach(y.born - g.seen, cfg):
                 scored.append((d, y.id, g.id))
@@ -117,14 +120,15 @@ def reappearances(young: Sequence[Young], gone: Sequence[Gone], k: int, cfg: Tra
     return pairs
 
 
-def awaiting(young: Young, gone: Sequence[Gone], k: int, cfg: TrackerConfig) -> bool:
+def awaiting(young: Young, gone: Sequence[Gone], k: int, cfg: TrackerConfig,
+             veto: float | None = None) -> bool:
     """Whether ``young`` may still be linked to a dropped tracker (and so is not reported yet):
     within ``reappear_age`` plus ``reappear_hide`` frames of its birth (the decision and its
     announcement's hops), with a candidate that could have walked, at ``reid_speed``, from
     where it was dropped to where ``young`` is."""
     if not 0 <= k - young.born < cfg.reappear_age + cfg.reappear_hide:
         return False
-    for g in candidates(young, gone, cfg):
+    for g in candidates(young, gone, cfg, veto):
         far = cfg.m(cfg.reappear_gate) + cfg.m(cfg.reid_speed) * (k - g.seen) * cfg.dt
         if float(np.linalg.norm(young.x[POS] - g.x[POS])) < far:
             return True

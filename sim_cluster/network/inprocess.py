@@ -75,6 +75,8 @@ class RunResult:
     registration: dict[int, dict] = field(default_factory=dict)
     # node -> frame -> {camera: Registration}: a copy after every frame, when asked for
     registration_history: dict[int, list[dict]] = field(default_factory=dict)
+    # node -> what it measured of its re-id at the end of the run (reidquality.summary)
+    reid: dict[int, dict] = field(default_factory=dict)
 
     def bandwidth(self) -> dict:
         """Measured bandwidth, beside nothing assumed: bytes the codec produced."""
@@ -113,6 +115,7 @@ class RunResult:
             "manager": {str(n): vars(s) for n, s in sorted(self.stats.items())},
             "mode": self.mode,
             "registration": self.registration_summary(),
+            "reid": {str(n): r for n, r in sorted(self.reid.items())},
         }
 
 
@@ -235,7 +238,9 @@ def run_network(data: ScenarioData, adjacency: Adjacency | str, cfg: TrackerConf
                                         retired_sends.get(i)) for i in range(n)},
                        registration={i: dict(drivers[i].node.registrations) for i in range(n)
                                      if drivers[i] is not None},
-                       registration_history=history)
+                       registration_history=history,
+                       reid={i: q.summary() for i in range(n) if drivers[i] is not None
+                             and (q := getattr(drivers[i].node.associate, "quality", None))})
     return result
 
 
