@@ -54,6 +54,10 @@ by its ``ell`` (issue 37, ``naive_bound``; the filter's own ``M`` is untouched):
 calibration world's run reports 3675 track-frames instead of 3681 (12 went, 6 came, the same
 23 ids); the other four runs are unchanged to 1e-13.
 
+And when a tracker on its way to merging into an older one that is not reported began to be
+reported under the older id (``pending_alias``; issue 37, no retroactive id switches): 5
+track-frames of the event-triggered run and 4 of the calibration world's carry the older id
+instead of the younger; positions, covariances and every other track-frame unchanged.
 Re-record it (from the commit that changes them, saying why in the message) only when the
 tracks are meant to change.
 """

@@ -142,6 +142,7 @@ class TrackerConfig:
     hide_pending: bool = boolean(True, "a tracker new on this node (within comotion_frames) that "
                                  "agrees with an older one towards a merge is not reported "
                                  "until the pair merges or parts")
+    pending_alias: bool = boolean(True, "a tracker on its way to merging into an older one (positive co-motion evidence) is reported under the older id while the older is not reported (docs/tuning.md)")
     scope_hops: int = integer(0, lo=0, doc="regional scope (not in the paper; needs the DTM): a node keeps and sends a tracker only within this many hops of the cameras that see it; 0 = every node holds every tracker (the paper)")
 
     # --- trust boundary (edge_node/core/screen.py): what a neighbour's entry may claim -----

@@ -714,12 +714,23 @@ class CameraNode:
         """The current estimates (after the last ``update``): the trackers it reports."""
         held = self.trackers.in_order()
         shown = [t for t in held if t.x_hat is not None and self._reported(t)]
+        alias: dict[TrackerId, TrackerId] = {}
         if self.cfg.hide_pending and len(shown) > 1:
             ids = {t.id for t in shown}
             new = self._frame - self.cfg.comotion_frames
-            hidden = {young for young, old in self.manager.pending({t.id: t.born for t in held})
+            pend = self.manager.pending({t.id: t.born for t in held})
+            hidden = {young for young, old in pend
                       if old in ids and self.trackers[young].since >= new}
+            if self.cfg.pending_alias:
+                for young, old in pend:
+                    if old not in ids and young in ids and young not in alias and old not in alias.values():
+                        alias[young] = old
             shown = [t for t in shown if t.id not in hidden]
+        elif self.cfg.pending_alias and shown:
+            ids = {t.id for t in shown}
+            for young, old in self.manager.pending({t.id: t.born for t in held}):
+                if old not in ids and young in ids and young not in alias and old not in alias.values():
+                    alias[young] = old
         fresh = [t for t in shown
                  if self._frame - t.born < self.cfg.reappear_age + self.cfg.reappear_hide]
         if fresh:  # not yet told whether they are a dropped tracker re-appearing (reappear.py)
@@ -733,7 +744,7 @@ class CameraNode:
         boxes = self.own_views.boxes(shown, self._frame, x_hat)
         x_hat = x_hat.copy()  # the tracks' own
         M = stacked([t.M for t in shown], self._rows.get("M")).copy()
-        return [Track._built(t.id, self._frame, x, M_i, bool(t.local.seen_by), t.ell, b)
+        return [Track._built(alias.get(t.id, t.id), self._frame, x, M_i, bool(t.local.seen_by), t.ell, b)
                 for t, x, M_i, b in zip(shown, x_hat, M, boxes)]
 
     def _reported(self, tr: Tracker) -> bool:
