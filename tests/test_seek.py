@@ -72,15 +72,16 @@ def test_a_failed_walk_is_the_next_reads_error():
 def test_a_seeking_scenario_camera_gives_the_frames_of_a_straight_read():
     """terrace-sim camera 1 after a seek to frame 730 (a walk through 7 chunks) against the
     same scenario read straight through: the same detections, bit for bit."""
-    straight = open_scenario("terrace-sim", seed=0, frames=800).camera(1)
-    cam = SeekingCamera(open_scenario("terrace-sim", seed=0, frames=800).camera(1))
+    straight = open_scenario("terrace-sim", seed=0, frames=2000).camera(1)
+    cam = SeekingCamera(open_scenario("terrace-sim", seed=0, frames=2000).camera(1))
     cam(0)
     cam.seek(730)
     k = 730
     while cam(k) is None:  # frames the node predicts through, at 100 fps
         k += 1
         time.sleep(0.01)
-        assert k < 770, "a walk of 730 frames took over 0.4 s of frames"
+        # a liveness guard, not a speed test (the freeze probe times the walk): 12 s of frames
+        assert k < 1900, "the walk to frame 730 never finished"
     seen = 0
     for k in range(k, k + 30):
         a, b = cam(k), straight(k)
