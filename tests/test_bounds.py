@@ -31,8 +31,7 @@ def test_one_message_of_4096_phantoms_is_cut_and_adopted_at_a_bounded_rate():
     assert node.stats.rejected["too_many_trackers"] == PHANTOMS - cap
     assert node.stats.rejected["adoption_rate"] == cap - rate
     out = Outbox(0, [1])
-    node.prepare(1, [det(2.0, 3.0, 1)])
-    assert len(out.send(node._message(1))) == 1  # it still sends
+    assert len(out.send(node.prepare(1, [det(2.0, 3.0, 1)]))) == 1  # it still sends
     node.update([])
     for k in range(2, 2 + cfg.kappa + 2):  # nobody tells of them again: gone within kappa
         node.prepare(k, [])

@@ -305,15 +305,23 @@ def test_a_node_runs_with_a_fake_association():
 
 # -- each camera's own view (views.OwnViews) ----------------------------------------------------
 def test_own_view_smooths_the_size_a_camera_measures_at_view_rate():
-    from edge_node.core.tracker import Tracker
+    from types import SimpleNamespace
+    from edge_node.core.state import NodeState
     from edge_node.core.views import OwnViews, ViewSettings
     views = OwnViews(ViewSettings(view_rate=0.25), [topdown_camera(0)], {})
-    tr = Tracker((0, 0), np.zeros(6), np.eye(6), Gallery())
-    views.saw([tr], 0, 3, np.array([[0.5, 1.7]]))
-    assert tr.views[0][0] == 3 and tr.views[0][1].tolist() == [0.5, 1.7]  # the first, as measured
-    views.saw([tr], 0, 4, np.array([[0.9, 1.3]]))
-    np.testing.assert_allclose(tr.views[0][1], [0.5 + 0.25 * 0.4, 1.7 - 0.25 * 0.4])
-    assert tr.views[0][0] == 4
+    st = NodeState(1)
+    st.insert((0, 0), Gallery())
+    st.insert((0, 1), Gallery())  # not measured: nothing drawn for it changes
+    st.begin_frame()
+    st.raw[0, 0] = 1  # measured by the camera's box 1
+    views.saw(st, 3, {0: SimpleNamespace(size=np.array([[9.0, 9.0], [0.5, 1.7]]))})
+    assert st.view_k[:, 0].tolist() == [3, -1]
+    assert st.view_size[0, 0].tolist() == [0.5, 1.7]  # the first, as measured
+    st.begin_frame()
+    st.raw[0, 0] = 0
+    views.saw(st, 4, {0: SimpleNamespace(size=np.array([[0.9, 1.3]]))})
+    np.testing.assert_allclose(st.view_size[0, 0], [0.5 + 0.25 * 0.4, 1.7 - 0.25 * 0.4])
+    assert st.view_k[:, 0].tolist() == [4, -1]
 
 
 def test_own_view_draws_a_box_only_while_enough_of_it_is_in_the_image():
@@ -338,12 +346,12 @@ class NoViews:
     def __init__(self, cameras, registrations):
         self.asked = 0
 
-    def saw(self, trs, cam_id, k, size):
+    def saw(self, state, k, raws):
         pass
 
-    def boxes(self, trackers, k, x_hat):
+    def boxes(self, state, rows, k, x_hat):
         self.asked += 1
-        return [{} for _ in trackers]
+        return [{} for _ in rows]
 
 
 def test_a_node_runs_with_a_fake_views_role():

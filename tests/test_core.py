@@ -397,11 +397,11 @@ def test_stale_messages_fused_once_and_aged():
     n1.update([late, late], stale_ok=True)  # one frame late, delivered twice
     A = transition(cfg.dt)
     expect, _ = dkf.correct(x_bar, P, entry.u, entry.U, [A @ entry.x_bar],
-                            own_x_bar_sent=tr.local.x_bar_sent)
+                            own_x_bar_sent=tr.x_bar_sent)
     np.testing.assert_allclose(tr.x_hat, expect, atol=1e-9)  # fused once, x_bar predicted
     # aged by one frame: the neighbour's newest message is a frame old (a late link, not a
     # deliberate silence, which would hold it)
-    assert tr.ell == min(tr.local.ell_sent, entry.ell + 1)
+    assert tr.ell == min(tr.ell_sent, entry.ell + 1)
 
     n1.prepare(4, [])
     tr = n1.trackers[(0, 0)]
@@ -410,7 +410,7 @@ def test_stale_messages_fused_once_and_aged():
     assert n1.stats.duplicate_messages == 2
     expect, _ = dkf.correct(x_bar, P, np.zeros(6), np.zeros((6, 6)),
                             [transition(2 * cfg.dt) @ entry.x_bar],
-                            own_x_bar_sent=tr.local.x_bar_sent)
+                            own_x_bar_sent=tr.x_bar_sent)
     np.testing.assert_allclose(tr.x_hat, expect, atol=1e-9)
 
     for k in range(5, 5 + cfg.kappa + 1):
@@ -721,8 +721,8 @@ def test_the_core_s_own_message_block_is_what_the_checked_constructor_makes():
         assert [r for r, _ in b.appearance] == [r for r, _ in checked.appearance]
         assert all(not a.flags.writeable and a.dtype == np.float64 for _, a in b.appearance)
         with_appearance += bool(b.appearance)
-        assert not any(np.shares_memory(b.x_bar, t.local.x_bar_sent) or np.shares_memory(b.U, t.local.U)
-                       for t in nodes[0]._message_rows)
+        st = nodes[0].state
+        assert not (np.shares_memory(b.x_bar, st.x_bar_sent) or np.shares_memory(b.U, st.U))
         for n in nodes.values():
             n.update([codec.decode(codec.encode(msgs[j])) for j in n.neighbours])
     assert sizes[-1] == 2 and with_appearance == 1  # two trackers, announced once, at birth

@@ -1,6 +1,6 @@
 """A tracker a node knows only from its neighbours (no measurement information of its own or
 theirs: Kalman-consensus's naive node) is gated with a covariance bounded by the drop counter
-``ell`` (eq. 8) (``CameraNode._gate_covariances``, ``TrackerConfig.naive_bound``).
+``ell`` (eq. 8) (``Associator.gate_covariances``, ``TrackerConfig.naive_bound``).
 
 The figures are derived here from the configuration alone: the bound is ``calib_sigma^2 +
 ((ell + 1) dt birth_vel_sigma)^2`` on the position block's largest eigenvalue; the naive
@@ -41,13 +41,15 @@ def test_a_naive_node_gates_as_well_as_ell_says():
     assert nodes[0].trackers[(0, 0)].informed and nodes[1].trackers[(0, 0)].informed
     limit = m(cfg.calib_sigma) ** 2 + (2 * cfg.dt * m(cfg.birth_vel_sigma)) ** 2
     assert top(t2.P) > (1.5 * m(cfg.birth_vel_sigma)) ** 2 > 10 * limit
-    gate = nodes[2]._gate_covariances([t2], t2.P[None])[0]
+    gates = {i: nodes[i].associator.gate_covariances(nodes[i].state, nodes[i].state.P)
+             for i in (0, 1, 2)}
+    gate = gates[2][nodes[2].state.row((0, 0))]
     assert top(gate) == pytest.approx(limit, rel=1e-12)
     np.testing.assert_allclose(gate * top(t2.P) / limit, t2.P, rtol=1e-12)  # scaled as a whole
     for i in (0, 1):
         t = nodes[i].trackers[(0, 0)]
         assert top(t.P) < limit
-        np.testing.assert_array_equal(nodes[i]._gate_covariances([t], t.P[None])[0], t.P)
+        np.testing.assert_array_equal(gates[i][nodes[i].state.row((0, 0))], t.P)
     # the consensus keeps node 2's estimate on node 0's either way
     x = {i: {t.id: t for t in out[i]}[(0, 0)].x[:2] for i in out}
     assert np.linalg.norm(x[2] - x[0]) < 0.05

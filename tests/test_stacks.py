@@ -1,5 +1,4 @@
-"""The core's stacked columns give what stacking the rows gives, bit for bit: ``RowStack``
-(trackers' rows), ``Candidates`` / ``Observations`` (the association's inputs) and
+"""The core's stacked columns give what stacking the rows gives, bit for bit: ``Candidates`` / ``Observations`` (the association's inputs) and
 ``BoxMeasurements`` (registration's), each against ``numpy.array`` of the rows or the
 per-object path computed in the test."""
 import numpy as np
@@ -10,22 +9,7 @@ from edge_node.core.association import (Candidate, Candidates, Observation, Obse
 from edge_node.core.gallery import Gallery
 from edge_node.core.measurement import BoxMeasurements, box_measurement, box_measurements
 from edge_node.core.registration import Registration
-from edge_node.core.stacks import RowStack, stacked
 from fakes import box_at, topdown_camera
-
-
-def test_rowstack_gives_back_its_own_stack_only_for_its_own_rows_in_order():
-    base = np.arange(24.0).reshape(4, 6)
-    rs = RowStack(base)
-    rows = list(rs.rows)
-    assert rs.stack(rows) is base  # no copy
-    rows[2][1] = -5.0  # a row changed in place is still the stack's row
-    assert rs.stack(rows)[2, 1] == -5.0 and np.array_equal(rs.stack(rows), np.array(rows))
-    for changed in (rows[::-1], rows[:3], rows + [np.zeros(6)],
-                    rows[:1] + [rows[1].copy()] + rows[2:]):  # reordered, dropped, added, replaced
-        got = rs.stack(changed)
-        assert got is not base and np.array_equal(got, np.array(changed))
-    assert np.array_equal(stacked(rows, None), base) and stacked(rows, None) is not base
 
 
 def _spd(rng, k):

@@ -8,12 +8,14 @@ Nothing here imports Zenoh, Rerun, torch or OpenCV. The public entry point::
     msg = node.prepare(k, detections)      # send msg to every neighbour
     tracks = node.update(neighbour_messages_of_frame_k)
 
-Modules, one job each: ``model`` (state, ``A``, ``Q``, ``H``), ``measurement`` (box -> ``z, R``),
-``dkf`` (eqs. 2-4), ``association`` (LDA, eqs. 5-7), ``gallery`` (appearance, eq. 7),
-``initiator`` (local births), ``manager`` (DTM, eq. 8, merges, re-id), ``identity`` (ids, ranks,
-aliases, dropped trackers), ``memory`` (event-triggered input), ``trigger`` (event-triggered
-output), ``tracker`` (a tracker's state), ``node`` (the loop that composes them), ``config`` and
-``params`` (parameters and their rules).
+``node`` composes roles, one job each, over one table of every tracker quantity (``state``):
+``predictor`` (eq. 1's model, ``model``), ``measurer`` (box -> ``z, R``, ``measurement``,
+``registration``), ``associator`` (LDA, eqs. 5-7, ``association``, ``gallery``), ``initiator``
+(local births), ``inbound`` (accept, bound, screen, ``memory``), ``updater`` (eqs. 3-4,
+``dkf``), ``registrar`` (registration residuals), ``lifecycle`` (the DTM's decisions applied:
+births, adoptions, eq. 8, merges, drops; rules in ``manager``, ``reappear``, ``identity``),
+``outbound`` (the message; ``trigger`` for event-triggered output), ``reporter`` (tracks,
+``views``); ``config`` and ``params`` hold the parameters and their rules.
 """
 from edge_node.core.config import ABLATIONS, ConfigError, TrackerConfig
 from edge_node.core.node import CameraNode, Components, NodeStats, assemble

@@ -7,16 +7,37 @@ duplicates), *bound* (at most ``max_trackers_per_neighbour`` entries per message
 node holds first: one message of thousands of plausible phantoms under fresh ids must not make
 a node hold them all, it stalled two nodes for good), then *screen* (``Screen``: each entry and
 merge checked for meaning). What is refused is counted by reason, the rest used, in a
-deterministic order (sender, frame). Pure and deterministic.
+deterministic order (sender, frame). Then *gather*: in event-triggered operation every
+neighbour's newest entry per tracker brought to the frame (``NeighbourMemory``), and the
+entries grouped per tracker (``entries.Inbox``). Pure and deterministic.
 """
 from __future__ import annotations
 
 from collections.abc import Callable, Iterable
-from dataclasses import replace
+from dataclasses import dataclass, field, replace
 
+import numpy as np
+
+from edge_node.core.entries import Inbox
 from edge_node.core.identity import IdentityBook
+from edge_node.core.memory import NeighbourMemory
 from edge_node.core.screen import Screen
 from protocol.messages import FrameMessage, TrackerId
+
+
+@dataclass
+class Heard:
+    """What a frame's messages tell, gathered: ``inbox`` (the entries per tracker) and, in
+    event-triggered operation, what the neighbour memory adds: per tracker the frame of the
+    oldest message that told of it (``told``), first entries' appearance that came late
+    (``late_appearance``), the neighbours' smallest ``ell`` aged by their silences alone
+    (``lagless``) and the trackers some neighbour said something about (``news``)."""
+
+    inbox: Inbox
+    told: dict[TrackerId, int] | None = None
+    late_appearance: dict[TrackerId, np.ndarray] = field(default_factory=dict)
+    lagless: dict[TrackerId, int] | None = None
+    news: set[TrackerId] | frozenset[TrackerId] = frozenset()
 
 
 class Inbound:
@@ -25,7 +46,8 @@ class Inbound:
     ``stats``: the node's counters (``ignored_messages``, ``duplicate_messages``)."""
 
     def __init__(self, neighbours: Iterable[int], network: str, kappa: int, cap: int,
-                 screen: Screen, stats):
+                 screen: Screen, stats, memory: NeighbourMemory | None = None):
+        self.memory = memory
         self.neighbours = frozenset(neighbours)
         self.network = network
         self.kappa = kappa
@@ -39,6 +61,18 @@ class Inbound:
         """The messages frame ``k`` uses: accepted, bounded and screened (``held(id)``: this
         node holds the tracker)."""
         return self.screen.messages(self.bounded(self.accept(inbox, k, stale_ok), book, held), book)
+
+    def gather(self, msgs: list[FrameMessage], k: int, stale_ok: bool,
+               aliases: dict[TrackerId, TrackerId]) -> Heard:
+        """The frame's entries per tracker (merge ``aliases`` followed); event-triggered
+        (``stale_ok``), every neighbour's newest entry brought to ``k`` by the memory."""
+        if not stale_ok:
+            return Heard(Inbox(msgs, aliases))
+        mem = self.memory
+        mem.remember(msgs)
+        msgs = mem.at(k)
+        return Heard(Inbox(msgs, aliases, mem.observed), mem.told, mem.late_appearance,
+                     mem.lagless_ell, mem.news)
 
     def accept(self, inbox: Iterable[FrameMessage], k: int, stale_ok: bool) -> list[FrameMessage]:
         """One message per sender and frame (the first one), sorted by (sender, frame)."""

@@ -12,16 +12,17 @@ import numpy as np
 from edge_node.core.entries import Entries
 from edge_node.core.measurement import BoxMeasurements
 from edge_node.core.registration import Registration
+from edge_node.core.state import NodeState
 
 
-def learn(registrations: Mapping[int, Registration], entries: Entries,
-          per_camera: Sequence[Mapping[int, tuple]], raws: Mapping[int, BoxMeasurements]) -> None:
+def learn(registrations: Mapping[int, Registration], entries: Entries, state: NodeState,
+          cameras: Sequence[int], raws: Mapping[int, BoxMeasurements]) -> None:
     """Feed each camera's :class:`Registration` this frame's residuals and end its frame.
-
-    ``entries``: the neighbours' entries of the frame, gathered per tracker (``entries.ids``);
-    ``per_camera[i]``: what this node's cameras measured of tracker ``entries.ids[i]`` (camera
-    -> ``(u, U, raw)``, ``raw`` its row of the camera's box measurements ``raws[camera]``)."""
-    n = len(entries.ids)
+    ``entries``: the neighbours' entries of the frame, gathered per tracker (the table's rows,
+    in its order); ``state``: the node's table, whose frame columns say what this node's
+    cameras (``cameras``, its camera columns' ids) measured of each tracker (``raw``: the row
+    of its box among ``raws[camera]``; ``residual``: a measurement inside the gate)."""
+    n = len(state)
     u_o, U_o = np.zeros((n, 2)), np.zeros((n, 2, 2))  # the neighbours' measured entries
     count = np.zeros(n, np.intp)
     if len(entries.rows):  # (rows of 2: np.add.at costs less than Entries.summed)
@@ -33,18 +34,25 @@ def learn(registrations: Mapping[int, Registration], entries: Entries,
     # per camera: its raw measurements, the trackers' rows, and this node's other cameras'
     # information on them (None: the neighbours' alone)
     rows: dict[int, tuple[list, list, list]] = {c: ([], [], []) for c in registrations}
-    for i in range(n):
-        mine = sorted(per_camera[i].items())
-        for cam_id, (_, _, raw) in mine:
-            # (a node of one camera has no other of its own: no list to build)
-            own = [(u, U) for c, (u, U, _) in mine if c != cam_id] if len(mine) > 1 else ()
-            if raw is None or not (count[i] or own):
-                continue
-            picked, idx, others = rows[cam_id]
-            picked.append(raw)
-            idx.append(i)
-            others.append((sum(u[:2] for u, _ in own), sum(U[:2, :2] for _, U in own))
-                          if own else None)
+    if len(cameras) == 1:  # (a node of one camera has no other of its own: all at once)
+        take = np.flatnonzero(state.residual[:, 0] & (count > 0))
+        if len(take) and cameras[0] in rows:
+            rows[cameras[0]] = (state.raw[take, 0].tolist(), take.tolist(), [None] * len(take))
+    else:
+        order = sorted(range(len(cameras)), key=lambda c: cameras[c])  # camera id order
+        has = (state.raw >= 0).tolist()
+        for i in range(n):
+            mine = [c for c in order if has[i][c]]
+            for c in mine:
+                own = [(state.cam_u[i, o], state.cam_U[i, o]) for o in mine if o != c] \
+                    if len(mine) > 1 else ()
+                if not state.residual[i, c] or not (count[i] or own):
+                    continue
+                picked, idx, others = rows[cameras[c]]
+                picked.append(int(state.raw[i, c]))
+                idx.append(i)
+                others.append((sum(u[:2] for u, _ in own), sum(U[:2, :2] for _, U in own))
+                              if own else None)
     for cam_id in sorted(registrations):
         picked, idx, others = rows[cam_id]
         if picked:

@@ -1,16 +1,5 @@
-"""Per-tracker arrays that are rows of one stacked array, stacking them back for free;
-records held as stacked columns (``Columns``); products of a stack with one shared matrix in
-one call (``times``).
-
-The core computes for all trackers at once (a prediction ``(n, 6)``, covariances
-``(n, 6, 6)``) and keeps each tracker's row on its ``Tracker``. The next step needs them
-stacked again in the same order; stacking twenty small arrays with ``numpy.array`` costs about
-40 k instructions, as much as the arithmetic on them. A ``RowStack`` remembers the stack and
-the row views it handed out: given back exactly those row objects, in that order, it returns
-the stack itself. A row that was replaced (a merge takes the other tracker's estimate), added
-(a birth, an adoption) or dropped breaks the match, and the rows are stacked as before. A row
-changed in place is still a view of the stack, so the stack holds the change: the shortcut
-returns the same numbers as stacking, bit for bit, whatever happened to the rows.
+"""Records held as stacked columns (``Columns``) and products of a stack with one shared matrix
+in one call (``times``).
 
 Rows of a stack by number: the core takes them with ``a.take(rows, axis=0)`` (and a mask's
 with ``a.compress(mask, axis=0)``), not ``a[rows]``. The values are the same; in NumPy 2.4 the
@@ -19,29 +8,10 @@ indexing of a multi-dimensional array costs about 20 k instructions with an inde
 """
 from __future__ import annotations
 
-import operator
 from abc import abstractmethod
 from collections.abc import Sequence
 
 import numpy as np
-
-
-class RowStack:
-    """Stack ``base`` ``(n, ...)`` and its row views ``rows`` (``rows[i]`` is ``base[i]``)."""
-
-    __slots__ = ("base", "rows")
-
-    def __init__(self, base: np.ndarray):
-        self.base = base
-        self.rows = list(base)  # views
-
-    def stack(self, values: Sequence[np.ndarray]) -> np.ndarray:
-        """``numpy.array(values)``: the stack itself when ``values`` are its own rows in order
-        (not a copy: writing it writes the trackers' rows)."""
-        rows = self.rows
-        if len(values) == len(rows) and all(map(operator.is_, values, rows)):
-            return self.base
-        return np.array(values)
 
 
 class Columns(Sequence):
@@ -62,11 +32,6 @@ class Columns(Sequence):
     @abstractmethod
     def _row(self, i: int):
         """Record ``i`` built from the columns (each batch says how)."""
-
-
-def stacked(values: Sequence[np.ndarray], rows: RowStack | None) -> np.ndarray:
-    """``rows.stack(values)``, or ``numpy.array(values)`` without a ``RowStack``."""
-    return np.array(values) if rows is None else rows.stack(values)
 
 
 def times(a: np.ndarray, b: np.ndarray) -> np.ndarray:

@@ -23,7 +23,8 @@ import numpy as np
 
 from edge_node.core.measurement import pixels_per_unit
 from edge_node.core.registration import Registration
-from edge_node.core.tracker import Tracker
+from edge_node.core.measurement import BoxMeasurements
+from edge_node.core.state import NodeState
 from edge_node.geometry import Camera
 
 
@@ -46,7 +47,8 @@ class ViewSettings:
 
 class OwnViews:
     """Draws a node's targets in its cameras' images; the box sizes each camera measured are
-    kept on the trackers (``Tracker.views``: camera -> (frame, size))."""
+    kept in the node's table (``NodeState.view_k``, ``view_size``: per camera, the last frame
+    it measured the target and the size it draws it at)."""
 
     def __init__(self, settings: ViewSettings, cameras: Sequence[Camera],
                  registrations: Mapping[int, Registration]):
@@ -54,47 +56,51 @@ class OwnViews:
         self.cameras = list(cameras)
         self.registrations = registrations  # the node's, live: corrections learnt since count
 
-    def saw(self, trs: Sequence[Tracker], cam_id: int, k: int, size: np.ndarray) -> None:
-        """Camera ``cam_id`` measured each of ``trs`` at frame ``k`` at box sizes ``size``
-        ``(n, 2)`` (ground units): the size it draws each at is smoothed towards the measured
-        one at ``view_rate``, all at once."""
-        size = np.array(size, float)
-        old = [tr.views.get(cam_id) for tr in trs]
-        held = [i for i, v in enumerate(old) if v is not None]
-        if held:
-            before = np.array([old[i][1] for i in held])
-            size[held] = before + self.s.view_rate * (size[held] - before)
-        for tr, s in zip(trs, size):
-            tr.views[cam_id] = (k, s)
-
-    def boxes(self, trackers: Sequence[Tracker], k: int,
-              x_hat: np.ndarray) -> list[dict[int, np.ndarray]]:
-        """Each tracker's box in each camera that draws it at frame ``k`` (``x_hat`` ``(n, 6)``
-        the trackers' estimates, in order); all trackers of a camera at once."""
-        s = self.s
-        out: list[dict[int, np.ndarray]] = [{} for _ in trackers]
-        for cam in self.cameras:
-            rows, sizes, ages = [], [], []
-            for i, tr in enumerate(trackers):
-                seen = tr.views.get(cam.id)
-                if seen is None or k - seen[0] > s.view_frames:
-                    if not s.view_unseen:
-                        continue
-                    seen = (k - s.view_frames - 1, tr.x_hat[2:4])
-                rows.append(i)
-                sizes.append(seen[1])
-                ages.append(k - seen[0])
-            if not rows:
+    def saw(self, state: NodeState, k: int, raws: Mapping[int, BoxMeasurements]) -> None:
+        """The frame's measurements (``state.raw``: per camera, the row of each tracker's box
+        among ``raws[camera]``, -1 none): the size each camera draws a target at is smoothed
+        towards the size it measured at ``view_rate``, all at once."""
+        for c, cam in enumerate(self.cameras):
+            rows = np.flatnonzero(state.raw[:, c] >= 0)
+            if not len(rows):
                 continue
-            xy = x_hat[rows, :2]
+            size = np.array(raws[cam.id].size.take(state.raw[rows, c], axis=0), float)
+            held = state.view_k[rows, c] >= 0
+            if held.any():
+                before = state.view_size[rows[held], c]
+                size[held] = before + self.s.view_rate * (size[held] - before)
+            state.view_k[rows, c] = k
+            state.view_size[rows, c] = size
+
+    def boxes(self, state: NodeState, rows: np.ndarray, k: int,
+              x_hat: np.ndarray) -> list[dict[int, np.ndarray]]:
+        """Each tracker's box in each camera that draws it at frame ``k`` (``rows`` the
+        trackers' rows of the table, ``x_hat`` ``(n, 6)`` their estimates, in order); all
+        trackers of a camera at once."""
+        s = self.s
+        out: list[dict[int, np.ndarray]] = [{} for _ in range(len(rows))]
+        for c, cam in enumerate(self.cameras):
+            last = state.view_k[rows, c]
+            fresh = (last >= 0) & (k - last <= s.view_frames)
+            if s.view_unseen:
+                pick = np.arange(len(rows))
+                sizes = np.where(fresh[:, None], state.view_size[rows, c], x_hat[:, 2:4])
+                ages = np.where(fresh, k - last, s.view_frames + 1)
+            else:
+                pick = np.flatnonzero(fresh)
+                sizes = state.view_size[rows[pick], c]
+                ages = k - last[pick]
+            if not len(pick):
+                continue
+            xy = x_hat[pick, :2]
             reg = self.registrations.get(cam.id)
             g = xy if reg is None else reg.to_camera_many(xy)
             with np.errstate(invalid="ignore", divide="ignore", over="ignore"):
                 foot, J = cam.image_and_jacobians(g)
-                wh = np.array(sizes) * pixels_per_unit(J)[:, None]
+                wh = sizes * pixels_per_unit(J)[:, None]
             box = np.concatenate([foot[:, :1] - wh[:, :1] / 2.0, foot[:, 1:] - wh[:, 1:], wh], axis=1)
-            drawn = self.visible(cam, box, np.array(ages))
-            for i, b, ok in zip(rows, box, drawn.tolist()):
+            drawn = self.visible(cam, box, np.asarray(ages))
+            for i, b, ok in zip(pick.tolist(), box, drawn.tolist()):
                 if ok:
                     out[i][cam.id] = b
         return out

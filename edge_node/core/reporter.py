@@ -1,0 +1,70 @@
+"""The reporter role: the tracks a node reports after a frame (returned by ``update``, written,
+drawn and evaluated), with each camera's own boxes (``views``).
+
+A tracker is reported unless it has coasted more than ``report_coast`` frames (its ``ell``
+grew that many frames in a row: no camera of the network has seen the target since; it is
+still predicted, fused, merged and kept until eq. 8 drops it). The test is on the *growth* of
+``ell``, not its value: a node ``h`` hops from the cameras that see a target holds
+``ell = h - 1`` while they see it. Besides, what the network has not decided yet is not shown
+as a second id: a young tracker on its way to merging into a reported older one
+(``hide_pending``), or reported under the older id while the older is not reported
+(``pending_alias``), and a new tracker that may still be a dropped one re-appearing
+(``reappear``). Pure and deterministic.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from edge_node.core.state import NodeState
+from edge_node.core.types import Track
+from protocol.messages import TrackerId
+
+
+class Reporter:
+    """``manager``: the DTM's rules (``pending``, ``awaiting``); ``young``, ``gone``: the
+    lifecycle's views of new and dropped trackers (re-appearance); ``views``: what each camera
+    draws (``OwnViews`` or a fake); ``settings``: the configuration's report parameters."""
+
+    def __init__(self, manager, young, gone, views, settings):
+        self.manager = manager
+        self.young = young
+        self.gone = gone
+        self.views = views
+        self.cfg = settings
+
+    def __call__(self, state: NodeState, k: int) -> list[Track]:
+        cfg = self.cfg
+        if not len(state):
+            return []
+        ids = state.ids
+        shown = np.flatnonzero(state.estimated & (state.coast <= cfg.report_coast))
+        hidden: set[TrackerId] = set()
+        alias: dict[TrackerId, TrackerId] = {}
+        if cfg.pending_alias or (cfg.hide_pending and len(shown) > 1):
+            shown_ids = {ids[i] for i in shown.tolist()}
+            pend = self.manager.pending(dict(zip(ids, state.born.tolist())))
+            if cfg.hide_pending and len(shown) > 1:
+                new = k - cfg.comotion_frames
+                hidden = {young for young, old in pend
+                          if old in shown_ids and state.since[state.row(young)] >= new}
+            if cfg.pending_alias:
+                for young, old in pend:
+                    if (old not in shown_ids and young in shown_ids and young not in alias
+                            and old not in alias.values()):
+                        alias[young] = old
+        fresh = shown[(k - state.born.take(shown)) < cfg.reappear_age + cfg.reappear_hide]
+        if len(fresh):  # not yet told whether they are a dropped tracker re-appearing
+            gone = self.gone()
+            hidden |= {ids[i] for i in fresh.tolist()
+                       if self.manager.awaiting(self.young(state, i), gone, k)}
+        if hidden:
+            shown = np.array([i for i in shown.tolist() if ids[i] not in hidden], np.intp)
+        if not len(shown):
+            return []
+        x_hat = state.x_hat.take(shown, axis=0)  # the tracks' own
+        boxes = self.views.boxes(state, shown, k, x_hat)
+        M = state.M.take(shown, axis=0)
+        seen = state.seen_any().take(shown).tolist()
+        ell = state.ell.take(shown).tolist()
+        return [Track._built(alias.get(ids[i], ids[i]), k, x, M_i, s, e, b)
+                for i, x, M_i, s, e, b in zip(shown.tolist(), x_hat, M, seen, ell, boxes)]
