@@ -1,4 +1,13 @@
-"""All tracker parameters in one object, with the ablation switch of the paper's Section IV-B.
+"""All tracker parameters in one tree, one section per role, with the ablation switch of the
+paper's Section IV-B.
+
+``TrackerConfig`` holds one frozen section per role of a node (``[tracker.predictor]``,
+``[tracker.associator]``, ... below), plus ``scene`` (units and time, shared) and ``parts`` (which
+parts a node is assembled from). Every parameter is declared once, in its role's section, with
+its rule and doc (``params``); parameter names are unique across sections, so a flat name
+(``TrackerConfig(tau=2.5)``, ``cfg.tau``, ``[tracker] tau = 2.5`` in a file) reaches it in its
+section. A role reads only its slice (``Slice``): the parameters it names, from whichever
+sections they are declared in; ``node.assemble`` hands each role its own.
 
 Units. Every length below is in **metres** (speeds in m/s) and is converted to the scenario's
 ground units by ``units_per_metre`` (1 for the synthetic world; about 30 for EPFL, whose
@@ -18,9 +27,11 @@ over unchanged, while the gates are re-expressed here:
 """
 from __future__ import annotations
 
-from dataclasses import asdict, dataclass, replace
+import difflib
+from dataclasses import dataclass, fields
+from typing import Any
 
-from edge_node.core.params import (ConfigError, boolean, build, check, integer, nonnegative,
+from edge_node.core.params import (ConfigError, boolean, check, declared, integer, nonnegative,
                                    number, pair, positive)
 
 ABLATIONS = ("dkf", "dkf+lda", "dkf+lda+dtm")  # the paper's three (Sec. IV-B)
@@ -29,28 +40,47 @@ ABLATIONS = ("dkf", "dkf+lda", "dkf+lda+dtm")  # the paper's three (Sec. IV-B)
 CONFIGS = ABLATIONS + ("dkf+dtm",)
 CONFIG_NAMES = CONFIGS + tuple(f"{c}:noreg" for c in CONFIGS)
 
-__all__ = ["ABLATIONS", "CONFIGS", "CONFIG_NAMES", "ConfigError", "TrackerConfig"]
+__all__ = ["ABLATIONS", "CONFIGS", "CONFIG_NAMES", "ConfigError", "SECTIONS", "Slice", "TrackerConfig"]
 
 
 @dataclass(frozen=True)
-class TrackerConfig:
-    # --- ablation switches (paper Sec. IV-B) -------------------------------------------
-    use_appearance: bool = boolean(True, "LDA: appearance score s_a in the association cost (eq. 7)")
-    use_manager: bool = boolean(True, "DTM: global association/merge, consensus drop (eq. 8), re-id")
+class SceneSection:
+    """``[tracker.scene]``: units and time, shared by every role."""
 
-    # --- units and time ------------------------------------------------------------------
     units_per_metre: float = positive(1.0, "ground units per metre")
     fps: float = positive(25.0, "frames per second")
 
-    # --- motion model (A, Q) ---------------------------------------------------------------
+    def __post_init__(self) -> None:
+        check(self, "tracker.scene")
+
+
+@dataclass(frozen=True)
+class PartsSection:
+    """``[tracker.parts]``: the ablation switches of the paper's Sec. IV-B and online registration (``node.assemble``)."""
+
+    use_appearance: bool = boolean(True, "LDA: appearance score s_a in the association cost (eq. 7)")
+    use_manager: bool = boolean(True, "DTM: global association/merge, consensus drop (eq. 8), re-id")
+    registration: bool = boolean(True, "estimate and correct each camera's ground registration")
+
+    def __post_init__(self) -> None:
+        check(self, "tracker.parts")
+
+
+@dataclass(frozen=True)
+class PredictorSection:
+    """``[tracker.predictor]``: the motion model, ``A`` and ``Q`` of eq. 1 (``predictor``, ``model``)."""
+
     accel_sigma: float = positive(1.0, "m/s^2, white-noise acceleration on the constant-velocity part")
     size_sigma: float = nonnegative(0.01, "m per frame, random walk on (w, h)")
 
-    # --- DKF consensus step (eq. 4; edge_node/core/dkf.py, "Stability of the consensus step") ---
-    consensus_bound: float = number(0.9, lo=0.0, lo_open=True, hi=1.0,
-                                    doc="gamma of eq. 4 is scaled down where degree * ||gamma M||_2 would exceed this (below 1: every disagreement mode decays)")
+    def __post_init__(self) -> None:
+        check(self, "tracker.predictor")
 
-    # --- measurement model (H, R_i) ----------------------------------------------------------
+
+@dataclass(frozen=True)
+class MeasurerSection:
+    """``[tracker.measurer]``: the measurement model, ``H`` and ``R_i`` (``measurer``, ``measurement``)."""
+
     pixel_sigma: float = positive(2.0, "px, detector noise on box edges, through the homography")
     calib_sigma: float = nonnegative(0.4, "m, per-camera ground offset (calibration + foot point)")
     size_meas_floor: float = positive(0.05, "m, minimum sigma on measured w, h")
@@ -59,8 +89,14 @@ class TrackerConfig:
         None, lo=0.0, lo_open=True, optional=True,
         doc="(sigma_xy, sigma_wh) in m: the paper's fixed R instead of the propagated one")
 
-    # --- online registration (edge_node/core/registration.py, DESIGN "Cameras disagree") ----
-    registration: bool = boolean(True, "estimate and correct each camera's ground registration")
+    def __post_init__(self) -> None:
+        check(self, "tracker.measurer")
+
+
+@dataclass(frozen=True)
+class RegistrarSection:
+    """``[tracker.registrar]``: online registration of each camera (``registrar``, ``registration``)."""
+
     reg_shift: float = positive(1.0, "m, prior sigma of a camera's ground translation error")
     reg_rotation: float = positive(3.0, "degrees, prior sigma of its rotation error")
     reg_scale: float = positive(0.03, "prior sigma of its scale error (a fraction)")
@@ -72,41 +108,80 @@ class TrackerConfig:
     reg_anchor: float = number(0.001, lo=0.0, hi=1.0,
                                doc="per frame, pull of every correction towards zero (common frame)")
 
-    # --- each camera's own view (Track.boxes) ---------------------------------------------
-    view_frames: int = integer(100, lo=0, doc="frames a camera keeps drawing a target it last saw")
-    view_rate: float = number(0.2, lo=0.0, hi=1.0, doc="smoothing of a camera's own box size")
-    view_unseen: bool = boolean(False, "draw targets a camera has not seen (at the network's size)")
-    view_inside: float = number(0.9, lo=0.0, hi=1.0,
-                                doc="least fraction of a drawn box inside the image (0: any overlap)")
-    view_fresh: int = integer(50, lo=0, doc="frames since the camera's last measurement of a target "
-                              "after which a nearer target can hide it")
-    view_hidden: float = number(1.0, lo=0.0, hi=1.0,
-                                doc="fraction of a box a nearer drawn box must cover to hide it (1: never; docs/tuning.md)")
+    def __post_init__(self) -> None:
+        check(self, "tracker.registrar")
 
-    # --- birth prior (a new tracker, identical on every node that adopts it) ----------------
-    birth_pos_sigma: float = positive(0.5, "m")
-    birth_size_sigma: float = positive(0.2, "m")
-    birth_vel_sigma: float = positive(1.5, "m/s")
 
-    # --- local data association (eqs. 5-7) -----------------------------------------------------
+@dataclass(frozen=True)
+class AssociatorSection:
+    """``[tracker.associator]``: local data association, eqs. 5-7, the gallery (eq. 7) and the node's measured re-id (``associator``, ``association``, ``gallery``, ``reidquality``)."""
+
     tau: float = positive(3.0, "Mahalanobis gate (standard deviations)")
     alpha_lda: float = positive(3.0, "s_d = d / alpha_lda")
     unknown_appearance: float = nonnegative(0.5, "s_a when a tracker has no gallery yet")
     appearance_gate: float = nonnegative(0.6, "pairs with s_a above this are never assigned")
     recover: bool = boolean(True, "second LDA stage: GDA gate and appearance for the left-overs")
-
-    # --- gallery ------------------------------------------------------------------------------
+    naive_bound: bool = boolean(True, "gate a tracker that only the consensus updates with a covariance bounded by ell")
     gallery_size: int = integer(20, lo=1)
     gallery_every: int = integer(20, lo=1, doc="N: a new descriptor every N frames")
     gallery_admit: float = nonnegative(0.35, "a descriptor joins only if s_a to the gallery is below this")
+    reid_learn: bool = boolean(True, "measure the re-id on the node's own frames and set the appearance thresholds by it (edge_node/core/reidquality.py)")
+    reid_error: float = number(0.05, lo=0.0, lo_open=True, hi=0.5, doc="error rate each learned appearance threshold allows: one person's distances above it, two people's below")
+    reid_samples: int = integer(500, lo=1, doc="distances of one person and of two people a node needs before its thresholds follow them")
+    reid_memory: int = integer(20000, lo=1, doc="distances kept per side: halved above (a bounded memory that follows a change)")
 
-    # --- tracker initialisation -----------------------------------------------------------------
+    def __post_init__(self) -> None:
+        check(self, "tracker.associator")
+
+
+@dataclass(frozen=True)
+class InitiatorSection:
+    """``[tracker.initiator]``: local births and the birth prior, identical on every node that adopts a tracker (``initiator``, ``lifecycle``)."""
+
     init_observations: int = integer(2, lo=1, doc="paper: two observations in the local gallery")
     candidate_gate: float = positive(0.8, "m, how far a second observation may be from the first")
     candidate_max_age: int = integer(3, lo=1, doc="frames a single observation waits for its second")
     candidate_appearance: float = nonnegative(0.5, "max cosine distance between the two observations")
+    birth_pos_sigma: float = positive(0.5, "m")
+    birth_size_sigma: float = positive(0.2, "m")
+    birth_vel_sigma: float = positive(1.5, "m/s")
 
-    # --- distributed tracker manager --------------------------------------------------------------
+    def __post_init__(self) -> None:
+        check(self, "tracker.initiator")
+
+
+@dataclass(frozen=True)
+class InboundSection:
+    """``[tracker.inbound]``: what a neighbour's message may claim (``screen``) and the event-triggered memory (``memory``)."""
+
+    world_radius: float = positive(1000.0, "m, states farther than this from every camera of the node are implausible")
+    max_size: float = positive(20.0, "m, largest plausible target width or height")
+    max_trackers_per_neighbour: int = integer(1024, lo=1, doc="the most tracker entries one neighbour's message may bring (it relays the network's trackers: 1024 is 64 cameras of 16 people); entries beyond are dropped, those this node holds kept first")
+    max_adoptions_per_frame: int = integer(64, lo=1, doc="new trackers adopted from one neighbour in one frame (people appear a few at a time; a restarted node takes the network's trackers over a few frames); the rest wait for the next frame")
+    max_speed: float = positive(150.0, "m/s, largest plausible speed of an estimate (before eq. 4's step was bounded by the degree, honest coasting estimates in a ring reached 103; since, 2.8 on ring8 over 10 minutes)")
+    staleness_frames: int = integer(2, lo=0, doc="a neighbour's u, U older than this is ignored")
+    hold_frames: int = integer(5, lo=0, doc="a silent neighbour's ell holds this many frames "
+                               "(its trigger's heartbeat), then ages")
+
+    def __post_init__(self) -> None:
+        check(self, "tracker.inbound")
+
+
+@dataclass(frozen=True)
+class UpdaterSection:
+    """``[tracker.updater]``: the consensus step of eq. 4 (``updater``, ``dkf``: the stability of the consensus step)."""
+
+    consensus_bound: float = number(0.9, lo=0.0, lo_open=True, hi=1.0,
+                                    doc="gamma of eq. 4 is scaled down where degree * ||gamma M||_2 would exceed this (below 1: every disagreement mode decays)")
+
+    def __post_init__(self) -> None:
+        check(self, "tracker.updater")
+
+
+@dataclass(frozen=True)
+class ManagerSection:
+    """``[tracker.manager]``: the distributed tracker manager: eq. 8, merges, re-identification, scope (``lifecycle``, ``manager``, ``reappear``, ``identity``)."""
+
     tau_gda: float = positive(1.5, "m, Euclidean gate (V = I) of a left-over measurement to another camera's tracker")
     alpha_gda: float = positive(1.5, "m, s_d normaliser of the global association")
     merge_appearance: float = nonnegative(0.4, "galleries farther apart (cosine) are never merged")
@@ -118,13 +193,8 @@ class TrackerConfig:
     merge_llr_floor: float = number(-70.0, hi=0.0, doc="nats: the least co-motion evidence kept for a pair (two trackers once seen as two people merge after this much more)")
     merge_evidence: bool = boolean(False, "merge by co-motion only where this node's camera or a neighbour measures both trackers (README, What we tuned: large gains with look-alikes, Campus loses)")
     merge_announce_frames: int = integer(3, lo=1, doc="frames a merge announcement is repeated")
-    naive_bound: bool = boolean(True, "gate a tracker that only the consensus updates with a covariance bounded by ell")
     kappa: int = integer(15, lo=1, doc="drop a tracker when ell exceeds kappa (eq. 8)")
     epsilon: float = nonnegative(0.25, "re-identification threshold on s_a against old trackers")
-    reid_learn: bool = boolean(True, "measure the re-id on the node's own frames and set the appearance thresholds by it (edge_node/core/reidquality.py)")
-    reid_error: float = number(0.05, lo=0.0, lo_open=True, hi=0.5, doc="error rate each learned appearance threshold allows: one person's distances above it, two people's below")
-    reid_samples: int = integer(500, lo=1, doc="distances of one person and of two people a node needs before its thresholds follow them")
-    reid_memory: int = integer(20000, lo=1, doc="distances kept per side: halved above (a bounded memory that follows a change)")
     max_old_trackers: int = integer(200, lo=1, doc="bounded memory of dropped trackers")
     max_old_mib: float = positive(4.0, "MiB, byte budget of the dropped trackers' galleries, kept as float16 (200 full galleries of 512-d descriptors take 3.9)")
     reid_frames: int = integer(50, lo=0, doc="without appearance: frames a dropped tracker may be re-identified")
@@ -138,42 +208,142 @@ class TrackerConfig:
     reappear_hide: int = integer(4, lo=0, doc="frames after reappear_age a new tracker that may re-appear is still not reported (the decision's announcement travels a hop a frame)")
     heir_pending: bool = boolean(True, "a tracker dropped while a younger one was on its way to merging into it (positive co-motion evidence) gives that one its id (manager.partner)")
     stitch: bool = boolean(False, "a tracker dropped while a younger one, born beside it since it was last seen, goes on where it was gives that one its id (tracklet stitching, manager.heir)")
+    scope_hops: int = integer(0, lo=0, doc="regional scope (not in the paper; needs the DTM): a node keeps and sends a tracker only within this many hops of the cameras that see it; 0 = every node holds every tracker (the paper)")
+
+    def __post_init__(self) -> None:
+        check(self, "tracker.manager")
+
+
+@dataclass(frozen=True)
+class ReporterSection:
+    """``[tracker.reporter]``: what a node reports and draws in each camera's own view (``reporter``, ``views``)."""
+
     report_coast: int = integer(1, lo=0, doc="frames a tracker nobody sees is still reported")
     hide_pending: bool = boolean(True, "a tracker new on this node (within comotion_frames) that "
                                  "agrees with an older one towards a merge is not reported "
                                  "until the pair merges or parts")
     pending_alias: bool = boolean(True, "a tracker on its way to merging into an older one (positive co-motion evidence) is reported under the older id while the older is not reported (docs/tuning.md)")
-    scope_hops: int = integer(0, lo=0, doc="regional scope (not in the paper; needs the DTM): a node keeps and sends a tracker only within this many hops of the cameras that see it; 0 = every node holds every tracker (the paper)")
-
-    # --- trust boundary (edge_node/core/screen.py): what a neighbour's entry may claim -----
-    world_radius: float = positive(1000.0, "m, states farther than this from every camera of the node are implausible")
-    max_size: float = positive(20.0, "m, largest plausible target width or height")
-    max_trackers_per_neighbour: int = integer(1024, lo=1, doc="the most tracker entries one neighbour's message may bring (it relays the network's trackers: 1024 is 64 cameras of 16 people); entries beyond are dropped, those this node holds kept first")
-    max_adoptions_per_frame: int = integer(64, lo=1, doc="new trackers adopted from one neighbour in one frame (people appear a few at a time; a restarted node takes the network's trackers over a few frames); the rest wait for the next frame")
-    max_speed: float = positive(150.0, "m/s, largest plausible speed of an estimate (before eq. 4's step was bounded by the degree, honest coasting estimates in a ring reached 103; since, 2.8 on ring8 over 10 minutes)")
-
-    # --- asynchronous operation (event-triggered consensus) ----------------------------------
-    staleness_frames: int = integer(2, lo=0, doc="a neighbour's u, U older than this is ignored")
-    hold_frames: int = integer(5, lo=0, doc="a silent neighbour's ell holds this many frames "
-                               "(its trigger's heartbeat), then ages")
+    view_frames: int = integer(100, lo=0, doc="frames a camera keeps drawing a target it last saw")
+    view_rate: float = number(0.2, lo=0.0, hi=1.0, doc="smoothing of a camera's own box size")
+    view_unseen: bool = boolean(False, "draw targets a camera has not seen (at the network's size)")
+    view_inside: float = number(0.9, lo=0.0, hi=1.0,
+                                doc="least fraction of a drawn box inside the image (0: any overlap)")
+    view_fresh: int = integer(50, lo=0, doc="frames since the camera's last measurement of a target "
+                              "after which a nearer target can hide it")
+    view_hidden: float = number(1.0, lo=0.0, hi=1.0,
+                                doc="fraction of a box a nearer drawn box must cover to hide it (1: never; docs/tuning.md)")
 
     def __post_init__(self) -> None:
-        check(self, "tracker")
+        check(self, "tracker.reporter")
+
+
+#: the tree's sections in order: section name -> its dataclass
+SECTIONS: dict[str, type] = {
+    "scene": SceneSection, "parts": PartsSection, "predictor": PredictorSection,
+    "measurer": MeasurerSection, "registrar": RegistrarSection, "associator": AssociatorSection,
+    "initiator": InitiatorSection, "inbound": InboundSection, "updater": UpdaterSection,
+    "manager": ManagerSection, "reporter": ReporterSection,
+}
+#: every parameter's section (names are unique across sections: a test checks it)
+SECTION_OF: dict[str, str] = {f.name: s for s, cls in SECTIONS.items() for f in fields(cls)}
+
+
+def _unknown(names: list[str], known) -> str:
+    """Unknown parameter names, each with the known names it could be a misspelling of, and
+    where the known ones are listed."""
+    out = []
+    for n in sorted(names):
+        close = difflib.get_close_matches(n, list(known), n=3, cutoff=0.6)
+        out.append(f"{n} (did you mean {' or '.join(close)}?)" if close else n)
+    where = ", ".join(f"[tracker.{s}]" for s in SECTIONS)
+    return (f"{', '.join(out)}; every parameter is in one section of {where} "
+            "(edge_node check prints the tree; docs/api.md lists them)")
+
+
+class _Units:
+    """``m()`` and ``dt`` of anything with ``units_per_metre`` and ``fps``."""
+
+    def m(self, metres: float) -> float:
+        """Metres to ground units."""
+        return metres * self.units_per_metre
+
+    @property
+    def dt(self) -> float:
+        return 1.0 / self.fps
+
+
+@dataclass(frozen=True, init=False, repr=False)
+class TrackerConfig(_Units):
+    """The tracker's parameters: one frozen section per role (module docstring).
+
+    ``TrackerConfig(tau=2.5, registration=False)`` or ``TrackerConfig(associator=...)``: flat
+    parameter names go to their sections, a section may be given whole (a section object or a
+    table of its parameters; flat names given beside it change it). ``cfg.associator.tau`` and
+    ``cfg.tau`` read the same value. Immutable; ``with_(**changes)`` (or
+    ``dataclasses.replace``) makes a changed copy."""
+
+    scene: SceneSection
+    parts: PartsSection
+    predictor: PredictorSection
+    measurer: MeasurerSection
+    registrar: RegistrarSection
+    associator: AssociatorSection
+    initiator: InitiatorSection
+    inbound: InboundSection
+    updater: UpdaterSection
+    manager: ManagerSection
+    reporter: ReporterSection
+
+    def __init__(self, **values: Any):
+        unknown = [n for n in values if n not in SECTIONS and n not in SECTION_OF]
+        if unknown:
+            raise ConfigError(None, f"tracker: unknown parameter(s) {_unknown(unknown, SECTION_OF)}")
+        given: dict[str, dict[str, Any]] = {s: {} for s in SECTIONS}
+        whole: dict[str, Any] = {}
+        flat: set[str] = set()
+        for name, v in values.items():
+            if name in SECTIONS:
+                if isinstance(v, SECTIONS[name]):
+                    whole[name] = v
+                elif isinstance(v, dict):
+                    known = [f.name for f in fields(SECTIONS[name])]
+                    unknown = sorted(set(v) - set(known))
+                    if unknown:
+                        raise ConfigError(None, f"tracker.{name}: unknown parameter(s) "
+                                          f"{_unknown(unknown, known)}")
+                    given[name].update(v)
+                else:
+                    raise ConfigError(f"tracker.{name}", f"must be a table, got {v!r}")
+            else:
+                given[SECTION_OF[name]][name] = v
+                flat.add(name)
+        for s, cls in SECTIONS.items():
+            try:
+                section = (cls(**{**{f.name: getattr(whole[s], f.name) for f in fields(cls)},
+                                  **given[s]}) if s in whole and given[s]
+                           else whole.get(s) or cls(**given[s]))
+            except ConfigError as e:  # name the field as it was written: flat, or in its table
+                name = (e.field or "").rsplit(".", 1)[-1]
+                raise ConfigError(f"tracker.{name}" if name in flat else e.field, e.message) from None
+            object.__setattr__(self, s, section)
         if self.scope_hops and not self.use_manager:
             raise ConfigError("tracker.scope_hops", "regional scope needs the DTM (use_manager): "
                               "without the ell consensus, ell does not measure hops")
         if self.init_observations > self.gallery_size:
             raise ConfigError("tracker.init_observations", "must not exceed tracker.gallery_size")
 
+    def __getattr__(self, name: str) -> Any:
+        """A parameter by its flat name, from its section."""
+        s = SECTION_OF.get(name)
+        if s is None:
+            raise AttributeError(f"TrackerConfig has no parameter {name!r}")
+        return getattr(object.__getattribute__(self, s), name)
+
+    def __repr__(self) -> str:
+        changed = {k: v for k, v in self.flat().items() if v != _DEFAULTS[k]}
+        return f"TrackerConfig({', '.join(f'{k}={v!r}' for k, v in changed.items())})"
+
     # -- derived -----------------------------------------------------------------------------
-    @property
-    def dt(self) -> float:
-        return 1.0 / self.fps
-
-    def m(self, metres: float) -> float:
-        """Metres to ground units."""
-        return metres * self.units_per_metre
-
     @property
     def ablation(self) -> str:
         if self.use_manager:
@@ -185,7 +355,8 @@ class TrackerConfig:
     @classmethod
     def for_ablation(cls, name: str, **overrides) -> "TrackerConfig":
         """The paper's three configurations ``dkf``, ``dkf+lda``, ``dkf+lda+dtm``; ``dkf+dtm``
-        (the manager without appearance); each with ``:noreg`` for no online registration."""
+        (the manager without appearance); each with ``:noreg`` for no online registration.
+        ``overrides``: flat parameters or whole sections' tables."""
         switches = {
             "dkf": dict(use_appearance=False, use_manager=False),
             "dkf+lda": dict(use_appearance=True, use_manager=False),
@@ -201,13 +372,67 @@ class TrackerConfig:
 
     @classmethod
     def from_dict(cls, d: dict, where: str = "tracker") -> "TrackerConfig":
-        """Build from a (TOML) table; unknown keys are rejected naming every known one."""
-        return build(cls, d, where)
-
-    def to_dict(self) -> dict:
-        return asdict(self)
+        """Build from a (TOML) table of flat parameters and section tables; unknown names are
+        rejected naming every known one. A parameter given both flat and in its section's
+        table is an error."""
+        d = dict(d)
+        for s in SECTIONS:
+            if isinstance(d.get(s), dict):
+                twice = sorted(set(d[s]) & set(d))
+                if twice:
+                    raise ConfigError(f"{where}.{twice[0]}", f"is given twice: flat and in [{where}.{s}]")
+        def pairs(values: dict, cls: type) -> dict:  # lists from TOML become the tuples held
+            rules = {f.name: f.metadata["rule"] for f in declared(cls)}
+            return {k: tuple(v) if isinstance(v, list) and k in rules and rules[k].kind == "pair"
+                    else v for k, v in values.items()}
+        for s, c in SECTIONS.items():
+            if isinstance(d.get(s), dict):
+                d[s] = pairs(d[s], c)
+        d = {k: (pairs({k: v}, SECTIONS[SECTION_OF[k]])[k] if k in SECTION_OF else v)
+             for k, v in d.items()}
+        try:
+            return cls(**d)
+        except ConfigError as e:
+            if where == "tracker" or e.field is None or not e.field.startswith("tracker."):
+                raise
+            raise ConfigError(where + e.field[len("tracker"):], e.message) from None
 
     def with_(self, **changes) -> "TrackerConfig":
-        return replace(self, **changes)
+        """A copy with ``changes`` (flat names)."""
+        return TrackerConfig(**{**self.flat(), **changes})
+
+    def flat(self) -> dict[str, Any]:
+        """Every parameter by its flat name, in the sections' order."""
+        return {f.name: getattr(getattr(self, s), f.name)
+                for s, c in SECTIONS.items() for f in fields(c)}
+
+    def to_dict(self) -> dict[str, dict[str, Any]]:
+        """The tree: section -> parameter -> value."""
+        return {s: {f.name: getattr(getattr(self, s), f.name) for f in fields(c)}
+                for s, c in SECTIONS.items()}
+
+    @staticmethod
+    def names(d: dict) -> frozenset[str]:
+        """The parameter names a (TOML) table sets, flat or in a section's table."""
+        out = set()
+        for k, v in d.items():
+            if k in SECTIONS and isinstance(v, dict):
+                out.update(v)
+            else:
+                out.add(k)
+        return frozenset(out)
 
 
+_DEFAULTS = TrackerConfig().flat()
+
+
+class Slice(_Units):
+    """A role's view of the configuration: a frozen dataclass whose fields are named as the
+    parameters it reads (and ``units_per_metre`` and ``fps`` for ``m()`` and ``dt``), filled from
+    the tree by :meth:`of`. A role is given its slice, never the whole tree: what it reads is
+    written in one place, and a test checks that no role holds more."""
+
+    @classmethod
+    def of(cls, cfg: "TrackerConfig | Slice", **changes) -> "Slice":
+        """This slice of ``cfg`` (the tree, or a slice that has every field), with ``changes``."""
+        return cls(**{**{f.name: getattr(cfg, f.name) for f in fields(cls)}, **changes})

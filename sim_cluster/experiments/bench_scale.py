@@ -40,7 +40,6 @@ from __future__ import annotations
 
 import csv
 import json
-import dataclasses
 import statistics
 import time
 from pathlib import Path
@@ -257,7 +256,7 @@ def main(args, cfg: TrackerConfig) -> int:
     rows = []
     for n in sizes:
         for h in scopes:
-            rows.append(scale_run(args.layout, n, dataclasses.replace(cfg, scope_hops=h),
+            rows.append(scale_run(args.layout, n, cfg.with_(scope_hops=h),
                                   frames=frames, seed=args.seed,
                                   ground_threshold_m=args.ground_threshold,
                                   long_walk_cameras=args.long_walk_cameras,

@@ -41,7 +41,7 @@ def tracker_config(ablation: str, file: str | Path | None = None) -> TrackerConf
     path = Path(file)
     raw = read_toml(path, file=str(path), what="tracker config")
     t = Table(raw.get("tracker", raw), str(path), "tracker")
-    return t.built(lambda: TrackerConfig.from_dict({**base.to_dict(), **t.data}))
+    return t.built(lambda: TrackerConfig.for_ablation(ablation, **t.data))
 
 
 def is_det_files(scenario: str) -> bool:
