@@ -308,7 +308,7 @@ def test_own_view_smooths_the_size_a_camera_measures_at_view_rate():
     from types import SimpleNamespace
     from edge_node.core.state import NodeState
     from edge_node.core.views import OwnViews, ViewSettings
-    views = OwnViews(ViewSettings(view_rate=0.25), [topdown_camera(0)], {})
+    views = OwnViews(ViewSettings.of(TrackerConfig(), view_rate=0.25), [topdown_camera(0)], {})
     st = NodeState(1)
     st.insert((0, 0), Gallery())
     st.insert((0, 1), Gallery())  # not measured: nothing drawn for it changes
@@ -327,7 +327,8 @@ def test_own_view_smooths_the_size_a_camera_measures_at_view_rate():
 def test_own_view_draws_a_box_only_while_enough_of_it_is_in_the_image():
     from edge_node.core.views import OwnViews, ViewSettings
     cam = Camera(0, (100, 80), np.eye(3))
-    views = OwnViews(ViewSettings(view_inside=0.9, view_hidden=0.5, view_fresh=10), [cam], {})
+    views = OwnViews(ViewSettings.of(TrackerConfig(), view_inside=0.9, view_hidden=0.5, view_fresh=10),
+                     [cam], {})
     boxes = np.array([[10.0, 10, 20, 40],    # inside
                       [-1.0, 10, 20, 40],    # 19 of 20 px across: 0.95 >= 0.9
                       [-3.0, 10, 20, 40],    # 17 of 20: 0.85, left out

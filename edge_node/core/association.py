@@ -16,12 +16,33 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from edge_node.core.config import TrackerConfig
+from edge_node.core.config import Slice
 import edge_node.core.reidquality as reidquality
 from edge_node.core.gallery import Gallery
 from edge_node.core.reidquality import ReidQuality, Thresholds
 from edge_node.core.stacks import Columns
 from edge_node.geometry import norms
+
+
+@dataclass(frozen=True)
+class AssociationSettings(Slice):
+    """What the local data association reads (eqs. 5-7, its second stage and the appearance
+    thresholds' defaults); each parameter's rule and doc is in its section of
+    ``config.TrackerConfig``."""
+
+    tau: float
+    alpha_lda: float
+    unknown_appearance: float
+    appearance_gate: float
+    recover: bool
+    tau_gda: float
+    alpha_gda: float
+    comotion_gate: float
+    merge_appearance: float
+    epsilon: float
+    units_per_metre: float
+    fps: float
+
 
 FORBIDDEN = 1e9
 
@@ -171,7 +192,7 @@ def appearance_matrix(trackers: Sequence[Candidate], obs: Sequence[Observation],
 
 
 def cost_matrix(trackers: Sequence[Candidate], obs: Sequence[Observation],
-                cfg: TrackerConfig, appearance: bool = True, gate: float | None = None,
+                cfg: AssociationSettings, appearance: bool = True, gate: float | None = None,
                 learn: ReidQuality | None = None) -> np.ndarray:
     """Eqs. 5-7: ``s_a * s_d`` inside the gate, ``FORBIDDEN`` outside (``s_d`` alone without
     appearance, the paper's ``dkf`` configuration). ``gate``: the appearance gate (default
@@ -210,7 +231,7 @@ def assign(cost: np.ndarray) -> list[tuple[int, int]]:
 
 
 def recover(trackers: Sequence[Candidate], obs: Sequence[Observation],
-            taken: Sequence[tuple[int, int]], cfg: TrackerConfig,
+            taken: Sequence[tuple[int, int]], cfg: AssociationSettings,
             th: Thresholds | None = None) -> list[tuple[int, int]]:
     """Second stage of the LDA (our addition): a measurement no tracker took, next to a tracker
     that took none, within the distributed global association's gate ``tau_gda`` (Euclidean,
@@ -250,7 +271,7 @@ class LocalDataAssociation:
     re-id (``reidquality``), which learns from every frame and sets the appearance thresholds;
     None: the configured ones."""
 
-    def __init__(self, cfg: TrackerConfig, appearance: bool = True,
+    def __init__(self, cfg: AssociationSettings, appearance: bool = True,
                  quality: ReidQuality | None = None):
         self.cfg = cfg
         self.appearance = appearance

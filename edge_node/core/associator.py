@@ -12,11 +12,29 @@ last frame (the naive-node bound, :meth:`Associator.gate_covariances`). Pure and
 """
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
 
 import edge_node.core.dkf as dkf
 from edge_node.core.association import Candidates, LocalDataAssociation, Observation, Observations
 from edge_node.core.state import NodeState
+from edge_node.core.config import Slice
+
+
+@dataclass(frozen=True)
+class AssociatorSettings(Slice):
+    """What the associator role reads (the gate, the gallery's admission, the naive-node bound);
+    each parameter's rule and doc is in its section of ``config.TrackerConfig``."""
+
+    tau: float
+    naive_bound: bool
+    gallery_admit: float
+    calib_sigma: float
+    birth_vel_sigma: float
+    kappa: int
+    units_per_metre: float
+    fps: float
 
 
 class Associator:

@@ -56,7 +56,7 @@ class SceneSection:
 
 @dataclass(frozen=True)
 class PartsSection:
-    """``[tracker.parts]``: the ablation switches of the paper's Sec. IV-B and online registration (``node.assemble``)."""
+    """``[tracker.parts]``: the ablation switches of the paper's Sec. IV-B and online registration (``assembly.assemble``)."""
 
     use_appearance: bool = boolean(True, "LDA: appearance score s_a in the association cost (eq. 7)")
     use_manager: bool = boolean(True, "DTM: global association/merge, consensus drop (eq. 8), re-id")

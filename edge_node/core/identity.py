@@ -16,14 +16,27 @@ Every table is bounded: a node runs for months.
 """
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 from collections import OrderedDict
 
 import numpy as np
 
-from edge_node.core.config import TrackerConfig
+from edge_node.core.config import Slice
 from edge_node.core.gallery import Gallery
 from edge_node.core.reidstore import ReidStore
 from protocol.messages import Merge, TrackerId
+
+
+@dataclass(frozen=True)
+class IdentitySettings(Slice):
+    """What the identity book reads; each parameter's rule and doc is in its section of
+    ``config.TrackerConfig``."""
+
+    max_old_mib: float
+    max_old_trackers: int
+    merge_announce_frames: int
+
 
 UNKNOWN_BIRTH = 2**62  # ranks an id whose birth frame this node never heard after every known one
 
@@ -45,7 +58,7 @@ def resolve(tid: TrackerId, aliases: dict[TrackerId, TrackerId]) -> TrackerId:
 
 
 class IdentityBook:
-    def __init__(self, node_id: int, cfg: TrackerConfig, first_counter: int = 0):
+    def __init__(self, node_id: int, cfg: IdentitySettings, first_counter: int = 0):
         self.node_id = node_id
         self.cfg = cfg
         self.counter = int(first_counter)  # a restarted process continues, never reuses

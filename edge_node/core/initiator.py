@@ -12,8 +12,21 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from edge_node.core.association import FORBIDDEN, Observation, assign
-from edge_node.core.config import TrackerConfig
+from edge_node.core.config import Slice
 from edge_node.core.gallery import cosine_distance
+
+
+@dataclass(frozen=True)
+class InitiatorSettings(Slice):
+    """What local initialisation reads; each parameter's rule and doc is in its section of
+    ``config.TrackerConfig``."""
+
+    candidate_appearance: float
+    candidate_gate: float
+    candidate_max_age: int
+    init_observations: int
+    units_per_metre: float
+    fps: float
 
 
 @dataclass
@@ -31,7 +44,7 @@ class Pending:
 class Initiator:
     """Pending observations of one camera and the rule that turns them into births."""
 
-    def __init__(self, cfg: TrackerConfig, appearance: bool = True):
+    def __init__(self, cfg: InitiatorSettings, appearance: bool = True):
         self.cfg = cfg
         self.appearance = appearance  # the two observations must look alike (LDA configurations)
         self.pending: list[Pending] = []

@@ -18,21 +18,42 @@ deterministic.
 """
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 from collections import Counter
 from collections.abc import Callable, Sequence
 
 import numpy as np
 
 import edge_node.core.dkf as dkf
+from edge_node.core.association import Observation
 from edge_node.core.entries import Entries
 from edge_node.core.gallery import Gallery
 from edge_node.core.identity import IdentityBook
-from edge_node.core.initiator import Pending
 from edge_node.core.manager import MergeView
 from edge_node.core.model import birth_covariance, birth_state, quantize
 from edge_node.core.reappear import Gone, Young, gone_trackers
 from edge_node.core.state import NodeState
 from protocol.messages import FrameMessage, TrackerId, TrackerInfo
+from edge_node.core.config import Slice
+
+
+@dataclass(frozen=True)
+class LifecycleSettings(Slice):
+    """What the lifecycle role reads (galleries, eq. 8's kappa, adoption, scope, the birth
+    prior); each parameter's rule and doc is in its section of ``config.TrackerConfig``."""
+
+    gallery_every: int
+    gallery_size: int
+    kappa: int
+    max_adoptions_per_frame: int
+    reappear_age: int
+    scope_hops: int
+    birth_pos_sigma: float
+    birth_size_sigma: float
+    birth_vel_sigma: float
+    units_per_metre: float
+    fps: float
 
 
 class Lifecycle:
@@ -58,16 +79,16 @@ class Lifecycle:
         return Gallery(self.cfg.gallery_size, self.cfg.gallery_every)
 
     # -- births -------------------------------------------------------------------------------
-    def birth(self, state: NodeState, k: int, c: int, chain: Pending) -> None:
-        """Local initialisation from two observations of camera ``c`` (its column): prior from
-        the first, measurement from the last; re-identification against dropped trackers
-        first (DTM)."""
+    def birth(self, state: NodeState, k: int, c: int, observations: Sequence[Observation]) -> None:
+        """Local initialisation from a chain of observations of camera ``c`` (its column;
+        ``initiator``): prior from the first, measurement from the last; re-identification
+        against dropped trackers first (DTM)."""
         cfg, book = self.cfg, self.book
         gallery = Gallery(cfg.gallery_size, cfg.gallery_every,
-                          [o.descriptor for o in chain.observations if o.descriptor is not None])
+                          [o.descriptor for o in observations if o.descriptor is not None])
         gallery.mark(k)
         born = k
-        first, last = chain.observations[0], chain.observations[-1]
+        first, last = observations[0], observations[-1]
         tid = self.manager.reidentify(gallery, book.old.candidates(), k, last.z[:2], book.last)
         if tid is not None:
             old_gallery = book.old.take(tid)

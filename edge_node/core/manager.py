@@ -23,13 +23,37 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from edge_node.core.config import TrackerConfig
 from edge_node.core.gallery import Gallery
 from edge_node.core.identity import rank
-from edge_node.core.reappear import Gone, Young, awaiting, reappearances
+from edge_node.core.reappear import Gone, ReappearSettings, Young, awaiting, reappearances
 from edge_node.core.reidquality import ReidQuality, Thresholds
 from edge_node.geometry import norms
 from protocol.messages import TrackerId
+
+
+@dataclass(frozen=True)
+class ManagerSettings(ReappearSettings):
+    """What the distributed tracker manager's rules read (merges, eq. 8, re-identification; and
+    re-appearance's, ``ReappearSettings``); each parameter's rule and doc is in its section of
+    ``config.TrackerConfig``."""
+
+    tau_gda: float
+    alpha_gda: float
+    unknown_appearance: float
+    appearance_gate: float
+    comotion_gate: float
+    comotion_miss: float
+    comotion_split: float
+    merge_llr: float
+    merge_llr_floor: float
+    merge_evidence: bool
+    kappa: int
+    epsilon: float
+    reid_frames: int
+    reid_gate: float
+    reappear: bool
+    heir_pending: bool
+    stitch: bool
 
 
 def ell_sent(observed: bool, ell_prev: int) -> int:
@@ -95,12 +119,12 @@ def simultaneous(a: MergeView, b: MergeView) -> bool:
         (b.new and b.heard is not None and a.since >= b.heard)
 
 
-def merge_reach(cfg: TrackerConfig) -> float:
+def merge_reach(cfg: ManagerSettings) -> float:
     """The farthest apart two trackers may be merged by any rule of :func:`pair_score`."""
     return max(cfg.m(cfg.comotion_gate), cfg.m(cfg.tau_gda))
 
 
-def pair_score(a: MergeView, b: MergeView, cfg: TrackerConfig, th: Thresholds | None = None
+def pair_score(a: MergeView, b: MergeView, cfg: ManagerSettings, th: Thresholds | None = None
                ) -> tuple[float, bool] | None:
     """Global association of two trackers on this node: ``(score, at_once)`` when they may be
     one target, the score ``s_a * d / alpha_gda`` (eqs. 5-7 with ``V = I``; ``s_a`` is
@@ -163,7 +187,7 @@ def pair_score(a: MergeView, b: MergeView, cfg: TrackerConfig, th: Thresholds | 
     return score, not seen_as_two and (a.new or b.new) and d < cfg.m(cfg.comotion_gate) / 2.0
 
 
-def comotion_llr(a: MergeView, b: MergeView, cfg: TrackerConfig) -> float:
+def comotion_llr(a: MergeView, b: MergeView, cfg: ManagerSettings) -> float:
     """This frame's log-likelihood ratio, one target against two people, of what the cameras
     measured of two trackers within the ``comotion_gate`` (ours; the paper merges at once
     within its gate). A camera that measured one of the two and not the other counts
@@ -181,7 +205,7 @@ def comotion_llr(a: MergeView, b: MergeView, cfg: TrackerConfig) -> float:
 
 
 def find_merges(views: Sequence[MergeView], evidence: dict[tuple[TrackerId, TrackerId], float],
-                cfg: TrackerConfig, th: Thresholds | None = None,
+                cfg: ManagerSettings, th: Thresholds | None = None,
                 learn: ReidQuality | None = None) -> list[tuple[TrackerId, TrackerId]]:
     """Pairs ``(loser, winner)`` to merge this frame; updates ``evidence`` in place.
 
@@ -259,7 +283,7 @@ def find_merges(views: Sequence[MergeView], evidence: dict[tuple[TrackerId, Trac
     return sorted(merges, key=lambda m: (m[1], m[0]))
 
 
-def reidentify(gallery: Gallery, old: Mapping[TrackerId, Gallery], cfg: TrackerConfig,
+def reidentify(gallery: Gallery, old: Mapping[TrackerId, Gallery], cfg: ManagerSettings,
                k: int = 0, xy: np.ndarray | None = None,
                last: Mapping[TrackerId, tuple[int, np.ndarray]] | None = None,
                epsilon: float | None = None) -> TrackerId | None:
@@ -286,7 +310,7 @@ def reidentify(gallery: Gallery, old: Mapping[TrackerId, Gallery], cfg: TrackerC
 
 
 def heir(lost: MergeView, ell: int, others: Sequence[MergeView], k: int,
-         evidence: Mapping[tuple[TrackerId, TrackerId], float], cfg: TrackerConfig,
+         evidence: Mapping[tuple[TrackerId, TrackerId], float], cfg: ManagerSettings,
          veto: float | None = None) -> TrackerId | None:
     """The tracker that took over the target of ``lost``, dropped at frame ``k`` after nobody
     saw it for ``ell`` frames (eq. 8), or ``None`` (ours; tracklet stitching). A duplicate born
@@ -341,7 +365,7 @@ class DistributedTrackerManager:
 
     keeps_galleries = True  # dropped trackers' galleries are kept for re-identification
 
-    def __init__(self, cfg: TrackerConfig, quality: ReidQuality | None = None):
+    def __init__(self, cfg: ManagerSettings, quality: ReidQuality | None = None):
         self.cfg = cfg
         #: co-motion evidence per pair of trackers (:func:`find_merges`)
         self.evidence: dict[tuple[TrackerId, TrackerId], float] = {}
@@ -436,7 +460,7 @@ class IndependentTrackers:
 
     keeps_galleries = False
 
-    def __init__(self, cfg: TrackerConfig):
+    def __init__(self, cfg: ManagerSettings):
         self.cfg = cfg
 
     def ell(self, own: int, received: Sequence[int]) -> int:

@@ -15,9 +15,23 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from edge_node.core.config import TrackerConfig
+from edge_node.core.config import Slice
 from edge_node.core.stacks import Columns
 from edge_node.geometry import Camera, norms
+
+
+@dataclass(frozen=True)
+class MeasurerSettings(Slice):
+    """What the measurement model reads; each parameter's rule and doc is in its section of
+    ``config.TrackerConfig``."""
+
+    pixel_sigma: float
+    calib_sigma: float
+    size_meas_floor: float
+    border_px: float
+    fixed_R: tuple[float, float] | None
+    units_per_metre: float
+    fps: float
 
 
 @dataclass(eq=False, slots=True)
@@ -87,12 +101,12 @@ def away_direction(J: np.ndarray) -> np.ndarray:
     return d / np.maximum(norms(d), 1e-12)[..., None]
 
 
-def box_measurement(camera: Camera, box: np.ndarray, cfg: TrackerConfig) -> BoxMeasurement:
+def box_measurement(camera: Camera, box: np.ndarray, cfg: MeasurerSettings) -> BoxMeasurement:
     """``z`` and the pixel-noise ``R`` of one box ``(x, y, w, h)`` px seen by ``camera``."""
     return box_measurements(camera, np.asarray(box, float)[None], cfg)[0]
 
 
-def box_measurements(camera: Camera, boxes: np.ndarray, cfg: TrackerConfig) -> BoxMeasurements:
+def box_measurements(camera: Camera, boxes: np.ndarray, cfg: MeasurerSettings) -> BoxMeasurements:
     """:func:`box_measurement` of ``(n, 4)`` boxes, computed for all of them at once."""
     boxes = np.asarray(boxes, dtype=float).reshape(-1, 4)
     if not len(boxes):
@@ -128,19 +142,19 @@ def box_measurements(camera: Camera, boxes: np.ndarray, cfg: TrackerConfig) -> B
     return BoxMeasurements(z, R, foot, away, size, cuts)
 
 
-def fixed_R(cfg: TrackerConfig) -> np.ndarray:
+def fixed_R(cfg: MeasurerSettings) -> np.ndarray:
     """The paper's constant ``R`` (``cfg.fixed_R`` = sigmas of position and size, metres)."""
     sxy, swh = (cfg.m(s) for s in cfg.fixed_R)
     return np.diag([sxy**2, sxy**2, swh**2, swh**2])
 
 
-def uncorrected(m: BoxMeasurement, cfg: TrackerConfig) -> tuple[np.ndarray, np.ndarray]:
+def uncorrected(m: BoxMeasurement, cfg: MeasurerSettings) -> tuple[np.ndarray, np.ndarray]:
     """``(z, R)`` of a box measurement without registration: ``calib_sigma`` on the position
     (or the paper's fixed ``R``)."""
     return m.z, uncorrected_many(BoxMeasurements.of([m]), cfg)[1][0]
 
 
-def uncorrected_many(ms: BoxMeasurements, cfg: TrackerConfig) -> tuple[np.ndarray, np.ndarray]:
+def uncorrected_many(ms: BoxMeasurements, cfg: MeasurerSettings) -> tuple[np.ndarray, np.ndarray]:
     """:func:`uncorrected` of a frame's measurements: ``z`` ``(n, 4)`` and ``R`` ``(n, 4, 4)``."""
     if cfg.fixed_R is not None:
         return ms.z, np.broadcast_to(fixed_R(cfg), ms.R.shape).copy()
@@ -149,6 +163,6 @@ def uncorrected_many(ms: BoxMeasurements, cfg: TrackerConfig) -> tuple[np.ndarra
     return ms.z, R
 
 
-def measure(camera: Camera, box: np.ndarray, cfg: TrackerConfig) -> tuple[np.ndarray, np.ndarray]:
+def measure(camera: Camera, box: np.ndarray, cfg: MeasurerSettings) -> tuple[np.ndarray, np.ndarray]:
     """Return ``(z, R)`` for one box without registration: ``calib_sigma`` on the position."""
     return uncorrected(box_measurement(camera, box, cfg), cfg)

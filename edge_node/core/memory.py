@@ -16,18 +16,30 @@ or dropped the tracker.
 from __future__ import annotations
 
 from collections.abc import Iterable
-from dataclasses import replace
+from dataclasses import dataclass, replace
 
 import numpy as np
 
-from edge_node.core.config import TrackerConfig
+from edge_node.core.config import Slice
 from edge_node.core.dkf import carried
 from edge_node.core.model import STATE_DIM, transition
 from protocol.messages import FrameMessage, TrackerId, TrackerInfo
 
 
+@dataclass(frozen=True)
+class MemorySettings(Slice):
+    """What the neighbour memory reads; each parameter's rule and doc is in its section of
+    ``config.TrackerConfig``."""
+
+    hold_frames: int
+    kappa: int
+    staleness_frames: int
+    units_per_metre: float
+    fps: float
+
+
 class NeighbourMemory:
-    def __init__(self, cfg: TrackerConfig, network: str):
+    def __init__(self, cfg: MemorySettings, network: str):
         self.cfg = cfg
         self.network = network
         # neighbour -> tracker -> (frame, entry, u/U already fused)

@@ -5,9 +5,23 @@ State ``x = (x, y, w, h, vx, vy)``: base centre, width, height, ground velocity.
 """
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
 
-from edge_node.core.config import TrackerConfig
+from edge_node.core.config import Slice
+
+
+@dataclass(frozen=True)
+class MotionSettings(Slice):
+    """What the motion model reads (``A``, ``Q``); each parameter's rule and doc is in its
+    section of ``config.TrackerConfig``."""
+
+    accel_sigma: float
+    size_sigma: float
+    units_per_metre: float
+    fps: float
+
 
 STATE_DIM = 6
 MEAS_DIM = 4
@@ -26,7 +40,7 @@ def transition(dt: float) -> np.ndarray:
     return A
 
 
-def process_noise(cfg: TrackerConfig) -> np.ndarray:
+def process_noise(cfg: MotionSettings) -> np.ndarray:
     """``Q`` of eq. 1: white-noise acceleration on (p, v); random walk on (w, h)."""
     dt = cfg.dt
     qa = cfg.m(cfg.accel_sigma) ** 2
@@ -39,7 +53,7 @@ def process_noise(cfg: TrackerConfig) -> np.ndarray:
     return Q
 
 
-def birth_covariance(cfg: TrackerConfig) -> np.ndarray:
+def birth_covariance(cfg: MotionSettings) -> np.ndarray:
     """Prior covariance of a new tracker: the same on every node, so adopters agree exactly."""
     s = [cfg.m(cfg.birth_pos_sigma)] * 2 + [cfg.m(cfg.birth_size_sigma)] * 2 \
         + [cfg.m(cfg.birth_vel_sigma)] * 2

@@ -22,94 +22,22 @@ of them and has no neighbours. No I/O, no clock, no randomness: same inputs, sam
 """
 from __future__ import annotations
 
-from collections import Counter
-from collections.abc import Callable, Iterable, Mapping, Sequence
-from dataclasses import dataclass, field
-from functools import partial
+from collections.abc import Iterable, Mapping, Sequence
 
-import edge_node.core.registrar as registrar
-from edge_node.core.association import LocalDataAssociation
-from edge_node.core.associator import Associator
+from edge_node.core.assembly import Components, assemble, roles
 from edge_node.core.config import TrackerConfig
-from edge_node.core.identity import IdentityBook
-from edge_node.core.inbound import Inbound
-from edge_node.core.initiator import Initiator
-from edge_node.core.lifecycle import Lifecycle
-from edge_node.core.manager import DistributedTrackerManager, IndependentTrackers
-from edge_node.core.measurer import Measurer
-from edge_node.core.memory import NeighbourMemory
-from edge_node.core.outbound import Outbound
-from edge_node.core.predictor import Predictor
-from edge_node.core.registration import Registration
-from edge_node.core.reidquality import ReidQuality
-from edge_node.core.reporter import Reporter
-from edge_node.core.screen import Screen
 from edge_node.core.state import NodeState, TrackerRows
+from edge_node.core.stats import NodeStats
 from edge_node.core.types import Detection, Track
-from edge_node.core.updater import Updater
-from edge_node.core.views import OwnViews, ViewSettings
 from edge_node.geometry import Camera
 from protocol.errors import DmttError
 from protocol.messages import FrameMessage
 
-Manager = DistributedTrackerManager | IndependentTrackers
+__all__ = ["CameraNode", "Components", "NodeStateError", "NodeStats", "assemble"]
 
 
 class NodeStateError(DmttError, RuntimeError):
     """``prepare`` and ``update`` called out of order, or frames going backwards."""
-
-
-@dataclass
-class NodeStats:
-    births: int = 0
-    reidentified: int = 0
-    adopted: int = 0
-    reactivated: int = 0
-    merged: int = 0
-    stitched: int = 0  # dropped trackers whose id a younger tracker took (manager.heir: heir_pending or stitch)
-    reappeared: int = 0  # new trackers that took a dropped one's id by its course (reappear.py)
-    dropped: int = 0
-    out_of_scope: int = 0  # trackers let go because the target is beyond scope_hops (regional scope)
-    ignored_messages: int = 0  # other network, not a neighbour, future or too old a frame
-    duplicate_messages: int = 0  # a sender's frame already taken
-    bad_detections: int = 0  # boxes with NaN, inf or a non-positive size: not measured
-    numerical: int = 0  # tracker corrections that failed numerically (kept the prediction)
-    rejected: dict[str, int] = field(default_factory=dict)  # neighbours' entries, by reason
-
-    def add(self, other: "NodeStats") -> "NodeStats":
-        """The sum of two lives of a node (before and after a restart)."""
-        out = NodeStats(**{f: getattr(self, f) + getattr(other, f)
-                           for f in vars(self) if f != "rejected"})
-        out.rejected = dict(Counter(self.rejected) + Counter(other.rejected))
-        return out
-
-
-@dataclass(frozen=True)
-class Components:
-    """What a node is assembled from (the replaceable parts)."""
-
-    associate: LocalDataAssociation
-    manager: Manager
-    initiator: Callable[[], Initiator]  # one per camera
-    registration: Callable[[Camera], Registration] | None = None  # one per camera, or none
-    #: what each camera draws (``views.OwnViews``), from the node's cameras and registrations;
-    #: ``None``: the configuration's ``view_*`` rules
-    views: Callable[[Sequence[Camera], Mapping[int, Registration]], OwnViews] | None = None
-
-
-def assemble(cfg: TrackerConfig) -> Components:
-    """The paper's configurations (Sec. IV-B): ``dkf`` (geometry only, no manager), ``dkf+lda``
-    (appearance in the association), ``dkf+lda+dtm`` (with the distributed tracker manager);
-    each with or without online registration of the cameras (``cfg.registration``)."""
-    appearance = cfg.use_appearance
-    # the node's measured re-id, one for its association and its manager (reidquality)
-    quality = ReidQuality(cfg) if appearance and cfg.reid_learn else None
-    return Components(
-        associate=LocalDataAssociation(cfg, appearance, quality),
-        manager=(DistributedTrackerManager(cfg, quality) if cfg.use_manager
-                 else IndependentTrackers(cfg)),
-        initiator=lambda: Initiator(cfg, appearance),
-        registration=(lambda camera: Registration(camera, cfg)) if cfg.registration else None)
 
 
 class CameraNode:
@@ -130,26 +58,14 @@ class CameraNode:
         self.associate, self.manager, self.stats = parts.associate, parts.manager, NodeStats()
         self.state = NodeState(len(self.cameras))
         self.trackers = TrackerRows(self.state)  # by id, for code off the hot path
-        self.registrations: dict[int, Registration] = (
-            {c.id: parts.registration(c) for c in self.cameras} if parts.registration else {})
-        self.own_views = (parts.views or partial(OwnViews, ViewSettings.of(cfg)))(
-            self.cameras, self.registrations)
-        self.book = IdentityBook(self.id, cfg, first_counter)
-        self.memory = NeighbourMemory(cfg, network)
-        self.screen = Screen(cfg, self.cameras, self.id)
-        self.predictor = Predictor(cfg)
-        self.measurer = Measurer(cfg, self.cameras, self.registrations,
-                                 self.associate.descriptor, self.stats)
-        self.associator = Associator(self.associate, cfg)
-        self.initiators = {c.id: parts.initiator() for c in self.cameras}
-        self.lifecycle = Lifecycle(self.manager, self.book, cfg, [c.id for c in self.cameras],
-                                   self.associate.descriptor, self.stats, self.screen.rejected)
-        self.outbound = Outbound(network, self.id, cfg.scope_hops, self.book)
-        self.inbound = Inbound(self.neighbours, network, cfg.kappa, cfg.max_trackers_per_neighbour,
-                               self.screen, self.stats, self.memory)
-        self.updater = Updater(cfg, self.stats)
-        self.reporter = Reporter(self.manager, self.lifecycle.young, self.lifecycle.gone,
-                                 self.own_views, cfg)
+        r = roles(cfg, parts, self.cameras, self.neighbours, network, self.id, first_counter,
+                  self.stats)
+        self.book, self.memory, self.screen, self.registrations = (r.book, r.memory, r.screen,
+                                                                    r.registrations)
+        self.predictor, self.measurer, self.associator = r.predictor, r.measurer, r.associator
+        self.initiators, self.lifecycle, self.inbound = r.initiators, r.lifecycle, r.inbound
+        self.updater, self.registrar, self.outbound = r.updater, r.registrar, r.outbound
+        self.reporter, self.own_views = r.reporter, r.views
         self._frame: int | None = None
         self._prepared = False
         self._raws: dict = {}  # per camera, this frame's box measurements
@@ -171,7 +87,7 @@ class CameraNode:
             if raws is not None:
                 self._raws[cam.id] = raws
             for chain in self.initiators[cam.id].step(k, self.associator(state, c, k, obs)):
-                self.lifecycle.birth(state, k, c, chain)
+                self.lifecycle.birth(state, k, c, chain.observations)
         self.own_views.saw(state, k, self._raws)
         self.outbound.sent_values(state)
         self._prepared = True
@@ -201,9 +117,7 @@ class CameraNode:
         entries = heard.inbox.entries(state.ids)
         self.updater(state, entries)
         self.lifecycle.count(state, k, entries, heard.lagless, heard.news)
-        if self.registrations:
-            registrar.learn(self.registrations, entries, state, [c.id for c in self.cameras],
-                            self._raws)
+        self.registrar(state, entries, self._raws)
         self.lifecycle.manage(state, k, heard.inbox.measured)
         self._prepared = False
         return self.tracks()

@@ -36,14 +36,31 @@ Pure and deterministic.
 from __future__ import annotations
 
 from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
 from typing import NamedTuple
 
 import numpy as np
 
-from edge_node.core.config import TrackerConfig
+from edge_node.core.config import Slice
 from edge_node.core.gallery import Gallery
 from edge_node.core.model import POS, VEL
 from protocol.messages import TrackerId
+
+
+@dataclass(frozen=True)
+class ReappearSettings(Slice):
+    """What re-identification by motion reads; each parameter's rule and doc is in its section
+    of ``config.TrackerConfig``."""
+
+    merge_appearance: float
+    reappear_age: int
+    reappear_frames: int
+    reappear_gate: float
+    reappear_spread: float
+    reappear_hide: int
+    reid_speed: float
+    units_per_metre: float
+    fps: float
 
 
 class Young(NamedTuple):
@@ -67,12 +84,12 @@ class Gone(NamedTuple):
     gallery: Gallery
 
 
-def reach(gap: int, cfg: TrackerConfig) -> float:
+def reach(gap: int, cfg: ReappearSettings) -> float:
     """The largest ``d_mid`` (ground units) of a re-appearance after ``gap`` frames unseen."""
     return cfg.m(cfg.reappear_gate) + cfg.m(cfg.reappear_spread) * gap * cfg.dt
 
 
-def d_mid(young: Young, gone: Gone, k: int, cfg: TrackerConfig) -> float:
+def d_mid(young: Young, gone: Gone, k: int, cfg: ReappearSettings) -> float:
     """The distance between the dropped tracker's course carried forward and the new tracker's
     carried back from its ``origin``, at the middle of the gap (module docstring)."""
     mid = 0.5 * (gone.seen + young.born)
@@ -82,7 +99,7 @@ def d_mid(young: Young, gone: Gone, k: int, cfg: TrackerConfig) -> float:
     return float(np.linalg.norm(forward - backward))
 
 
-def candidates(young: Young, gone: Sequence[Gone], cfg: TrackerConfig,
+def candidates(young: Young, gone: Sequence[Gone], cfg: ReappearSettings,
                veto: float | None = None) -> list[Gone]:
     """The dropped trackers ``young`` may be: dropped before it was born, at most
     ``reappear_frames`` before, and alike where both have galleries (within ``veto``, default
@@ -98,7 +115,7 @@ def candidates(young: Young, gone: Sequence[Gone], cfg: TrackerConfig,
     return out
 
 
-def reappearances(young: Sequence[Young], gone: Sequence[Gone], k: int, cfg: TrackerConfig,
+def reappearances(young: Sequence[Young], gone: Sequence[Gone], k: int, cfg: ReappearSettings,
                   veto: float | None = None) -> list[tuple[TrackerId, TrackerId]]:
     """``(new, dropped)`` pairs decided at frame ``k``: the trackers of ``young`` created on
     this node (they have an ``origin``) that are ``reappear_age`` frames old now, linked to the dropped tracker whose course they continue
@@ -120,7 +137,7 @@ def reappearances(young: Sequence[Young], gone: Sequence[Gone], k: int, cfg: Tra
     return pairs
 
 
-def awaiting(young: Young, gone: Sequence[Gone], k: int, cfg: TrackerConfig,
+def awaiting(young: Young, gone: Sequence[Gone], k: int, cfg: ReappearSettings,
              veto: float | None = None) -> bool:
     """Whether ``young`` may still be linked to a dropped tracker (and so is not reported yet):
     within ``reappear_age`` plus ``reappear_hide`` frames of its birth (the decision and its

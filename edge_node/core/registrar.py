@@ -15,6 +15,22 @@ from edge_node.core.registration import Registration
 from edge_node.core.state import NodeState
 
 
+class Registrar:
+    """The registrar role: ``registrations``, the node's (camera id -> ``Registration``; empty
+    when it does not register its cameras); ``cameras``: the node's camera ids, in its table's
+    camera columns."""
+
+    def __init__(self, registrations: Mapping[int, Registration], cameras: Sequence[int]):
+        self.registrations = registrations
+        self.cameras = list(cameras)
+
+    def __call__(self, state: NodeState, entries: Entries,
+                 raws: Mapping[int, BoxMeasurements]) -> None:
+        """:func:`learn` of the frame (nothing without registrations)."""
+        if self.registrations:
+            learn(self.registrations, entries, state, self.cameras, raws)
+
+
 def learn(registrations: Mapping[int, Registration], entries: Entries, state: NodeState,
           cameras: Sequence[int], raws: Mapping[int, BoxMeasurements]) -> None:
     """Feed each camera's :class:`Registration` this frame's residuals and end its frame.

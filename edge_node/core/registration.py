@@ -76,15 +76,37 @@ Deterministic: the same residuals in the same order give the same correction.
 """
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import math
 from collections.abc import Sequence
 
 import numpy as np
 
-from edge_node.core.config import TrackerConfig
+from edge_node.core.config import Slice
 from edge_node.core.measurement import BoxMeasurement, BoxMeasurements, away_direction
 from edge_node.core.stacks import times
 from edge_node.geometry import Camera
+
+
+@dataclass(frozen=True)
+class RegistrationSettings(Slice):
+    """What a camera's online registration reads; each parameter's rule and doc is in its
+    section of ``config.TrackerConfig``."""
+
+    calib_sigma: float
+    reg_shift: float
+    reg_rotation: float
+    reg_scale: float
+    reg_foot: float
+    reg_drift: float
+    reg_noise: float
+    reg_gate: float
+    reg_debias: bool
+    reg_anchor: float
+    units_per_metre: float
+    fps: float
+
 
 N_PARAMS = 5
 _ROT90 = np.array([[0.0, -1.0], [1.0, 0.0]])
@@ -105,7 +127,7 @@ def reference_point(camera: Camera) -> np.ndarray:
 class Registration:
     """The registration correction ``theta`` of one camera and its covariance ``Sigma``."""
 
-    def __init__(self, camera: Camera, cfg: TrackerConfig):
+    def __init__(self, camera: Camera, cfg: RegistrationSettings):
         self.camera = camera
         self.cfg = cfg
         self.c0 = reference_point(camera)

@@ -47,7 +47,21 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from edge_node.core.config import TrackerConfig
+from edge_node.core.config import Slice
+
+
+@dataclass(frozen=True)
+class ReidSettings(Slice):
+    """What a node's measured re-id reads; each parameter's rule and doc is in its section of
+    ``config.TrackerConfig``."""
+
+    appearance_gate: float
+    epsilon: float
+    merge_appearance: float
+    reid_error: float
+    reid_memory: int
+    reid_samples: int
+
 
 BINS = 200
 TOP = 2.0  # a cosine distance is in [0, 2]
@@ -64,7 +78,7 @@ class Thresholds:
     epsilon: float
 
     @classmethod
-    def of(cls, cfg: TrackerConfig) -> "Thresholds":
+    def of(cls, cfg: ReidSettings) -> "Thresholds":
         """The configured ones."""
         return cls(cfg.appearance_gate, cfg.merge_appearance, cfg.merge_appearance, cfg.epsilon)
 
@@ -73,7 +87,7 @@ class ReidQuality:
     """A node's histograms of appearance distances of one person (``same``) and of two people
     (``two``), and the :class:`Thresholds` they set."""
 
-    def __init__(self, cfg: TrackerConfig):
+    def __init__(self, cfg: ReidSettings):
         self.cfg = cfg
         self.same = np.zeros(BINS)
         self.two = np.zeros(BINS)

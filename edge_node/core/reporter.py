@@ -13,11 +13,27 @@ as a second id: a young tracker on its way to merging into a reported older one
 """
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
 
 from edge_node.core.state import NodeState
 from edge_node.core.types import Track
 from protocol.messages import TrackerId
+from edge_node.core.config import Slice
+
+
+@dataclass(frozen=True)
+class ReporterSettings(Slice):
+    """What the reporter role reads; each parameter's rule and doc is in its section of
+    ``config.TrackerConfig``."""
+
+    report_coast: int
+    hide_pending: bool
+    pending_alias: bool
+    comotion_frames: int
+    reappear_age: int
+    reappear_hide: int
 
 
 class Reporter:

@@ -66,14 +66,30 @@ Pure and deterministic; bounded memory (per neighbour, ids heard within the wind
 from __future__ import annotations
 
 from collections import Counter, OrderedDict
-from dataclasses import replace
+from dataclasses import dataclass, replace
 
 import numpy as np
 
-from edge_node.core.config import TrackerConfig
+from edge_node.core.config import Slice
 from edge_node.core.identity import IdentityBook
 from edge_node.geometry import Camera, norms
 from protocol.messages import VELOCITY_PLACES, FrameMessage, Merge, TrackerId
+
+
+@dataclass(frozen=True)
+class ScreenSettings(Slice):
+    """What the screen reads (what a neighbour may claim); each parameter's rule and doc is in
+    its section of ``config.TrackerConfig``."""
+
+    world_radius: float
+    max_size: float
+    max_speed: float
+    kappa: int
+    max_old_trackers: int
+    merge_announce_frames: int
+    units_per_metre: float
+    fps: float
+
 
 RANK_TOL = 1e-9  # eigenvalues of U below this fraction of the largest count as unmeasured
 FLOAT_TOL = 1e-6  # float32 rounding on the wire: negative eigenvalues of U and components of u
@@ -107,7 +123,7 @@ def _factors(blocks) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
 class Screen:
     """Checks neighbours' messages for meaning; counts what it drops in ``rejected``."""
 
-    def __init__(self, cfg: TrackerConfig, cameras: list[Camera], node_id: int):
+    def __init__(self, cfg: ScreenSettings, cameras: list[Camera], node_id: int):
         self.cfg = cfg
         self.node_id = node_id
         self.anchors = anchors(cameras)

@@ -13,12 +13,25 @@ as usual. Pure and deterministic.
 """
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
 
 import edge_node.core.dkf as dkf
 from edge_node.core.entries import Entries
 from edge_node.core.model import STATE_DIM
 from edge_node.core.state import NodeState
+from edge_node.core.config import Slice
+
+
+@dataclass(frozen=True)
+class UpdaterSettings(Slice):
+    """What the updater role reads; each parameter's rule and doc is in its section of
+    ``config.TrackerConfig``."""
+
+    consensus_bound: float
+    units_per_metre: float
+
 
 _FAILED = (np.linalg.LinAlgError, ValueError, FloatingPointError)
 

@@ -17,10 +17,11 @@ gives it the trackers to draw and their estimates. Pure and deterministic.
 from __future__ import annotations
 
 from collections.abc import Mapping, Sequence
-from dataclasses import dataclass, fields
+from dataclasses import dataclass
 
 import numpy as np
 
+from edge_node.core.config import Slice
 from edge_node.core.measurement import pixels_per_unit
 from edge_node.core.registration import Registration
 from edge_node.core.measurement import BoxMeasurements
@@ -29,20 +30,16 @@ from edge_node.geometry import Camera
 
 
 @dataclass(frozen=True)
-class ViewSettings:
-    """The ``view_*`` parameters of ``TrackerConfig`` (their rules and docs are there)."""
+class ViewSettings(Slice):
+    """What each camera's own view reads (the ``view_*`` parameters of the configuration's
+    ``reporter`` section, where their rules and docs are)."""
 
-    view_frames: int = 100
-    view_rate: float = 0.2
-    view_unseen: bool = False
-    view_inside: float = 0.9
-    view_fresh: int = 50
-    view_hidden: float = 1.0
-
-    @classmethod
-    def of(cls, cfg) -> "ViewSettings":
-        """The slice of a ``TrackerConfig`` (any object with these attributes)."""
-        return cls(**{f.name: getattr(cfg, f.name) for f in fields(cls)})
+    view_frames: int
+    view_rate: float
+    view_unseen: bool
+    view_inside: float
+    view_fresh: int
+    view_hidden: float
 
 
 class OwnViews:
