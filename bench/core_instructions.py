@@ -27,6 +27,11 @@ not counted. It prints the mean over the counted node-frames (the scale sweep's 
 median of noisy timings) and the trackers a node held on average, so that the issue's ratio
 "per-node cost at 64 cameras over 4" can be given without the machine's noise.
 
+``--calls`` also counts the NumPy calls per node-frame: calls from CPython's interpreter into
+NumPy's shared objects (a ufunc or an operator on arrays, a NumPy function or array method
+implemented in C, each counted once however much NumPy does inside), read from callgrind's
+call graph.
+
 ``--split`` also says whose code executes them: CPython's interpreter, NumPy's dispatch (argument
 parsing, array creation, type resolution, iterators), NumPy's inner loops (the elementwise
 arithmetic, copies and casts themselves), BLAS and LAPACK (OpenBLAS), the C library
@@ -188,6 +193,62 @@ def child(args) -> None:
     print(f"node-frames {(args.frames - warm) * (args.neighbours + 1)}")
 
 
+#: NumPy entry points that are not a call the core asks for: freeing, attribute reads, scalar
+#: conversions (the interpreter calls them around every expression)
+_NOT_CALLS = re.compile(r"(dealloc|_get$|_get'|long_|float_|bool_arrtype_nonzero|array_length|"
+                        r"gentype_|_richcompare|array_bool|array_index|array_int|array_float)")
+
+
+#: the entries that run a ufunc: a ufunc called by name, or an operator or comparison on arrays
+_UFUNC = re.compile(r"^(ufunc_\w+|array_(add|subtract|multiply|true_divide|floor_divide|power|"
+                    r"negative|positive|absolute|matrix_multiply|remainder|divmod|and|or|xor|"
+                    r"invert|lshift|rshift|inplace_\w+|richcompare))('\d+)?$")
+
+
+def numpy_calls(path: str) -> tuple[int, int]:
+    """Calls from the interpreter (libpython or the python binary) into NumPy's shared objects,
+    counted from a callgrind output file's call graph (its ``ob=`` / ``cob=`` / ``cfn=`` /
+    ``calls=`` lines; a name is given once with an id and referred to by the id after): every
+    ufunc or operator on arrays, NumPy function and array method or subscript, each once
+    however much NumPy does inside; not freeing, attribute reads and scalar conversions
+    (``_NOT_CALLS``). Returns ``(calls, ufunc calls)`` (``_UFUNC``: those that run a ufunc)."""
+    objects: dict[str, str] = {}  # callgrind's name compression: "(id) name", then "(id)"
+    functions: dict[str, str] = {}
+
+    def named(names: dict[str, str], spec: str) -> str:
+        spec = spec.strip()
+        if spec.startswith("("):
+            key, _, name = spec.partition(")")
+            if name.strip():
+                names[key] = name.strip()
+            return names.get(key, "")
+        return spec
+
+    ob = cob = cfn = ""
+    total = ufuncs = 0
+    with open(path, errors="replace") as f:
+        for line in f:
+            if line.startswith("ob="):
+                ob = named(objects, line[3:])
+            elif line.startswith("cob="):
+                cob = named(objects, line[4:])
+            elif line.startswith("cfn="):
+                cfn = named(functions, line[4:])
+            elif line.startswith("fn="):
+                named(functions, line[3:])
+                cob = ""
+            elif line.startswith("calls="):
+                caller = ob.rsplit("/", 1)[-1]
+                if caller.startswith(("python", "libpython")) and "numpy" in (cob or ob):
+                    n = int(line[6:].split()[0])
+                    if _UFUNC.match(cfn):
+                        ufuncs += n
+                    if not _NOT_CALLS.search(cfn) or _UFUNC.match(cfn):
+                        total += n
+                cob = ""
+    return total, ufuncs
+
+
 def main() -> int:
     ap = argparse.ArgumentParser(description=" ".join(__doc__.split("\n\n")[0].split()))
     ap.add_argument("--targets", type=int, default=20)
@@ -201,6 +262,8 @@ def main() -> int:
                     help="count the scale sweep's run of <layout>-<N> instead (sim_cluster bench --cameras N)")
     ap.add_argument("--scope", type=int, default=1, help="--cameras: the tracker's scope_hops (default 1)")
     ap.add_argument("--layout", choices=("corridor", "grid"), default="corridor", help="--cameras: the layout")
+    ap.add_argument("--calls", action="store_true",
+                    help="also count the calls from the interpreter into NumPy per node-frame")
     ap.add_argument("--split", action="store_true",
                     help="also split the instructions by whose code runs them (interpreter, NumPy, BLAS, libc)")
     args = ap.parse_args()
@@ -229,6 +292,7 @@ def main() -> int:
             if parts is None:
                 print("core_instructions: callgrind_annotate failed: " + annotate.stderr[-500:],
                       file=sys.stderr)
+        calls = numpy_calls(f"{tmp}/callgrind.out") if out.returncode == 0 and args.calls else None
     if out.returncode != 0:
         print(out.stdout + out.stderr[-3000:], file=sys.stderr)
         return 1
@@ -246,6 +310,9 @@ def main() -> int:
         print(f"{args.targets} targets, {args.neighbours} neighbours: "
               f"{collected / frames / 1e6:.3f} M instructions per node-frame "
               f"({what}, {frames} node-frames)")
+    if calls is not None:
+        print(f"  NumPy calls          {calls[0] / frames:6.0f}    per node-frame (from the interpreter "
+              f"into NumPy), {calls[1] / frames:.0f} of them ufuncs")
     if parts is not None:
         for name in SPLIT:
             print(f"  {name:<20} {parts[name] / frames / 1e6:6.3f} M  {parts[name] / max(collected, 1):6.1%}")

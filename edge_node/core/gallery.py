@@ -34,6 +34,7 @@ class Gallery:
         self._a = np.zeros((0, 0))  # rows 0.._n-1: unit descriptors, oldest first
         self._n = 0
         self._last_frame: int | None = None
+        self.version = 0  # changes whenever the descriptors do (what a cached distance checks)
         for d in descriptors:
             self._push(_unit(d))
 
@@ -45,6 +46,7 @@ class Gallery:
         if self._n and u.size != self._a.shape[1]:
             raise ValueError(f"a descriptor of dimension {u.size} for a gallery of dimension "
                              f"{self._a.shape[1]}")
+        self.version += 1
         if self._n == self.capacity:
             self._a[:-1] = self._a[1:]
             self._a[-1] = u

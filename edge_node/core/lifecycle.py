@@ -283,16 +283,18 @@ class Lifecycle:
     def views(self, state: NodeState, k: int, measured) -> list[MergeView]:
         """What the global association needs of every tracker (in id order)."""
         none: frozenset[int] = frozenset()
-        out = []
-        seen = state.seen.tolist()
         cams = self.cameras
-        for i, t in enumerate(state.ids):
-            by = frozenset(c for c, s in zip(cams, seen[i]) if s)
-            born = int(state.born[i])
-            out.append(MergeView(t, state.x_hat[i, :2], state.galleries[i], int(state.since[i]) == k,
-                                 by, born, measured.get(t, none), born == k and t[0] in self.mine,
-                                 int(state.since[i]), int(state.heard[i])))
-        return out
+        if len(cams) == 1:  # one frozenset for every tracker its camera saw
+            one = frozenset(cams)
+            by = [one if s else none for s in state.seen[:, 0].tolist()]
+        else:
+            by = [frozenset(c for c, s in zip(cams, row) if s) for row in state.seen.tolist()]
+        xy = state.x_hat[:, :2].copy()  # the views' own: a later merge changes the table
+        born, since, heard = state.born.tolist(), state.since.tolist(), state.heard.tolist()
+        mine, g = self.mine, state.galleries
+        return [MergeView(t, xy[i], g[i], since[i] == k, by[i], born[i], measured.get(t, none),
+                          born[i] == k and t[0] in mine, since[i], heard[i])
+                for i, t in enumerate(state.ids)]
 
     def manage(self, state: NodeState, k: int, measured) -> None:
         """The manager's frame after the update: merges of duplicates (global association),

@@ -124,8 +124,8 @@ def merge_reach(cfg: ManagerSettings) -> float:
     return max(cfg.m(cfg.comotion_gate), cfg.m(cfg.tau_gda))
 
 
-def pair_score(a: MergeView, b: MergeView, cfg: ManagerSettings, th: Thresholds | None = None
-               ) -> tuple[float, bool] | None:
+def pair_score(a: MergeView, b: MergeView, cfg: ManagerSettings, th: Thresholds | None = None,
+               d: float | None = None, s_a: float | None = None) -> tuple[float, bool] | None:
     """Global association of two trackers on this node: ``(score, at_once)`` when they may be
     one target, the score ``s_a * d / alpha_gda`` (eqs. 5-7 with ``V = I``; ``s_a`` is
     ``unknown_appearance`` where a gallery is missing) and whether they merge this frame
@@ -167,10 +167,12 @@ def pair_score(a: MergeView, b: MergeView, cfg: ManagerSettings, th: Thresholds 
     appearance cannot tell, and co-motion decides as without descriptors.
     """
     th = th or Thresholds.of(cfg)
-    d = float(np.linalg.norm(a.xy - b.xy))
+    if d is None:  # (the merge search passes the pair's distances, computed for all at once)
+        d = float(np.linalg.norm(a.xy - b.xy))
     if d >= merge_reach(cfg):
         return None
-    s_a = a.gallery.distance_to(b.gallery)
+    if s_a is None:
+        s_a = a.gallery.distance_to(b.gallery)
     known = not np.isnan(s_a)
     if known and s_a > th.veto:
         return None
@@ -206,7 +208,9 @@ def comotion_llr(a: MergeView, b: MergeView, cfg: ManagerSettings) -> float:
 
 def find_merges(views: Sequence[MergeView], evidence: dict[tuple[TrackerId, TrackerId], float],
                 cfg: ManagerSettings, th: Thresholds | None = None,
-                learn: ReidQuality | None = None) -> list[tuple[TrackerId, TrackerId]]:
+                learn: ReidQuality | None = None,
+                distances: dict[tuple[TrackerId, TrackerId], tuple[int, int, float]] | None = None
+                ) -> list[tuple[TrackerId, TrackerId]]:
     """Pairs ``(loser, winner)`` to merge this frame; updates ``evidence`` in place.
 
     ``evidence`` holds, per pair of trackers, the co-motion log-likelihood ratio summed over
@@ -227,21 +231,40 @@ def find_merges(views: Sequence[MergeView], evidence: dict[tuple[TrackerId, Trac
     ``th``: the appearance thresholds (:func:`pair_score`); ``learn``: the node's measured
     re-id, given the gallery distances of the nearby pairs some camera sees as two people this
     frame (the look-alikes an appearance match must tell apart, ``reidquality``).
+
+    ``distances``: the pairs' gallery distances kept from earlier frames with the galleries'
+    versions (``Gallery.version``); a pair's is computed again only when either gallery
+    changed (a tracker's gallery takes a descriptor every ``gallery_every`` frames at most), so
+    the cached number is the one ``distance_to`` gives.
     """
+    cache = {} if distances is None else distances
+    used: set[tuple[TrackerId, TrackerId]] = set()
+
+    def s_a(a: MergeView, b: MergeView) -> float:
+        key, va, vb = (a.id, b.id), a.gallery.version, b.gallery.version
+        used.add(key)
+        hit = cache.get(key)
+        if hit is not None and hit[0] == va and hit[1] == vb:
+            return hit[2]
+        got = a.gallery.distance_to(b.gallery)
+        cache[key] = (va, vb, got)
+        return got
+
     scored: list[tuple[float, MergeView, MergeView, bool]] = []
     two: list[float] = []  # gallery distances of nearby pairs seen as two people
     alive: set[tuple[TrackerId, TrackerId]] = set()
     ordered = sorted(views, key=lambda v: v.id)
     if len(ordered) > 1:
         xy = np.array([v.xy for v in ordered])
-        near = norms(xy[:, None] - xy[None], axis=2) < merge_reach(cfg)
+        dist = norms(xy[:, None] - xy[None], axis=2)
         idx = np.arange(len(ordered))
-        rows, cols = (near & (idx[:, None] < idx)).nonzero()  # nearby pairs i < j alone are scored
-        for i, j in zip(rows.tolist(), cols.tolist()):
+        rows, cols = ((dist < merge_reach(cfg)) & (idx[:, None] < idx)).nonzero()  # nearby pairs
+        for i, j, d in zip(rows.tolist(), cols.tolist(), dist[rows, cols].tolist()):  # i < j alone
             a, b = ordered[i], ordered[j]
+            s = s_a(a, b)
             if learn is not None and (a.seen_by & b.seen_by or a.measured_by & b.measured_by):
-                two.append(a.gallery.distance_to(b.gallery))
-            scored_pair = pair_score(a, b, cfg, th)
+                two.append(s)
+            scored_pair = pair_score(a, b, cfg, th, d, s)
             if scored_pair is None:
                 continue
             s, at_once = scored_pair
@@ -253,6 +276,9 @@ def find_merges(views: Sequence[MergeView], evidence: dict[tuple[TrackerId, Trac
                 scored.append((s, a, b, at_once or e >= cfg.merge_llr))
     if learn is not None and two:
         learn.learn(np.zeros(0), np.array(two))
+    if len(cache) > 2 * len(used) + 64:  # bounded: the pairs that were near lately
+        for key in [key for key in cache if key not in used]:
+            del cache[key]
     held = {v.id for v in ordered}
     for key in list(evidence):
         if key in alive:
@@ -369,6 +395,8 @@ class DistributedTrackerManager:
         self.cfg = cfg
         #: co-motion evidence per pair of trackers (:func:`find_merges`)
         self.evidence: dict[tuple[TrackerId, TrackerId], float] = {}
+        #: the nearby pairs' gallery distances, with the galleries' versions (:func:`find_merges`)
+        self.distances: dict[tuple[TrackerId, TrackerId], tuple[int, int, float]] = {}
         #: the node's measured re-id, shared with its association (``reidquality``), or None
         self.quality = quality
 
@@ -385,7 +413,8 @@ class DistributedTrackerManager:
         return ell_consensus_many(own, rows, received)
 
     def merges(self, views: Sequence[MergeView]) -> list[tuple[TrackerId, TrackerId]]:
-        return find_merges(views, self.evidence, self.cfg, self.thresholds, self.quality)
+        return find_merges(views, self.evidence, self.cfg, self.thresholds, self.quality,
+                           self.distances)
 
     def pending(self, born: Mapping[TrackerId, int]) -> list[tuple[TrackerId, TrackerId]]:
         """Pairs ``(younger, older)`` on their way to being merged: every pair agreeing towards
@@ -406,6 +435,8 @@ class DistributedTrackerManager:
         that the table holds pairs of trackers the node holds, never more."""
         for key in [key for key in self.evidence if tid in key]:
             del self.evidence[key]
+        for key in [key for key in self.distances if tid in key]:
+            del self.distances[key]
 
     def may_adopt(self, tid: TrackerId, dropped: Collection[TrackerId]) -> bool:
         return True
