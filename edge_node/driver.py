@@ -6,7 +6,8 @@ not only because tests compare them.
 A frame (paper Fig. 1, the node's side of the exchange):
 
 1. ``due(k)``: messages the fault plan delayed until frame ``k``;
-2. ``prepare(k, detections)``: the core predicts, associates and builds its message;
+2. ``prepare(k, detections)``: the core predicts, associates and builds its message (a faulty
+   node's detections and message as its fault makes them: ``forgery``);
 3. ``send(msg)``: through the node's :class:`~edge_node.outbox.Outbox` (event trigger in
    asynchronous operation, the whole frame with appearance to neighbours that came back, the
    fault plan, counters); the shell hands the deliveries to its transport;
@@ -27,6 +28,7 @@ from edge_node.core.node import CameraNode
 from edge_node.core.trigger import EventTrigger, TriggerConfig
 from edge_node.core.types import Detection, Track
 from edge_node.faults import NO_FAULTS, FaultPlan
+from edge_node.forgery import Forger
 from edge_node.outbox import Delivery, Outbox, OutboxCounters
 from protocol.messages import FrameMessage
 
@@ -47,6 +49,8 @@ class FrameDriver:
         if counters is not None:
             self.outbox.counters = counters
         self.resync: set[int] = set()  # neighbours that came back: they get the whole frame
+        # a faulty node's lies on its detections and messages (edge_node/forgery.py)
+        self.forger = Forger(faults.faults_of(node.id), node.cameras[0], c.units_per_metre, c.dt)
 
     @property
     def neighbours(self) -> tuple[int, ...]:
@@ -62,7 +66,11 @@ class FrameDriver:
         self.resync |= set(neighbours)
 
     def prepare(self, k: int, detections: Sequence[Detection]) -> FrameMessage:
-        return self.node.prepare(k, detections)
+        """The node's frame ``k`` (a faulty node's detections as its fault makes them)."""
+        if self.forger:
+            detections = self.forger.detections(k, detections)
+        msg = self.node.prepare(k, detections)
+        return self.forger.message(k, msg) if self.forger else msg
 
     def send(self, msg: FrameMessage, *, live: Iterable[int] | None = None,
              sent_at: float | None = None) -> tuple[list[Delivery], set[int]]:

@@ -24,6 +24,16 @@ TOML form (``sim_cluster up --faults faults.toml``, ``sim_cluster run --faults``
     node = 2
     kill = 250          # the process dies before frame 250 ...
     restart = 300       # ... and a fresh one starts at frame 300 (omit: stays dead)
+    [[faulty]]          # a node that runs but lies or sees wrong (edge_node/forgery.py)
+    node = 0
+    kind = "hijack"     # hijack | phantom | bumped | hallucinate | stale | forged_merge
+    start = 100         # frames [start, stop)
+    stop = 300
+    seed = 3            # optional: the plan's seed otherwise
+    offset = 4.0        # hijack: metres the states are moved (4); bumped: the pose jumps (2)
+    rotation = 5.0      # bumped: degrees the camera turns
+    count = 3           # phantom, hallucinate: invented people at once
+    lag = 25            # stale: frames old the message re-sent as new is
 
 Rules (each a :class:`FaultPlanError` naming the file and the field): node ids are non-negative
 integers; a ``[[link]]`` joins two different nodes; ``between`` pairs two different nodes;
@@ -115,11 +125,47 @@ class NodeFault:
     restart: int | None = None
 
 
+#: faulty-node kinds: what a node that runs but lies (or sees wrong) does (edge_node/forgery.py)
+FAULTY_KINDS = ("hijack", "phantom", "bumped", "hallucinate", "stale", "forged_merge")
+#: the kinds that change what the node's camera detects; the others change what it sends
+DETECTION_KINDS = ("bumped", "hallucinate")
+
+
+@dataclass(frozen=True)
+class FaultyNode:
+    """A node that runs but is faulty over frames ``[start, stop)`` (the fault model of
+    docs/deploy.md: any values the schema allows): ``hijack`` moves the states of the trackers
+    it sends ``offset`` metres and claims a sharp measurement there; ``phantom`` adds ``count``
+    invented people walking plausible paths; ``stale`` re-sends the message of ``lag`` frames
+    ago as this frame's; ``forged_merge`` announces merges of the trackers it sends into one
+    another; ``bumped`` moves its camera's true pose ``offset`` metres and ``rotation`` degrees
+    (not malicious: its detections land elsewhere); ``hallucinate`` makes its detector see
+    ``count`` people who are not there."""
+
+    node: int
+    kind: str
+    start: int = 0
+    stop: int | None = None
+    seed: int = 0
+    offset: float = 4.0
+    rotation: float = 5.0
+    count: int = 3
+    lag: int = 25
+
+    def active(self, k: int) -> bool:
+        return k >= self.start and (self.stop is None or k < self.stop)
+
+
 @dataclass(frozen=True)
 class FaultPlan:
     links: tuple[LinkFault, ...] = ()
     nodes: tuple[NodeFault, ...] = ()
     seed: int = 0
+    faulty: tuple[FaultyNode, ...] = ()
+
+    def faults_of(self, node: int) -> tuple[FaultyNode, ...]:
+        """The faulty-node rules of ``node``."""
+        return tuple(f for f in self.faulty if f.node == node)
 
     def deliveries(self, src: int, dst: int, k: int) -> list[int]:
         """Delays (in frames) with which the frame-``k`` message on ``src -> dst`` arrives:
@@ -153,7 +199,7 @@ class FaultPlan:
 
     @property
     def empty(self) -> bool:
-        return not self.links and not self.nodes
+        return not self.links and not self.nodes and not self.faulty
 
     # -- loading -------------------------------------------------------------------------------
     @classmethod
@@ -167,8 +213,9 @@ class FaultPlan:
         for t in top.tables("partition", required=False):
             links.extend(_partition(t, network))
         nodes = _nodes(top.tables("node", required=False), network)
+        faulty = tuple(_faulty(t, network, seed) for t in top.tables("faulty", required=False))
         top.finish()
-        return cls(tuple(links), tuple(nodes), seed)
+        return cls(tuple(links), tuple(nodes), seed, faulty)
 
     @classmethod
     def load(cls, path: str | Path, network: Network = ANY_NETWORK) -> "FaultPlan":
@@ -280,6 +327,19 @@ def _nodes(tables: list[Table], net: Network) -> list[NodeFault]:
                 raise t.error("kill", f"is {f.kill}, while node {f.node} is dead ({u.where}: "
                               f"kill {g.kill}, restart {back})")
     return [f for _, f in out]
+
+
+def _faulty(t: Table, net: Network, seed: int) -> FaultyNode:
+    node = t.integer("node", lo=0)
+    _check(t, "node", net.node_problem(node))
+    kind = t.string("kind", choices=FAULTY_KINDS)
+    start, stop = _frames(t, net)
+    d = FaultyNode(node, kind)
+    f = FaultyNode(node, kind, start, stop, t.integer("seed", seed, lo=0),
+                   t.number("offset", 2.0 if kind == "bumped" else d.offset, lo=0), t.number("rotation", d.rotation),
+                   t.integer("count", d.count, lo=1, hi=64), t.integer("lag", d.lag, lo=1, hi=1000))
+    t.finish()
+    return f
 
 
 NO_FAULTS = FaultPlan()

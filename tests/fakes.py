@@ -204,6 +204,17 @@ class FakeInbound(_Counted):
         return Heard(Inbox(msgs, aliases))
 
 
+class FakeTrust(_Counted):
+    """Believes every neighbour: the messages pass as they came."""
+
+    def __call__(self, state, msgs, k, resolve):
+        self.calls += 1
+        return msgs
+
+    def summary(self):
+        return {}
+
+
 class FakeUpdater(_Counted):
     """A Kalman update with the node's own information only (eq. 4 without neighbours)."""
 
@@ -277,6 +288,7 @@ def fake_roles(node) -> dict:
     """A fake for every role of ``node``: attribute name -> fake."""
     return {"predictor": FakePredictor(), "measurer": FakeMeasurer(node.cameras),
             "associator": FakeAssociator(), "initiators": {c.id: FakeInitiator() for c in node.cameras},
-            "lifecycle": FakeLifecycle(), "inbound": FakeInbound(), "updater": FakeUpdater(),
+            "lifecycle": FakeLifecycle(), "inbound": FakeInbound(), "trust": FakeTrust(),
+            "updater": FakeUpdater(),
             "registrar": FakeRegistrar(), "outbound": FakeOutbound(node.network, node.id),
             "reporter": FakeReporter(), "own_views": FakeViews()}

@@ -16,6 +16,7 @@ import numpy as np
 import pytest
 
 from edge_node.core.config import TrackerConfig
+from edge_node.faults import FaultPlan
 from edge_node.formats.tracks import read_tracks
 from sim_cluster.cluster.processes import alive
 from sim_cluster.cluster.state import ClusterState
@@ -68,6 +69,30 @@ def test_sync_cluster_reproduces_in_process_run(tmp_path, terrace, topology):
     assert summary["bandwidth"]["bytes_per_frame"] == pytest.approx(
         ref.bandwidth()["bytes_per_frame"], rel=1e-9)
     assert not any(alive(p) for p in _pids(tmp_path))
+
+
+def test_a_faulty_node_lies_alike_across_processes(tmp_path, terrace):
+    """``up --faults`` with a hijacking node 0 (frames 30-59): the camera processes apply the
+    same lies as the in-process network (edge_node/forgery.py through the one frame driver), so
+    every node's tracks are the in-process run's; nodes 1 and 3 quarantine node 0, log it once,
+    and their status file says so."""
+    plan = tmp_path / "faults.toml"
+    plan.write_text('[[faulty]]\nnode = 0\nkind = "hijack"\nstart = 30\nstop = 60\n')
+    out = tmp_path / "h"
+    _up(out, "--topology", "ring", "--sync-timeout", "30", "--faults", str(plan))
+    ref = run_network(terrace, build("ring", 4), TrackerConfig(), faults=FaultPlan.load(plan))
+    for node in range(4):
+        got = read_tracks(out / "nodes" / f"tracks_node{node}.csv", FRAMES)
+        for k in range(FRAMES):
+            assert [t.id for t in got[k]] == [t.id for t in ref.tracks[node][k]], (node, k)
+            for a, b in zip(got[k], ref.tracks[node][k]):
+                np.testing.assert_allclose(a.x, b.x, rtol=0, atol=1e-6)
+    for node in (1, 3):
+        assert ref.stats[node].trust[0]["first_quarantine"] == 31
+        log = (out / "logs" / f"node{node}.log").read_text()
+        assert log.count("neighbour 0 is quarantined") == 1, log
+        status = json.loads((out / "nodes" / f"status_node{node}.json").read_text())
+        assert status["trust"] == {"0": "quarantined", "2": "trusted"}
 
 
 def test_async_cluster_keeps_accuracy(tmp_path, terrace):

@@ -226,10 +226,13 @@ def test_far_nodes_follow_a_target_only_one_camera_sees(kind, n):
 
 
 def test_far_nodes_run_away_with_the_paper_gamma(monkeypatch):
-    """The same chain with eq. 4's gamma as printed: the failure the bound removes."""
+    """The same chain with eq. 4's gamma as printed: the failure the bound removes. The trust
+    role is off and the screen's speed bound is the old 150 m/s: the first would quarantine the
+    neighbours whose estimates run away and the second refuse their states above 15 m/s (the
+    consensus step is what is tested here)."""
     monkeypatch.setattr(dkf, "consensus_gamma",
                         lambda M, degree=1, bound=None: 1.0 / (1.0 + np.linalg.norm(M, axis=(-2, -1))))
-    nodes = make_nodes(graph("chain", 6), CFG)
+    nodes = make_nodes(graph("chain", 6), TrackerConfig(trust_check=False, max_speed=150.0))
     rng = np.random.default_rng(0)
     speed = 0.0
     for k in range(400):

@@ -15,7 +15,7 @@ CORE = Path(__file__).resolve().parent.parent / "edge_node" / "core"
 #: role -> its module (the node's attribute is the role's name; views: ``own_views``)
 ROLES = {"predictor": "predictor", "measurer": "measurer", "associator": "associator",
          "initiators": "initiator", "lifecycle": "lifecycle", "inbound": "inbound",
-         "updater": "updater", "registrar": "registrar", "outbound": "outbound",
+         "trust": "trust", "updater": "updater", "registrar": "registrar", "outbound": "outbound",
          "reporter": "reporter", "own_views": "views"}
 
 

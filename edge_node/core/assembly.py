@@ -33,6 +33,7 @@ from edge_node.core.reidquality import ReidQuality, ReidSettings
 from edge_node.core.reporter import Reporter, ReporterSettings
 from edge_node.core.screen import Screen, ScreenSettings
 from edge_node.core.stats import NodeStats
+from edge_node.core.trust import Trust, TrustSettings
 from edge_node.core.updater import Updater, UpdaterSettings
 from edge_node.core.views import OwnViews, ViewSettings
 from edge_node.geometry import Camera
@@ -87,6 +88,7 @@ class Roles:
     initiators: dict[int, Initiator]
     lifecycle: Lifecycle
     inbound: Inbound
+    trust: Trust
     updater: Any
     registrar: Registrar
     outbound: Outbound
@@ -122,6 +124,8 @@ def roles(cfg: TrackerConfig, parts: Components, cameras: Sequence[Camera],
         lifecycle=lifecycle,
         inbound=Inbound(neighbours, network, cfg.kappa, cfg.max_trackers_per_neighbour, screen,
                         stats, memory),
+        trust=Trust(TrustSettings.of(cfg), neighbours, getattr(manager, "evidence", None),
+                    screen.rejected),
         updater=pick("updater")(stats),
         registrar=Registrar(registrations, ids),
         outbound=Outbound(network, node_id, cfg.scope_hops, book),

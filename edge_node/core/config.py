@@ -158,13 +158,32 @@ class InboundSection:
     max_size: float = positive(20.0, "m, largest plausible target width or height")
     max_trackers_per_neighbour: int = integer(1024, lo=1, doc="the most tracker entries one neighbour's message may bring (it relays the network's trackers: 1024 is 64 cameras of 16 people); entries beyond are dropped, those this node holds kept first")
     max_adoptions_per_frame: int = integer(64, lo=1, doc="new trackers adopted from one neighbour in one frame (people appear a few at a time; a restarted node takes the network's trackers over a few frames); the rest wait for the next frame")
-    max_speed: float = positive(150.0, "m/s, largest plausible speed of an estimate (before eq. 4's step was bounded by the degree, honest coasting estimates in a ring reached 103; since, 2.8 on ring8 over 10 minutes)")
+    max_speed: float = positive(15.0, "m/s, largest plausible speed of an estimate, for walking people: no person runs faster than 12.4 m/s, and honest estimates reached 9.3 on campus-gt, where the cameras disagree by 2 m (a state relayed faster is refused as implausible_state: a faulty neighbour's cannot run away)")
     staleness_frames: int = integer(2, lo=0, doc="a neighbour's u, U older than this is ignored")
     hold_frames: int = integer(5, lo=0, doc="a silent neighbour's ell holds this many frames "
                                "(its trigger's heartbeat), then ages")
 
     def __post_init__(self) -> None:
         check(self, "tracker.inbound")
+
+
+@dataclass(frozen=True)
+class TrustSection:
+    """``[tracker.trust]``: which neighbours a node believes, against a plausible but wrong peer
+    (``trust``: a CUSUM per neighbour of its entries' consistency with the node's prediction)."""
+
+    trust_check: bool = boolean(True, "judge each neighbour's consistency and quarantine one that stands out (edge_node/core/trust.py)")
+    trust_drift: float = positive(6.0, "per frame, the score (median normalised distance of a neighbour's entries, 2 dof) an honest neighbour may reach without adding to its sum (the 95 % point of chi-square 2)")
+    trust_ratio: float = positive(3.0, "the allowance is at least this times the other neighbours' median score: when all disagree (registration not converged), none stands out")
+    trust_cap: float = positive(100.0, "bound on one entry's normalised distance (one frame cannot condemn)")
+    trust_merge: float = positive(20.0, "added to a neighbour's sum once per pair of trackers it announces a merge of that this node disputes (seen as two people, or too far apart)")
+    trust_gate: float = positive(13.8, "a suspect neighbour's entry farther than this (chi-square 2, 99.9 %) is dropped")
+    trust_suspect: float = positive(30.0, "sum at which a neighbour is suspect: its merges and new ids are not taken")
+    trust_quarantine: float = positive(100.0, "sum at which a neighbour is quarantined: none of its entries is used")
+    trust_readmit: int = integer(25, lo=1, doc="frames in a row within the allowance after which a suspect or quarantined neighbour is trusted again")
+
+    def __post_init__(self) -> None:
+        check(self, "tracker.trust")
 
 
 @dataclass(frozen=True)
@@ -241,7 +260,8 @@ class ReporterSection:
 SECTIONS: dict[str, type] = {
     "scene": SceneSection, "parts": PartsSection, "predictor": PredictorSection,
     "measurer": MeasurerSection, "registrar": RegistrarSection, "associator": AssociatorSection,
-    "initiator": InitiatorSection, "inbound": InboundSection, "updater": UpdaterSection,
+    "initiator": InitiatorSection, "inbound": InboundSection, "trust": TrustSection,
+    "updater": UpdaterSection,
     "manager": ManagerSection, "reporter": ReporterSection,
 }
 #: every parameter's section (names are unique across sections: a test checks it)
@@ -290,6 +310,7 @@ class TrackerConfig(_Units):
     associator: AssociatorSection
     initiator: InitiatorSection
     inbound: InboundSection
+    trust: TrustSection
     updater: UpdaterSection
     manager: ManagerSection
     reporter: ReporterSection

@@ -108,7 +108,8 @@ class Lifecycle:
 
     # -- what a frame's messages bring --------------------------------------------------------
     def announced(self, state: NodeState, msgs: Sequence[FrameMessage]) -> None:
-        """The neighbours' merge announcements, applied in message order."""
+        """The neighbours' merge announcements (those the trust role let through), applied in
+        message order."""
         for m in msgs:
             for mg in m.merges:
                 self.merge(state, mg.loser, mg.winner, mg.winner_born)

@@ -64,6 +64,7 @@ class CameraNode:
                                                                     r.registrations)
         self.predictor, self.measurer, self.associator = r.predictor, r.measurer, r.associator
         self.initiators, self.lifecycle, self.inbound = r.initiators, r.lifecycle, r.inbound
+        self.trust = r.trust
         self.updater, self.registrar, self.outbound = r.updater, r.registrar, r.outbound
         self.reporter, self.own_views = r.reporter, r.views
         self._frame: int | None = None
@@ -110,6 +111,8 @@ class CameraNode:
             raise NodeStateError(f"node {self.id}: update() without prepare()")
         state, k = self.state, self._frame
         msgs = self.inbound.take(inbox, k, stale_ok, self.book, state.__contains__)
+        msgs = self.trust(state, msgs, k, self.book.resolve)
+        self.stats.trust = self.trust.summary()
         self.lifecycle.announced(state, msgs)
         heard = self.inbound.gather(msgs, k, stale_ok, self.book.aliases)
         self.lifecycle.adopt(state, k, heard)

@@ -22,10 +22,12 @@ class NodeStats:
     bad_detections: int = 0  # boxes with NaN, inf or a non-positive size: not measured
     numerical: int = 0  # tracker corrections that failed numerically (kept the prediction)
     rejected: dict[str, int] = field(default_factory=dict)  # neighbours' entries, by reason
+    trust: dict[int, dict] = field(default_factory=dict)  # per neighbour: trust.NeighbourTrust.summary
 
     def add(self, other: "NodeStats") -> "NodeStats":
         """The sum of two lives of a node (before and after a restart)."""
         out = NodeStats(**{f: getattr(self, f) + getattr(other, f)
-                           for f in vars(self) if f != "rejected"})
+                           for f in vars(self) if f not in ("rejected", "trust")})
         out.rejected = dict(Counter(self.rejected) + Counter(other.rejected))
+        out.trust = dict(other.trust or self.trust)  # the later life's judgement
         return out

@@ -262,6 +262,7 @@ class FrameLoop:
         self._catching_up = False
         self._level = (first_frame, time.monotonic())  # (frame, when) last level with the network
         self._output_error: dict[str, str] = {}  # file kind -> why its last write failed
+        self._trust_seen: dict[int, str] = {}  # each neighbour's trust state last logged
         self._logged_at: dict[str, float] = {}
         self._last_status: dict | None = None
         self.driver = self._new_driver(node)
@@ -421,7 +422,17 @@ class FrameLoop:
             out["tracks"] = self.writer.error
         return out
 
+    def _log_trust(self, k: int) -> None:
+        """Each change of a neighbour's trust state, logged once (``edge_node/core/trust.py``)."""
+        for n, t in self.node.stats.trust.items():
+            if self._trust_seen.get(n, "trusted") != t["state"]:
+                level = logging.INFO if t["state"] == "trusted" else logging.WARNING
+                log.log(level, "node %d: frame %d: neighbour %d is %s", self.node.id, k, n,
+                        t["state"])
+            self._trust_seen[n] = t["state"]
+
     def _output(self, k: int, tracks: list) -> None:
+        self._log_trust(k)
         self.writer.write(tracks)
         if self.writer.failing:
             self._say("out:tracks", logging.WARNING, f"node {self.node.id}: cannot write "
@@ -578,7 +589,10 @@ class FrameLoop:
                  "dropped": sum(sum((c.get(key) or {}).values())
                                 for key in ("late", "overflow", "duplicates")),
                  "rejected": sum((c.get("rejected") or {}).values()),
-                 "timeouts": sum((c.get("timeouts") or {}).values())}
+                 "timeouts": sum((c.get("timeouts") or {}).values()),
+                 **{f"neighbours_{state}": sum(t["state"] == state
+                                               for t in self.node.stats.trust.values())
+                    for state in ("suspect", "quarantined")}}
         self.sink.log_frame(k, tracks, measurements_xy=ground_points(self.node.cameras[0],
                                                                      self._dets),
                             stats=stats, wall_time=time.time())
@@ -608,6 +622,8 @@ class FrameLoop:
             "catch_ups": st.catch_ups,
             "frames_skipped_behind": st.frames_skipped_behind,
             "core_restarts": st.core_restarts,
+            # each neighbour's trust state (trusted, suspect, quarantined; core/trust.py)
+            "trust": {str(n): t["state"] for n, t in self.node.stats.trust.items()},
             "output_errors": self.output_errors,
             "output_failures": st.output_failures,
             "stall_after_s": self.rt.stall_after_s,
@@ -944,6 +960,8 @@ def write_counters(cfg: NodeConfig, loop: FrameLoop, transport, code: int | None
         "frames_total": st.frames_total, "stopped": st.stopped,
         "startup_s": st.startup_s, "latency": lat, **counters,
         "rejected": rejected(counters, node_stats),
+        # per neighbour: trust state, frames suspect and quarantined (edge_node/core/trust.py)
+        "trust": {str(n): t for n, t in node_stats.trust.items()},
         **wire_counters(loop.outbox),
         "viz_dropped": getattr(loop.sink, "dropped", 0),  # Rerun calls a stuck viewer cost
         "timing_s": {"prepare": st.prepare_s, "wait": st.wait_s, "update": st.update_s},

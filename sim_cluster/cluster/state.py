@@ -110,7 +110,8 @@ def health(st: dict, running: bool, now: float | None = None) -> str:
 
 
 def status_table(state: ClusterState) -> str:
-    """``sim_cluster status``: one row per node, then the reasons of rejected messages."""
+    """``sim_cluster status``: one row per node, then the reasons of rejected messages and the
+    neighbours each node distrusts (suspect or quarantined)."""
     rows = [f"cluster {state.out}: {len(state.nodes)} nodes, {state.topology}, {state.mode}, "
             f"scenario {state.scenario} seed {state.seed}",
             f"{'node':>4} {'pid':>7} {'alive':>5} {'frame':>6} {'trackers':>8} {'bytes sent':>11} "
@@ -125,6 +126,10 @@ def status_table(state: ClusterState) -> str:
         frame = st.get("frame")
         running = alive(p.pid)
         phase = health(st, running)
+        distrusted = {n: v for n, v in (st.get("trust") or {}).items() if v != "trusted"}
+        if distrusted:  # a neighbour this node no longer believes (edge_node/core/trust.py)
+            reasons.append(f"node {p.node} distrusts: " + ", ".join(
+                f"neighbour {n} {v}" for n, v in sorted(distrusted.items(), key=lambda kv: int(kv[0]))))
         if st.get("output_errors") and running:
             reasons.append(f"node {p.node} output failing: " + ", ".join(
                 f"{k} ({v})" for k, v in sorted(st["output_errors"].items())))

@@ -1,0 +1,191 @@
+"""A plausible but wrong neighbour (edge_node/core/trust.py): detected by a CUSUM per neighbour,
+quarantined, re-admitted; the honest nodes' tracks and ids survive it; honest networks never
+quarantine anyone. The faulty node's lies are the fault layer's (edge_node/forgery.py), the same
+in both shells (tests/test_cluster.py runs one across processes)."""
+from dataclasses import replace
+
+import numpy as np
+import pytest
+
+from edge_node.core import TrackerConfig
+from edge_node.core.trust import QUARANTINED, SUSPECT, TRUSTED, Trust, TrustSettings
+from edge_node.faults import FaultPlan, FaultyNode
+from edge_node.forgery import Forger
+from fakes import det, graph, make_nodes
+from protocol import codec
+
+START = 30  # the frame node 2 turns faulty
+PEOPLE = [(2.0, 2.0), (2.0, 6.5), (6.5, 2.0), (6.5, 6.5), (4.2, 8.8), (8.8, 4.2)]  # 4 m apart
+
+
+def triangle(kind: str | None, frames: int, cfg: TrackerConfig | None = None, people=PEOPLE[:2]):
+    """Three nodes, each neighbour of the others, every camera seeing ``people`` walking
+    slowly; from ``START`` node 2's messages carry the lies of ``kind``. Returns the nodes and
+    every frame's tracks of nodes 0 and 1, and the people's positions per frame."""
+    nodes = make_nodes(graph("complete", 3), cfg or TrackerConfig())
+    forger = None
+    if kind is not None:
+        n2 = nodes[2]
+        forger = Forger([FaultyNode(2, kind, START, None, seed=1)], n2.cameras[0],
+                        n2.cfg.units_per_metre, 1.0 / n2.cfg.fps)
+    rng = np.random.default_rng(5)
+    tracks, truth = [], []
+    for k in range(frames):
+        where = [(x + 0.01 * k, y) for x, y in people]
+        dets = [det(x, y, p, rng) for p, (x, y) in enumerate(where)]
+        msgs = {i: n.prepare(k, dets) for i, n in nodes.items()}
+        if forger is not None:
+            msgs[2] = forger.message(k, msgs[2])
+        wire = {i: codec.encode(m) for i, m in msgs.items()}
+        out = {i: n.update([codec.decode(wire[j], expect_sender=j) for j in n.neighbours])
+               for i, n in nodes.items()}
+        tracks.append(out)
+        truth.append(where)
+    return nodes, tracks, truth
+
+
+def worst_error(tracks, truth, honest=(0, 1)) -> float:
+    """The largest distance of an honest node's track from the person nearest to it (m)."""
+    worst = 0.0
+    for out, where in zip(tracks, truth):
+        for i in honest:
+            for t in out[i]:
+                worst = max(worst, min(np.hypot(t.x[0] - x, t.x[1] - y) for x, y in where))
+    return worst
+
+
+def ids_at(tracks, k, honest=(0, 1)):
+    return {i: sorted(t.id for t in tracks[k][i]) for i in honest}
+
+
+def test_a_hijacking_neighbour_is_quarantined_on_its_second_frame_and_drags_nothing():
+    """Node 2 moves every state it sends 4 m and claims a 5 cm measurement there. Each entry's
+    normalised distance from the honest node's prediction is about 16 m^2 over ``calib_sigma``^2
+    0.16 m^2 plus the claimed and predicted variances (a few 0.01 m^2), so 80-100; the other
+    neighbour's score is near 0, so the allowance is ``trust_drift`` 6 and the sum grows by
+    more than 50 a frame: suspect (>= 30) at frame START, quarantined (>= 100) at START + 1. The honest nodes' tracks stay on the people and
+    keep their ids; without the trust role the same lies drag them metres away."""
+    frames = START + 40
+    nodes, tracks, truth = triangle("hijack", frames)
+    for i in (0, 1):
+        t = nodes[i].trust.of[2]
+        assert t.changes[:2] == [(START, SUSPECT), (START + 1, QUARANTINED)]
+        assert t.state == QUARANTINED and nodes[i].stats.trust[2]["first_quarantine"] == START + 1
+        assert nodes[i].trust.of[1 - i].state == TRUSTED and not nodes[i].trust.of[1 - i].changes
+    for i in (0, 1):
+        assert 50.0 < nodes[i].trust.level[2] and nodes[i].trust.level[1 - i] < 6.0
+    assert worst_error(tracks, truth) < 0.3
+    assert ids_at(tracks, START - 1) == ids_at(tracks, frames - 1)
+    assert all(len(tracks[k][i]) == 2 for k in range(START, frames) for i in (0, 1))
+
+    _, off, truth_off = triangle("hijack", frames, TrackerConfig(trust_check=False))
+    assert worst_error(off, truth_off) > 1.0  # the harm the role prevents
+
+
+def test_a_neighbour_announcing_merges_of_people_apart_is_quarantined_before_any_is_applied():
+    """Six people 4 m apart (farther than twice the merge rules' reach, 2 x 1.5 m): node 2
+    announces 5 merges of them. Each is a ``far_merge`` and each pair adds ``trust_merge`` 20
+    to node 2's sum: 100, quarantined in the frame it announced them, so none is applied. The
+    honest nodes keep six ids, the same before and after."""
+    frames = START + 30
+    nodes, tracks, truth = triangle("forged_merge", frames, people=PEOPLE)
+    for i in (0, 1):
+        assert nodes[i].trust.of[2].changes[0] == (START, QUARANTINED)
+        assert len(nodes[i].trust.of[2].disputed) == 5  # each far_merge pair, disputed once
+    assert ids_at(tracks, START - 1) == ids_at(tracks, frames - 1)
+    assert all(len(tracks[k][i]) == 6 for k in range(START, frames) for i in (0, 1))
+
+
+def test_honest_neighbours_are_never_suspected():
+    frames = 120
+    nodes, tracks, truth = triangle(None, frames, people=PEOPLE[:4])
+    for n in nodes.values():
+        assert all(t.state == TRUSTED and not t.changes and t.cusum < 30 for t in n.trust.of.values())
+
+
+class Scripted(Trust):
+    """The trust role fed its neighbours' scores directly (one entry each, no state needed)."""
+
+    def __init__(self, settings, scores):
+        super().__init__(settings, sorted(scores[0]))
+        self.script = iter(scores)
+        self.now = {}
+
+    def __call__(self, state, msgs, k, resolve):
+        self.now = next(self.script)
+        return super().__call__(state, msgs, k, resolve)
+
+    def _statistics(self, state, m, resolve):
+        return np.zeros(1, np.intp), np.array([self.now[m.sender]])
+
+    def _used(self, state, k, m, entries, resolve):
+        return m
+
+
+class Msg:
+    def __init__(self, sender):
+        self.sender, self.merges = sender, ()
+
+
+SETTINGS = TrustSettings.of(TrackerConfig())
+
+
+def test_the_cusum_by_hand():
+    """Neighbour 1 scores 10 a frame, neighbour 2 scores 1: the allowance is max(6, 3 x 1) = 6,
+    so 1's sum grows 4 a frame: suspect at the 8th frame (32 >= 30), quarantined at the 25th
+    (100). Then 1 scores 1 (within the allowance 6: the sum falls 5 a frame, floored at 0);
+    after 25 calm frames in a row it is trusted again, its sum reset. When both score 10 the
+    allowance is 3 x 10 = 30: cameras that all disagree (registration not converged) accuse
+    nobody."""
+    bad = [{1: 10.0, 2: 1.0}] * 25 + [{1: 1.0, 2: 1.0}] * 25 + [{1: 10.0, 2: 10.0}] * 40
+    tr = Scripted(SETTINGS, bad)
+    states = []
+    for k in range(len(bad)):
+        tr(None, [Msg(1), Msg(2)], k, lambda t: t)
+        states.append(tr.of[1].state)
+    assert states.index(SUSPECT) == 7 and states.index(QUARANTINED) == 24
+    assert tr.of[1].changes == [(7, SUSPECT), (24, QUARANTINED), (49, TRUSTED)]
+    assert states[48] == QUARANTINED and states[49:] == [TRUSTED] * 41
+    assert tr.of[1].cusum == 0.0 and tr.of[2].cusum == 0.0 and not tr.of[2].changes
+    assert tr.of[1].quarantined_frames == 25 and tr.of[1].suspect_frames == 17
+
+
+def test_a_quiet_neighbour_keeps_its_state():
+    """A neighbour not heard in a frame (a lost message) neither gains nor loses trust."""
+    script = [{1: 100.0, 2: 0.0}] * 2 + [{2: 0.0}] * 30
+    tr = Scripted(SETTINGS, script)
+    for k, s in enumerate(script):
+        tr(None, [Msg(n) for n in sorted(s)], k, lambda t: t)
+    assert tr.of[1].state == QUARANTINED and tr.of[1].cusum == pytest.approx(188.0)
+
+
+def test_a_suspect_neighbours_late_and_current_messages_are_both_judged():
+    """Async: a suspect sender's current message (forged, one tracker) and its late one (of
+    the frame before, honest, two trackers) reach the role in one frame; each keeps only its own
+    entries that pass the gate alone: none of the forged, both of the honest (a message's rows
+    are never applied to another's: they once were, and raised IndexError)."""
+    nodes, _, _ = triangle("hijack", START + 1, TrackerConfig(trust_quarantine=1000.0))
+    node, n2 = nodes[0], nodes[2]
+    assert node.trust.of[2].state == SUSPECT
+    k = START + 1
+    node.prepare(k, [det(2.31, 2.0, 0), det(2.31, 6.5, 1)])
+    honest = n2.prepare(k, [det(2.31, 2.0, 0), det(2.31, 6.5, 1)])
+    forged = Forger([FaultyNode(2, "hijack", 0, None, seed=1)], n2.cameras[0], 1.0, 0.04)
+    cur = forged.message(k, replace(honest, trackers=honest.trackers[1:]))
+    late = replace(honest, frame=k - 1)
+    assert len(late.trackers) == 2 and len(cur.trackers) == 1
+    used = node.trust(node.state, [cur, late], k, node.book.resolve)
+    assert [len(m.block) for m in used] == [0, 2]
+    assert node.trust.of[2].state == SUSPECT
+
+
+def test_faulty_rules_are_read_with_their_fields_checked(tmp_path):
+    plan = tmp_path / "f.toml"
+    plan.write_text('[[faulty]]\nnode = 0\nkind = "hijack"\nstart = 5\nstop = 9\noffset = 3.0\n')
+    (rule,) = FaultPlan.load(plan).faulty
+    assert (rule.node, rule.kind, rule.start, rule.stop, rule.offset) == (0, "hijack", 5, 9, 3.0)
+    assert rule.active(5) and rule.active(8) and not rule.active(9) and not rule.active(4)
+    plan.write_text('[[faulty]]\nnode = 0\nkind = "lies"\n')
+    with pytest.raises(Exception) as e:
+        FaultPlan.load(plan)
+    assert "kind" in str(e.value) and "f.toml" in str(e.value)
