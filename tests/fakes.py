@@ -121,7 +121,7 @@ class FakeMeasurer(_Counted):
         z = np.stack([(b[:, 0] + b[:, 2] / 2) / PX_PER_M, (b[:, 1] + b[:, 3]) / PX_PER_M,
                       b[:, 2] / PX_PER_M, b[:, 3] / PX_PER_M], axis=1)
         R = np.broadcast_to(0.01 * np.eye(4), (len(b), 4, 4)).copy()
-        return Observations(z, R, [None] * len(b)), SimpleNamespace(size=z[:, 2:])
+        return Observations(z, R, [None] * len(b)), SimpleNamespace(z=z, R=R, size=z[:, 2:])
 
 
 class FakeAssociator(_Counted):

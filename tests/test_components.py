@@ -305,7 +305,6 @@ def test_a_node_runs_with_a_fake_association():
 
 # -- each camera's own view (views.OwnViews) ----------------------------------------------------
 def test_own_view_smooths_the_size_a_camera_measures_at_view_rate():
-    from types import SimpleNamespace
     from edge_node.core.state import NodeState
     from edge_node.core.views import OwnViews, ViewSettings
     views = OwnViews(ViewSettings.of(TrackerConfig(), view_rate=0.25), [topdown_camera(0)], {})
@@ -314,14 +313,57 @@ def test_own_view_smooths_the_size_a_camera_measures_at_view_rate():
     st.insert((0, 1), Gallery())  # not measured: nothing drawn for it changes
     st.begin_frame()
     st.raw[0, 0] = 1  # measured by the camera's box 1
-    views.saw(st, 3, {0: SimpleNamespace(size=np.array([[9.0, 9.0], [0.5, 1.7]]))})
+    views.saw(st, 3, {0: measured([[9.0, 9.0], [0.5, 1.7]])})
     assert st.view_k[:, 0].tolist() == [3, -1]
     assert st.view_size[0, 0].tolist() == [0.5, 1.7]  # the first, as measured
     st.begin_frame()
     st.raw[0, 0] = 0
-    views.saw(st, 4, {0: SimpleNamespace(size=np.array([[0.9, 1.3]]))})
+    views.saw(st, 4, {0: measured([[0.9, 1.3]])})
     np.testing.assert_allclose(st.view_size[0, 0], [0.5 + 0.25 * 0.4, 1.7 - 0.25 * 0.4])
     assert st.view_k[:, 0].tolist() == [4, -1]
+    # a measurement that does not locate the target (foot point 1 m uncertain, above
+    # view_locate 0.5 m) keeps the size but counts as measured
+    st.begin_frame()
+    st.raw[0, 0] = 0
+    views.saw(st, 5, {0: measured([[3.0, 3.0]], sigma=1.0)})
+    np.testing.assert_allclose(st.view_size[0, 0], [0.5 + 0.25 * 0.4, 1.7 - 0.25 * 0.4])
+    assert st.view_k[:, 0].tolist() == [5, -1] and np.isnan(st.view_at[0, 0]).all()
+
+
+def measured(sizes, sigma=0.05, at=(0.0, 0.0)):
+    """One camera frame's measurements (``BoxMeasurements``) of boxes ``sizes`` (ground units)
+    whose foot points at ``at`` are known to ``sigma`` along each ground axis."""
+    from edge_node.core.measurement import BoxMeasurements
+    n = len(sizes)
+    R = np.repeat(np.diag([sigma**2, sigma**2, 0.01, 0.01])[None], n, axis=0)
+    z = np.array([[*at, *size] for size in sizes], float)
+    return BoxMeasurements(z, R, np.zeros((n, 2)), np.zeros((n, 2)), np.array(sizes, float),
+                           np.zeros(n, bool))
+
+
+def test_a_merge_keeps_what_each_camera_measured_last_of_the_two_rows():
+    """Two rows of one person merge: per camera, the view of the row that camera measured last
+    (its frame, size, place against the estimate and pending foot point) is the one kept."""
+    from edge_node.core.lifecycle import Lifecycle
+    from edge_node.core.state import NodeState
+    st = NodeState(2)
+    st.insert((0, 0), Gallery())
+    st.insert((0, 1), Gallery())
+    st.view_k[:] = [[5, 9], [7, 3]]  # camera 0 measured (0, 1) last, camera 1 (0, 0)
+    st.view_size[:] = [[[1.0, 1.0], [2.0, 2.0]], [[3.0, 3.0], [4.0, 4.0]]]
+    st.view_off[0] = [[0.1, 0.2], [0.5, 0.6]]
+    st.view_off[1, 0] = [0.3, 0.4]  # (0, 1) in camera 1: no place learnt
+    st.view_at[1, 0] = [5.0, 5.0]
+    Lifecycle._absorb(st, st.row((0, 0)), st.delete((0, 1)))
+    assert st.view_k[0].tolist() == [7, 9]
+    assert st.view_size[0].tolist() == [[3.0, 3.0], [2.0, 2.0]]
+    assert st.view_off[0].tolist() == [[0.3, 0.4], [0.5, 0.6]]
+    assert st.view_at[0, 0].tolist() == [5.0, 5.0] and np.isnan(st.view_at[0, 1]).all()
+    # the other way round, the place camera 1 has not learnt for the later row is not learnt
+    st.insert((0, 2), Gallery(), view_k=[1, 12])
+    Lifecycle._absorb(st, st.row((0, 0)), st.delete((0, 2)))
+    assert st.view_k[0].tolist() == [7, 12] and np.isnan(st.view_off[0, 1]).all()
+    assert st.view_off[0, 0].tolist() == [0.3, 0.4]
 
 
 def test_own_view_draws_a_box_only_while_enough_of_it_is_in_the_image():

@@ -37,6 +37,7 @@ def test_a_new_row_starts_with_no_information_and_no_estimate():
     st.insert((0, 0), Gallery())
     assert not st.estimated[0] and st.informed[0] and st.view_k[0].tolist() == [-1, -1]
     assert st.raw[0].tolist() == [-1, -1] and not st.seen[0].any()
+    assert np.isnan(st.view_off[0]).all() and np.isnan(st.view_at[0]).all()  # nothing learnt
     rows = TrackerRows(st)
     assert rows[(0, 0)].x_hat is None and rows[(0, 0)].origin is None and not rows[(0, 0)].confirmed
     st.held[0] = CONFIRM_FRAMES

@@ -243,7 +243,18 @@ class ReporterSection:
                                  "until the pair merges or parts")
     pending_alias: bool = boolean(True, "a tracker on its way to merging into an older one (positive co-motion evidence) is reported under the older id while the older is not reported (docs/tuning.md)")
     view_frames: int = integer(100, lo=0, doc="frames a camera keeps drawing a target it last saw")
-    view_rate: float = number(0.2, lo=0.0, hi=1.0, doc="smoothing of a camera's own box size")
+    view_rate: float = number(0.2, lo=0.0, hi=1.0,
+                              doc="smoothing of a camera's own box: its size and where it sits")
+    view_place: bool = boolean(True, "draw a target where the camera last saw it against the "
+                               "network's estimate, not at the estimate alone")
+    view_locate: float = positive(0.5, "m, a measurement whose foot point is less sure than this "
+                                  "(one sigma) teaches a camera's view neither size nor place")
+    view_behind: float = number(0.5, lo=0.0, hi=1.0,
+                                doc="fraction of a box a nearer measured target's box must cover "
+                                "to draw a target the camera has not measured for view_frames "
+                                "(1: such targets are not drawn)")
+    view_depth: float = nonnegative(0.2, "how much nearer that target stands: its box's bottom "
+                                    "edge lower by this fraction of the hidden box's height")
     view_unseen: bool = boolean(False, "draw targets a camera has not seen (at the network's size)")
     view_inside: float = number(0.9, lo=0.0, hi=1.0,
                                 doc="least fraction of a drawn box inside the image (0: any overlap)")

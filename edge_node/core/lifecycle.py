@@ -276,9 +276,12 @@ class Lifecycle:
         state.heard[w] = min(state.heard[w], o["heard"])
         state.heard_appearance[w] |= o["heard_appearance"]
         state.held[w] = max(state.held[w], o["held"])
-        newer = o["view_k"] > state.view_k[w]  # per camera, the later measurement's size
+        # per camera, what the later measurement taught its view: size, place, the foot point
+        newer = o["view_k"] > state.view_k[w]
         state.view_k[w] = np.where(newer, o["view_k"], state.view_k[w])
-        state.view_size[w] = np.where(newer[:, None], o["view_size"], state.view_size[w])
+        for name in ("view_size", "view_off", "view_at"):
+            col = getattr(state, name)
+            col[w] = np.where(newer[:, None], o[name], col[w])
 
     # -- the manager's frame ----------------------------------------------------------------------
     def views(self, state: NodeState, k: int, measured) -> list[MergeView]:

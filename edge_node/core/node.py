@@ -7,7 +7,7 @@ The node only composes roles, each with one job, after Stone Soup's tracker
 ``prepare(k, detections) -> FrameMessage``
     ``predictor`` (every tracker to ``k``), per camera ``measurer`` (boxes to ``z, R``),
     ``associator`` (eqs. 5-7 and eq. 2's information), ``initiator`` and ``lifecycle.birth``
-    (two observations make a tracker), ``views.saw`` (the sizes each camera draws), and
+    (two observations make a tracker), ``views.saw`` (what each camera measured), and
     ``outbound`` (the message: ``(ID, x_bar, u, U, ell)`` per tracker, appearance, merges).
 
 ``update(inbox) -> list[Track]``

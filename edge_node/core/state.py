@@ -17,7 +17,10 @@ Lasting columns (a tracker's life on this node; paper notation where it has one)
   ``announced`` (its appearance was sent), ``heard_appearance``, ``origin`` (where this node's
   camera measured it at birth, ``has_origin``);
 * ``view_k, view_size``: per camera of the node, the last frame it measured the target and the
-  box size it draws it at (``views``; ``view_k`` -1: never);
+  box size it draws it at (``views``; ``view_k`` -1: never); ``view_off``: where it sees the
+  target's foot point against the network's estimate, in its own ground frame (NaN: not learnt
+  yet); ``view_at``: the foot point it measured at ``view_k``, until the frame's drawing compares
+  it with the estimate (NaN: none, or the measurement did not locate the target);
 * ``galleries``: each tracker's appearance gallery.
 
 Frame columns (rebuilt by every ``prepare``: the paper's local information and the message):
@@ -73,6 +76,9 @@ class NodeState:
         "ell_sent": ((), np.int64, 0), "x_bar_sent": ((_D,), float, 0.0),
     }
 
+    #: lasting per-camera columns (``(n, C, ...)``): name -> value of a new row
+    PER_CAMERA = {"view_k": -1, "view_size": 0.0, "view_off": np.nan, "view_at": np.nan}
+
     def __init__(self, cameras: int = 1):
         self.C = int(cameras)
         self.ids: list[TrackerId] = []
@@ -83,6 +89,8 @@ class NodeState:
         C = self.C
         self.view_k = np.zeros((0, C), np.int64)
         self.view_size = np.zeros((0, C, 2))
+        self.view_off = np.zeros((0, C, 2))
+        self.view_at = np.zeros((0, C, 2))
         self.seen = np.zeros((0, C), bool)
         self.raw = np.zeros((0, C), np.int64)
         self.residual = np.zeros((0, C), bool)
@@ -91,7 +99,7 @@ class NodeState:
 
     # -- the table's shape --------------------------------------------------------------------
     def _columns(self) -> list[str]:
-        cols = [*self.LASTING, *self.FRAME, "view_k", "view_size", "seen", "raw", "residual"]
+        cols = [*self.LASTING, *self.FRAME, *self.PER_CAMERA, "seen", "raw", "residual"]
         if self.C > 1:
             cols += ["cam_u", "cam_U"]
         return cols
@@ -136,7 +144,8 @@ class NodeState:
             elif name in specs:
                 new = np.full(col.shape[1:], specs[name][2], col.dtype)
             else:  # the per-camera columns
-                new = np.full(col.shape[1:], -1 if name in ("view_k", "raw") else 0, col.dtype)
+                new = np.full(col.shape[1:], self.PER_CAMERA.get(name, -1 if name == "raw" else 0),
+                              col.dtype)
             setattr(self, name, np.concatenate((col[:at], new[None], col[at:])))
         return at
 

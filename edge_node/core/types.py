@@ -27,10 +27,12 @@ class Track:
     a detection to it this frame; ``ell`` the drop counter of eq. 8.
 
     ``boxes``: the target in this node's own image(s), ``{camera: (x, y, w, h) px}``, for the
-    cameras that saw it recently (``TrackerConfig.view_frames``): the network's estimate mapped
-    back through the camera's own registration, at the size the camera itself measures the
-    target (``CameraNode.view``). Empty for targets a camera has not seen: they are not in its
-    view. ``None`` when unknown (tracks read back from files without boxes).
+    cameras that saw it recently (``TrackerConfig.view_frames``), or that see a nearer target
+    they measure hide it (``view_behind``): the network's estimate mapped back through the
+    camera's own registration, moved by where the camera last measured the target against the
+    estimate (``view_place``), at the size the camera itself measures it (``views.OwnViews``).
+    Otherwise not drawn: a camera that does not see a target has no box of it. ``None`` when
+    unknown (tracks read back from files without boxes).
     """
 
     id: TrackerId

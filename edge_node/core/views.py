@@ -2,17 +2,25 @@
 targets in its own camera's image (``Track.boxes``), what its track file holds and what the
 paper's image-plane protocol scores.
 
-A camera draws a target it measured within ``view_frames`` (or any target, with
-``view_unseen``): the network's estimate's ground point mapped back through the camera's own
-registration (where its box's bottom edge lies), at the box size the camera itself measures for
-that target, smoothed at ``view_rate`` (:meth:`OwnViews.saw`). It draws it only while it can see
-it (:meth:`OwnViews.visible`): at least ``view_inside`` of the box's width inside the image, and,
-if ``view_hidden`` is below 1, not covered by a nearer drawn box once the camera has not
-measured it for ``view_fresh`` frames. docs/concepts.md ("Each camera's own view") says why
-and docs/tuning.md what was measured.
+A camera draws a target where it itself sees it: the network's estimate's ground point mapped
+back through the camera's own registration (where its box's bottom edge lies), moved by where
+the camera last measured the target against that estimate (``view_place``), at the box size the
+camera itself measures for that target; both smoothed at ``view_rate`` (:meth:`OwnViews.saw`,
+:meth:`OwnViews.boxes`), and learnt only from measurements that locate the target within
+``view_locate``. It draws a target it measured within ``view_frames``; one it has not measured
+for longer, or never, only while a nearer target it measures hides it (``view_behind``,
+``view_depth``: the camera's detector cannot report it there, but the person is there); any
+target with ``view_unseen``. It draws each only while it can see it (:meth:`OwnViews.visible`):
+at least ``view_inside`` of the box's width inside the image, and, if ``view_hidden`` is below
+1, not covered by a nearer drawn box once the camera has not measured it for ``view_fresh``
+frames. docs/concepts.md ("Each camera's own view") says why and docs/tuning.md ("Each camera
+draws what it sees") what was measured.
 
-This role reads only its own slice of the configuration (:class:`ViewSettings`); the node
-gives it the trackers to draw and their estimates. Pure and deterministic.
+What each camera knows of each target is kept in the node's table, per camera
+(``NodeState.view_k``, ``view_size``, ``view_off``, ``view_at``); every step works on all
+trackers of a camera at once. This role reads only its own slice of the configuration
+(:class:`ViewSettings`); the node gives it the table, the trackers to draw, their estimates and
+its cameras' measurements. Pure and deterministic.
 """
 from __future__ import annotations
 
@@ -22,9 +30,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from edge_node.core.config import Slice
-from edge_node.core.measurement import pixels_per_unit
+from edge_node.core.measurement import BoxMeasurements, pixels_per_unit
 from edge_node.core.registration import Registration
-from edge_node.core.measurement import BoxMeasurements
 from edge_node.core.state import NodeState
 from edge_node.geometry import Camera
 
@@ -32,20 +39,27 @@ from edge_node.geometry import Camera
 @dataclass(frozen=True)
 class ViewSettings(Slice):
     """What each camera's own view reads (the ``view_*`` parameters of the configuration's
-    ``reporter`` section, where their rules and docs are)."""
+    ``reporter`` section, where their rules and docs are; ``units_per_metre``:
+    ``view_locate`` is in metres)."""
 
     view_frames: int
     view_rate: float
+    view_place: bool
+    view_locate: float
+    view_behind: float
+    view_depth: float
     view_unseen: bool
     view_inside: float
     view_fresh: int
     view_hidden: float
+    units_per_metre: float
 
 
 class OwnViews:
-    """Draws a node's targets in its cameras' images; the box sizes each camera measured are
-    kept in the node's table (``NodeState.view_k``, ``view_size``: per camera, the last frame
-    it measured the target and the size it draws it at)."""
+    """Draws a node's targets in its cameras' images; what each camera measured of each
+    target is kept in the node's table (per camera: ``NodeState.view_k``, the last frame it
+    measured the target; ``view_size``, the size it draws it at; ``view_off``, where it sees it
+    against the estimate; ``view_at``, the foot point it measured, until :meth:`boxes`)."""
 
     def __init__(self, settings: ViewSettings, cameras: Sequence[Camera],
                  registrations: Mapping[int, Registration]):
@@ -56,42 +70,64 @@ class OwnViews:
     def saw(self, state: NodeState, k: int, raws: Mapping[int, BoxMeasurements]) -> None:
         """The frame's measurements (``state.raw``: per camera, the row of each tracker's box
         among ``raws[camera]``, -1 none): the size each camera draws a target at is smoothed
-        towards the size it measured at ``view_rate``, all at once."""
+        towards the size it measured at ``view_rate``, all at once, and the measured foot point
+        waits for the frame's estimate (``view_at``, :meth:`boxes`). A measurement whose foot
+        point is uncertain by more than ``view_locate`` (one sigma along either ground axis: a
+        box cut by the image border, or whose bottom edge lies near the horizon, where a pixel
+        is metres) does not show where the camera sees the target nor how large: it changes
+        neither (a first measurement still gives the size), but counts as measured."""
+        s = self.s
         for c, cam in enumerate(self.cameras):
             rows = np.flatnonzero(state.raw[:, c] >= 0)
             if not len(rows):
                 continue
-            size = np.array(raws[cam.id].size.take(state.raw[rows, c], axis=0), float)
+            ms, js = raws[cam.id], state.raw[rows, c]
+            size = np.array(ms.size.take(js, axis=0), float)
+            R = ms.R.take(js, axis=0)
+            with np.errstate(invalid="ignore"):
+                spread = np.sqrt(np.maximum(R[:, 0, 0], R[:, 1, 1]))
+                located = spread <= s.view_locate * s.units_per_metre
             held = state.view_k[rows, c] >= 0
             if held.any():
                 before = state.view_size[rows[held], c]
-                size[held] = before + self.s.view_rate * (size[held] - before)
+                learnt = before + s.view_rate * (size[held] - before)
+                size[held] = np.where(located[held, None], learnt, before)
             state.view_k[rows, c] = k
             state.view_size[rows, c] = size
+            state.view_at[rows, c] = np.where(located[:, None], ms.z.take(js, axis=0)[:, :2], np.nan)
 
     def boxes(self, state: NodeState, rows: np.ndarray, k: int,
               x_hat: np.ndarray) -> list[dict[int, np.ndarray]]:
         """Each tracker's box in each camera that draws it at frame ``k`` (``rows`` the
         trackers' rows of the table, ``x_hat`` ``(n, 6)`` their estimates, in order); all
-        trackers of a camera at once."""
+        trackers of a camera at once. A camera that measured a tracker this frame first moves
+        where it sees it against the estimate towards the measurement, at ``view_rate``
+        (``view_place``). A target the camera never measured (with ``view_unseen``, not within
+        ``view_frames``) is drawn at the network's size and estimate, and counts as not
+        measured for ``view_frames + 1`` frames."""
         s = self.s
         out: list[dict[int, np.ndarray]] = [{} for _ in range(len(rows))]
         for c, cam in enumerate(self.cameras):
             last = state.view_k[rows, c]
-            fresh = (last >= 0) & (k - last <= s.view_frames)
-            if s.view_unseen:
-                pick = np.arange(len(rows))
-                sizes = np.where(fresh[:, None], state.view_size[rows, c], x_hat[:, 2:4])
-                ages = np.where(fresh, k - last, s.view_frames + 1)
+            known = last >= 0
+            fresh = known & (k - last <= s.view_frames)
+            if s.view_unseen:  # every target; only the fresh at the camera's own size and place
+                pick, own = np.arange(len(rows)), fresh
+            elif s.view_behind < 1.0:  # every target, to be drawn if it is hidden (visible)
+                pick, own = np.arange(len(rows)), known
             else:
                 pick = np.flatnonzero(fresh)
-                sizes = state.view_size[rows[pick], c]
-                ages = k - last[pick]
+                own = np.ones(len(pick), bool)
             if not len(pick):
                 continue
+            at = rows[pick]
+            sizes = np.where(own[:, None], state.view_size[at, c], x_hat[pick, 2:4])
+            ages = np.where(own, k - last[pick], s.view_frames + 1)
             xy = x_hat[pick, :2]
             reg = self.registrations.get(cam.id)
             g = xy if reg is None else reg.to_camera_many(xy)
+            if s.view_place:
+                g = self._placed(state, at, c, k, own, g)
             with np.errstate(invalid="ignore", divide="ignore", over="ignore"):
                 foot, J = cam.image_and_jacobians(g)
                 wh = sizes * pixels_per_unit(J)[:, None]
@@ -102,16 +138,58 @@ class OwnViews:
                     out[i][cam.id] = b
         return out
 
+    def _placed(self, state: NodeState, rows: np.ndarray, c: int, k: int, own: np.ndarray,
+                g: np.ndarray) -> np.ndarray:
+        """The ground points ``g`` (the estimates of table ``rows`` in camera ``c``'s own
+        frame) moved by where the camera sees each target against its estimate (``own``: the
+        targets drawn from what the camera knows of them; the others stay where ``g`` is); a
+        measurement of this frame first moves that offset towards itself at ``view_rate`` (the
+        first sets it). A measured foot point is used once."""
+        off = state.view_off[rows, c]
+        found = state.view_at[rows, c]
+        pending = own & np.isfinite(found).all(axis=1)
+        if pending.any():
+            now = pending & (state.view_k[rows, c] == k)
+            with np.errstate(invalid="ignore"):
+                r = found - g
+                learnt = np.where(np.isnan(off), r, off + self.s.view_rate * (r - off))
+            off = np.where(now[:, None], learnt, off)
+            state.view_off[rows[now], c] = off[now]
+            state.view_at[rows[pending], c] = np.nan
+        placed = own & np.isfinite(off).all(axis=1)
+        return g + np.where(placed[:, None], off, 0.0)
+
+    def _behind(self, box: np.ndarray, old: np.ndarray, now: np.ndarray) -> np.ndarray:
+        """Which boxes of ``old`` (the rest False) stand behind a box of ``now``: covered by
+        at least ``view_behind`` of their area, and its bottom edge at least ``view_depth`` of
+        their height lower (never, with ``view_behind`` 1)."""
+        out = np.zeros(len(box), bool)
+        if self.s.view_behind >= 1.0 or not now.any():
+            return out
+        a, b = np.flatnonzero(old), np.flatnonzero(now)
+        x0, y0, w, h = box.T
+        x1, y1 = x0 + w, y0 + h
+        cover = ((np.minimum(x1[a, None], x1[None, b]) - np.maximum(x0[a, None], x0[None, b])).clip(0.0)
+                 * (np.minimum(y1[a, None], y1[None, b]) - np.maximum(y0[a, None], y0[None, b])).clip(0.0))
+        nearer = y1[None, b] >= y1[a, None] + self.s.view_depth * h[a, None]
+        out[a] = ((cover * nearer) >= self.s.view_behind * (w * h)[a, None]).any(axis=1)
+        return out
+
     def visible(self, cam: Camera, box: np.ndarray, age: np.ndarray) -> np.ndarray:
         """Which of a camera's boxes ``(n, 4)`` it can see (``age``: frames since it last
         measured each target): finite, overlapping the image with at least ``view_inside`` of
         the box's width between its left and right edges (people walk in and out of a view
-        sideways; one whose head or feet the frame cuts off is still there), and not hidden. A
-        target the camera has not measured for more than ``view_fresh`` frames is hidden when
-        a nearer visible box (its bottom edge lower in the image: the target stands closer on
-        the ground plane) covers ``view_hidden`` of it; the camera's detector would not report
-        it either, so drawing it could only add a false box. A target the camera measures now
-        is drawn however crowded the scene."""
+        sideways; one whose head or feet the frame cuts off is still there); and, for a target
+        it has not measured for more than ``view_frames`` frames, hidden behind a nearer one it
+        has: one box of those covers at least ``view_behind`` of it and its bottom edge lies at
+        least ``view_depth`` of the box's height lower (the target stands behind it on the
+        ground plane, not beside it). Such a target is there and the camera cannot report it;
+        one nobody hides would be reported if it were there (it walked out, or the network's
+        estimate is not this camera's person). Then, if ``view_hidden`` is below 1, a target
+        the camera has not measured for more than ``view_fresh`` frames is left out when a
+        nearer drawn box (its bottom edge lower in the image) covers ``view_hidden`` of it (for
+        annotations that leave hidden people out). A target the camera measures now is drawn
+        however crowded the scene."""
         s = self.s
         W, H = cam.image_size
         with np.errstate(invalid="ignore", over="ignore"):
@@ -121,6 +199,9 @@ class OwnViews:
             across = (np.minimum(x1, W) - np.maximum(x0, 0.0)).clip(0.0)  # width in the image
             ok = np.isfinite(box).all(axis=1) & (area > 0) & (y1 > 0) & (y0 < H)
             ok &= (across > 0) & (across >= s.view_inside * box[:, 2])
+        old = ok & (age > s.view_frames) if not s.view_unseen else np.zeros_like(ok)
+        if old.any():
+            ok &= ~old | self._behind(box, old, ok & ~old)
         stale = ok & (age > s.view_fresh)
         if s.view_hidden >= 1.0 or not stale.any() or ok.sum() < 2:
             return ok

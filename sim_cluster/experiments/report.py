@@ -180,6 +180,22 @@ def terrace_full(s: dict) -> str:
               rows)
 
 
+# -- each camera's own view (own_view.json) ----------------------------------------------------
+@table("own-view", "views/own_view.json")
+def own_view(s: dict) -> str:
+    rows = []
+    for cell, c in s["cells"].items():
+        scenario, topology = cell.split("/", 1)
+        b, a = c["before"], c["after"]
+        seeds = sorted(b["seeds"], key=int)
+        per = ", ".join(f"{f3(b['seeds'][k]['image'])} -> {f3(a['seeds'][k]['image'])}" for k in seeds)
+        rows.append([scenario, topology, f"{f3(b['image_mota'])} -> {f3(a['image_mota'])}",
+                     f"{f3(b['ground_mota'])} -> {f3(a['ground_mota'])}", per])
+    seeds = ", ".join(str(k) for k in s["meta"]["seeds"])
+    return md(["scenario", "topology", "image MOTA, before -> after", "ground MOTA",
+               f"image MOTA per seed ({seeds})"], rows)
+
+
 # -- re-id quality ------------------------------------------------------------------------------
 @table("reid-sweep", "reid/summary.json")
 def reid_sweep(s: dict) -> str:
