@@ -115,8 +115,8 @@ class Scripted(Trust):
         self.now = next(self.script)
         return super().__call__(state, msgs, k, resolve)
 
-    def _statistics(self, state, m, resolve):
-        return np.zeros(1, np.intp), np.array([self.now[m.sender]])
+    def _statistics(self, state, msgs, resolve):
+        return [(np.zeros(1, np.intp), [self.now[m.sender]]) for m in msgs]
 
     def _used(self, state, k, m, entries, resolve):
         return m
