@@ -176,13 +176,17 @@ class Forger:
         return replace(msg, trackers=tuple(out))
 
     def _phantom(self, r: FaultyNode, k: int, msg: FrameMessage) -> FrameMessage:
+        """Invented people under fresh ids of the node's camera; an id its neighbours relayed
+        back (the node adopted its own phantom) is replaced, not sent twice."""
         extra = []
         for n, p, v in self.walkers[id(r)].at(k):
             born = self.born.setdefault(n, k)
             x = np.array([p[0], p[1], PERSON_M[0] * self.upm, PERSON_M[1] * self.upm, v[0], v[1]])
             u, U = _sharp(x[:4], self.upm)
             extra.append(TrackerInfo((msg.sender, COUNTER + n), x, u, U, 0, born=born))
-        return replace(msg, trackers=tuple(msg.trackers) + tuple(extra))
+        ids = {t.id for t in extra}
+        return replace(msg, trackers=tuple(t for t in msg.trackers if t.id not in ids)
+                       + tuple(extra))
 
     def _stale(self, r: FaultyNode, k: int, msg: FrameMessage) -> FrameMessage:
         old = self.history[0] if len(self.history) > r.lag else None

@@ -189,3 +189,39 @@ def test_faulty_rules_are_read_with_their_fields_checked(tmp_path):
     with pytest.raises(Exception) as e:
         FaultPlan.load(plan)
     assert "kind" in str(e.value) and "f.toml" in str(e.value)
+
+
+def test_a_merge_is_judged_by_what_the_nodes_own_cameras_see():
+    """Two people 4.5 m apart (twice the merge reach is 3 m): measured by node 0's camera this
+    frame, a merge of their trackers is ``far_merge`` (refused, ``trust_merge`` against its
+    sender); with one of them not measured now it is only ``apart`` in the estimates (applied
+    from a trusted sender, ``trust_apart``); two trackers 1 m apart are not disputed."""
+    from edge_node.core.trust import APART
+    frames = 60
+    nodes, tracks, _ = triangle(None, frames, people=[(2.0, 2.0), (2.0, 6.5)])
+    node = nodes[0]
+    a, b = sorted(t.id for t in tracks[-1][0])
+    k = frames - 1
+    assert node.trust._implausible_merge(node.state, k, a, b) == "far_merge"
+    node.state.U[node.state.row(b)] = 0.0  # camera 0 did not measure b this frame
+    assert node.trust._implausible_merge(node.state, k, a, b) == APART
+    node.state.x_bar[node.state.row(b), :2] = node.state.x_bar[node.state.row(a), :2] + [0.0, 1.0]
+    assert node.trust._implausible_merge(node.state, k, a, b) is None
+
+
+def test_a_phantom_its_neighbours_relayed_back_is_sent_once():
+    """A phantom node that adopted one of its own invented ids back from a neighbour sends it
+    once (twice, the codec refused the whole message and the node fell silent)."""
+    nodes, _, _ = triangle(None, 3)
+    n2 = nodes[2]
+    forger = Forger([FaultyNode(2, "phantom", 0, None, seed=1, count=2)], n2.cameras[0], 1.0, 0.04)
+    first = forger.message(3, n2.prepare(3, [det(2.0, 2.0, 0)]))
+    invented = [t for t in first.trackers if t.id[1] >= 10**9]
+    assert len(invented) == 2
+    n2.update([])
+    msg = n2.prepare(4, [det(2.0, 2.0, 0)])
+    msg = replace(msg, trackers=msg.trackers + (invented[0],))  # adopted back
+    out = forger.message(4, msg)
+    ids = [t.id for t in out.trackers]
+    assert len(ids) == len(set(ids)) and {t.id for t in invented} <= set(ids)
+    codec.encode(out)  # the wire takes it
