@@ -28,7 +28,7 @@ from protocol.errors import DmttError
 from protocol.keys import is_valid_network
 from sim_cluster.cluster import commands as cluster
 from sim_cluster.experiments import (ablation, bandwidth, bench, bench_cluster, faultreport,
-                                     fuzz, probe, reid_sweep, run, soak)
+                                     fuzz, probe, reid_sweep, run, soak, trust)
 from sim_cluster.experiments import bench_detectors, report
 from sim_cluster.network import topology as topo
 from sim_cluster.scenarios import commands as scenarios
@@ -259,6 +259,23 @@ def build_parser() -> argparse.ArgumentParser:
     fr.add_argument("--quiet", action="store_true")
     fr.set_defaults(func=faultreport.main)
 
+    tr = sub.add_parser("trust-report", help="one faulty node (hijack, phantom, bumped, "
+                        "hallucinate, stale, forged_merge) in a ring against the fault-free run: "
+                        "honest nodes' MOTA/IDF1, far tracks, frames to quarantine, ids kept")
+    tr.add_argument("--scenarios", default="terrace-sim,ring8-sim",
+                    help="comma-separated presets (default terrace-sim,ring8-sim)")
+    tr.add_argument("--seeds", default="0-2", help="e.g. 0-2 or 0,3 (default 0-2)")
+    tr.add_argument("--kinds", default="", help="comma-separated faulty kinds (default: all)")
+    tr.add_argument("--config", default="dkf+lda+dtm", choices=CONFIG_NAMES)
+    tr.add_argument("--baseline", action="store_true",
+                    help="also run every faulty kind with the trust role off")
+    tr.add_argument("--baseline-from", default=None, metavar="FILE",
+                    help="with --baseline: take the trust-off runs from an earlier trust.json")
+    tr.add_argument("--jobs", type=integer(1), default=1, help="worker processes (default 1)")
+    tr.add_argument("--out", default="docs/results/trust")
+    tr.add_argument("--quiet", action="store_true")
+    tr.set_defaults(func=trust.main)
+
     fz = sub.add_parser("fuzz", help="wire-valid hostile messages into two running nodes through "
                         "Zenoh: no crash, every rejection counted, tracks as without the attacker")
     fz.add_argument("--messages", type=integer(100), default=10_000,
@@ -400,6 +417,9 @@ def build_parser() -> argparse.ArgumentParser:
     bc.add_argument("--scope", type=integer(0), default=0,
                     help="the nodes' scope_hops (regional scope; default 0: every node holds "
                          "every tracker)")
+    bc.add_argument("--faults", default=None, metavar="FILE",
+                    help="fault plan TOML the nodes apply (e.g. a [[faulty]] node: the honest "
+                         "nodes' frame rate during an attack)")
     bc.add_argument("--out", default="runs/bench-cluster")
     bc.set_defaults(func=bench_cluster.main)
 

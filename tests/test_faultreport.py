@@ -28,7 +28,14 @@ def test_ratios_and_recovery_are_consistent(report):
         else:
             assert r["frames_to_recover"] is None
     # the faults cost something but the network keeps tracking
-    assert all(r["ratio"]["mota"] > 0.8 for r in report["cases"])
+    assert all(r["ratio"]["mota"] > 0.8 for r in report["cases"] if "faulty" not in r["case"])
+    # the lies the trust role defends against (edge_node/core/trust.py: a hijack is quarantined,
+    # forged merges of people apart refused): the honest nodes track on; the faulty node is
+    # not scored, every kind
+    for kind in ("hijack", "forged_merge"):
+        (r,) = [r for r in report["cases"] if r["case"] == f"faulty node 0: {kind}"]
+        assert r["ratio"]["mota"] > 0.8, r
+    assert all(r["survivors"] == [1, 2, 3] for r in report["cases"] if "faulty" in r["case"])
 
 
 def test_table_lists_every_case(report):

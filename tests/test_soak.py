@@ -6,7 +6,7 @@ import json
 
 import pytest
 
-from edge_node.faults import FaultPlan, Network
+from edge_node.faults import FAULTY_KINDS, FaultPlan, Network
 from sim_cluster.experiments.soak import (Fault, chaos_schedule, fault_plan, soak, summary_lines,
                                           verdict)
 from sim_cluster.network.topology import build
@@ -17,7 +17,7 @@ def test_chaos_schedule_is_seeded_spaced_and_a_valid_fault_plan():
     assert a == chaos_schedule(7, 30, 4) and a != chaos_schedule(8, 30, 4)
     assert [int(f.at_s // 60) for f in a] == list(range(2, 30, 3))  # one every 3 min from min 2
     assert {f.kind for f in a} == {"kill", "freeze", "loss", "partition", "long_freeze",
-                                   "disk_full", "flood"}
+                                   "disk_full", "flood", "faulty"}
     for f in a:
         assert 5 <= f.at_s % 60 <= 20
         assert f.kind in ("partition", "disk_full") or 0 <= f.node < 4
@@ -25,6 +25,11 @@ def test_chaos_schedule_is_seeded_spaced_and_a_valid_fault_plan():
     adjacency = build("ring", 4)
     plan = fault_plan(a, adjacency, 25.0, 7)
     FaultPlan.from_dict(plan, Network(adjacency, 30 * 60 * 25 + 1))  # the nodes' own check
+    faulty = next(f for f in a if f.kind == "faulty")
+    (rule,) = plan["faulty"]
+    assert rule == {"node": faulty.node, "kind": faulty.faulty, "start": round(faulty.at_s * 25),
+                    "stop": round((faulty.at_s + faulty.duration_s) * 25)}
+    assert rule["kind"] in FAULTY_KINDS and 20 <= faulty.duration_s <= 40
     loss = next(f for f in a if f.kind == "loss")
     rules = [r for r in plan["link"] if r["start"] == round(loss.at_s * 25)]
     assert {(r["src"], r["dst"]) for r in rules} == (

@@ -89,7 +89,8 @@ def run_cluster(scenario: str, n: int, frames: int, out: Path, *, topology: str 
                 seed: int = 0, config: str = "dkf+lda+dtm", network: str | None = None,
                 sync_timeout_s: float = 10.0, startup_timeout_s: float = 60.0,
                 timeout_s: float | None = None, data_root: str | None = None,
-                monitor_connect_back: bool = True, fps: float = 0.0, scope: int = 0) -> dict:
+                monitor_connect_back: bool = True, fps: float = 0.0, scope: int = 0,
+                faults: Path | None = None) -> dict:
     """Start an ``n``-node cluster in sync mode (paced at ``fps``, 0: unpaced), run ``frames`` frames with the
     passive monitor attached, stop everything, and return the measured figures (module
     docstring). Raises :class:`ClusterError` when a node fails or the run takes longer than
@@ -104,7 +105,7 @@ def run_cluster(scenario: str, n: int, frames: int, out: Path, *, topology: str 
                           startup_timeout_s=startup_timeout_s, fps=fps, ports=node_ports,
                           # the monitor's endpoint first in every node's connect list
                           connect_first=[mon_ep] if monitor_connect_back else (),
-                          tracker={"scope_hops": scope} if scope else None)
+                          tracker={"scope_hops": scope} if scope else None, faults=faults)
     timeout_s = timeout_s if timeout_s is not None else \
         startup_timeout_s + 60 + 0.5 * frames + (frames / fps if fps else 0.0)
     seen: dict[int, dict[str, float]] = {i: {} for i in range(n)}  # phase -> its updated_at
@@ -299,7 +300,7 @@ def bench(node_counts: list[int], frames: int, repeats: int, topology: str, out:
           scenario: str = "ring8-sim", seed: int = 0, config: str = "dkf+lda+dtm",
           sync_timeout_s: float = 10.0, startup_timeout_s: float = 60.0,
           data_root: str | None = None, pacing: tuple[float, ...] = (0.0,), scope: int = 0,
-          log=print) -> dict:
+          faults: Path | None = None, log=print) -> dict:
     """Run every node count at every pacing (``0``: unpaced) ``repeats`` times; the summary
     holds each headline figure's median over repeats (``summary[key]``, key ``"<n>"`` unpaced,
     ``"<n>@<fps>"`` paced) and every run's full figures (``runs[key]``)."""
@@ -315,7 +316,7 @@ def bench(node_counts: list[int], frames: int, repeats: int, topology: str, out:
     out = Path(out)
     result = {"scenario": scenario, "seed": seed, "frames": frames, "repeats": repeats,
               "topology": topology, "mode": "sync", "pacing": list(pacing), "config": config,
-              "scope_hops": scope,
+              "scope_hops": scope, "faults": None if faults is None else str(faults),
               "cpus": os.cpu_count(), "load_average_at_start": list(os.getloadavg()),
               "runs": {}, "summary": {}}
     for n in node_counts:
@@ -328,7 +329,7 @@ def bench(node_counts: list[int], frames: int, repeats: int, topology: str, out:
                                   seed=seed, config=config, network=f"bench{n}p{fps:g}r{r}".replace(".", "_"),
                                   sync_timeout_s=sync_timeout_s,
                                   startup_timeout_s=startup_timeout_s, data_root=data_root, fps=fps,
-                                  scope=scope)
+                                  scope=scope, faults=faults)
                 fig["pacing_fps"] = fps
                 runs.append(fig)
                 log(f"  {key} nodes, run {r + 1}/{repeats}: {_fmt(fig['fps'], '.1f')} frames/s, "
@@ -421,7 +422,8 @@ def main(args) -> int:
     result = bench(counts, args.frames, args.repeats, args.topology, out, scenario=args.scenario,
                    seed=args.seed, sync_timeout_s=args.sync_timeout,
                    startup_timeout_s=args.startup_timeout, pacing=pacing,
-                   scope=getattr(args, "scope", 0))
+                   scope=getattr(args, "scope", 0),
+                   faults=Path(args.faults) if getattr(args, "faults", None) else None)
     (out / RESULT).write_text(json.dumps(result, indent=2, sort_keys=True))
     print(table(result))
     print(f"wrote {out / RESULT}")

@@ -2,7 +2,9 @@
 
 Cases (4-node ring unless said): kill 1 of 4 at mid-run; kill and restart; 10% and 30% loss on
 every link (async); every message 3 frames late (async); a partition into two halves for a
-quarter of the run. Each case is run in process through the shared fault layer
+quarter of the run; node 0 faulty from mid-run on, one case per faulty kind (hijack, phantom,
+bumped, hallucinate, stale, forged_merge: ``edge_node/forgery.py``; scored on the honest nodes,
+``sim_cluster trust-report`` has the detail). Each case is run in process through the shared fault layer
 (``edge_node/faults.py``), deterministically from its seed; the multi-process cluster applies
 the same plans (``sim_cluster up --faults``).
 
@@ -23,7 +25,7 @@ from pathlib import Path
 import numpy as np
 
 from edge_node.core.config import TrackerConfig
-from edge_node.faults import FaultPlan
+from edge_node.faults import FAULTY_KINDS, FaultPlan
 from sim_cluster.evaluation.metrics import evaluate
 from sim_cluster.network.inprocess import run_network
 from sim_cluster.network.topology import build
@@ -39,6 +41,7 @@ class Case:
     mode: str = "sync"
     baseline_mode: str = "sync"
     dead: tuple[int, ...] = ()  # nodes dead at the end (not survivors)
+    faulty: tuple[int, ...] = ()  # nodes that lie (not scored; their people still count)
     heal: int | None = None  # frame the fault ends (restart, partition healed)
     extra: dict = field(default_factory=dict)
 
@@ -58,7 +61,9 @@ def standard_cases(frames: int) -> list[Case]:
         Case("partition {0,1} / {2,3}", {"partition": [{"groups": [[0, 1], [2, 3]],
                                                         "start": mid, "stop": mid + q}]},
              heal=mid + q),
-    ]
+    ] + [Case(f"faulty node 0: {kind}", {"seed": 1, "faulty": [{"node": 0, "kind": kind,
+                                                                 "start": mid}]}, faulty=(0,))
+         for kind in FAULTY_KINDS]
 
 
 def _without_dead_only(data: ScenarioData, dead: tuple[int, ...], start: int) -> ScenarioData:
@@ -120,7 +125,8 @@ def run_report(data: ScenarioData, cfg: TrackerConfig | None = None, progress=No
         except Exception as e:  # noqa: BLE001 - a crash is what this report counts
             crashes, r = 1, None
             error = f"{type(e).__name__}: {e}"
-        survivors = tuple(n for n in range(data.num_cameras) if n not in case.dead)
+        survivors = tuple(n for n in range(data.num_cameras)
+                          if n not in case.dead and n not in case.faulty)
         truth = _without_dead_only(data, case.dead, start)
         ref = _ground(baselines[case.baseline_mode], truth, survivors, start)
         row = {"case": case.name, "mode": case.mode, "survivors": list(survivors),

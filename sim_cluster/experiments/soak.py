@@ -16,9 +16,12 @@ seeded schedule of faults (:func:`chaos_schedule`), one every ``--every`` minute
                  node must say ``degraded`` within 2 s and go on tracking
 ``flood``        one message of 4,096 plausible phantom trackers to a node, as one of its
                  neighbours (``sim_cluster probe flood``)
+``faulty``       one node faulty for 20-40 s, of a seeded kind (``hijack``, ``phantom``,
+                 ``bumped``, ``hallucinate``, ``stale``, ``forged_merge``: edge_node/forgery.py);
+                 its neighbours must not follow it (``edge_node/core/trust.py``)
 
-Kills and freezes are signals from this driver at wall-clock times; loss and partitions are the
-nodes' own fault layer (``edge_node/faults.py``), written as a fault plan in frames (the frame a
+Kills and freezes are signals from this driver at wall-clock times; loss, partitions and faulty
+nodes are the nodes' own fault layer (``edge_node/faults.py``), written as a fault plan in frames (the frame a
 second maps to at camera rate from frame 0). A node that exits when nobody killed it is an
 *unplanned exit*: counted, logged and restarted (a supervisor would).
 
@@ -52,7 +55,7 @@ import motmetrics as mm
 import numpy as np
 
 from edge_node.core.config import TrackerConfig
-from edge_node.faults import FaultPlan, Network
+from edge_node.faults import FAULTY_KINDS, FaultPlan, Network
 from edge_node.formats.tracks import ID_BASE, iter_tracks
 from edge_node.runtime.output import tracks_path
 from protocol import codec
@@ -64,7 +67,9 @@ from sim_cluster.experiments.chaos import fill, phantom_message, publish_once, r
 from sim_cluster.network.inprocess import run_network
 from sim_cluster.scenarios.loader import open_scenario
 
-KINDS = ("kill", "freeze", "loss", "partition", "long_freeze", "disk_full", "flood")
+KINDS = ("kill", "freeze", "loss", "partition", "long_freeze", "disk_full", "flood", "faulty")
+#: the kinds the nodes apply themselves from the plan file (the others the soak does)
+PLANNED = ("loss", "partition", "faulty")
 DISK_MB = 1024  # the soak's output tmpfs (RAM-backed: only what the nodes write lives there)
 DEGRADED_WITHIN_S = 2.0  # a full disk: every node says so within this long
 RATIO = 0.9  # survivors' ground MOTA >= RATIO x the fault-free run's, outside exempt minutes
@@ -80,6 +85,7 @@ class Fault:
     node: int | None = None  # kill, freeze, loss
     groups: tuple[tuple[int, ...], ...] = ()  # partition
     loss: float = 0.0
+    faulty: str = ""  # faulty: what the node does wrong (edge_node/faults.py FAULTY_KINDS)
 
     def minutes(self, minute_s: float = 60.0) -> set[int]:
         """The minutes it touches and the minute after (exempt from the MOTA check)."""
@@ -112,6 +118,9 @@ def chaos_schedule(seed: int, minutes: int, nodes: int, every: int = 3, first: i
             out.append(Fault(kind, at, u * float(rng.uniform(20, 40))))
         elif kind == "flood":
             out.append(Fault(kind, at, 0.0, node=node))
+        elif kind == "faulty":
+            out.append(Fault(kind, at, u * float(rng.uniform(20, 40)), node=node,
+                             faulty=FAULTY_KINDS[int(rng.integers(len(FAULTY_KINDS)))]))
         elif kind == "loss":
             out.append(Fault(kind, at, u * float(rng.uniform(20, 40)), node=node,
                              loss=round(float(rng.uniform(0.2, 0.5)), 2)))
@@ -130,13 +139,15 @@ def stops_node(kind: str) -> bool:
 def fault_plan(faults: list[Fault], adjacency: dict[int, list[int]], fps: float,
                seed: int) -> dict:
     """The nodes' part of the schedule (loss, partitions) as a fault plan dict, in frames."""
-    links, parts = [], []
+    links, parts, faulty = [], [], []
     for f in faults:
         start, stop = round(f.at_s * fps), round((f.at_s + f.duration_s) * fps)
         if f.kind == "loss":
             for j in adjacency[f.node]:
                 for a, b in ((f.node, j), (j, f.node)):
                     links.append({"src": a, "dst": b, "start": start, "stop": stop, "loss": f.loss})
+        elif f.kind == "faulty":
+            faulty.append({"node": f.node, "kind": f.faulty, "start": start, "stop": stop})
         elif f.kind == "partition" and all(f.groups):
             parts.append({"groups": [list(g) for g in f.groups], "start": start, "stop": stop})
     plan: dict = {"seed": int(seed)}
@@ -144,6 +155,8 @@ def fault_plan(faults: list[Fault], adjacency: dict[int, list[int]], fps: float,
         plan["link"] = links
     if parts:
         plan["partition"] = parts
+    if faulty:
+        plan["faulty"] = faulty
     return plan
 
 
@@ -172,7 +185,7 @@ class Soak:
         self._dead: dict[int, float] = {}  # killed by the plan -> restart time
         self._frozen: dict[int, float] = {}  # frozen -> thaw time
         self._last: dict[int, dict] = {}
-        self._todo = sorted((f for f in faults if f.kind not in ("loss", "partition")),
+        self._todo = sorted((f for f in faults if f.kind not in PLANNED),
                             key=lambda f: f.at_s)
 
     def run(self, seconds: float) -> None:
@@ -497,13 +510,13 @@ def plot(report: dict, path: Path) -> None:
                 a.axvspan(e["t_s"] / ms, (e["t_s"] + e["duration_s"]) / ms, color="red",
                           alpha=0.15)
     for f in report["faults"]:
-        if f["kind"] in ("loss", "partition"):
+        if f["kind"] in PLANNED:
             for a in ax:
                 a.axvspan(f["at_s"] / ms, (f["at_s"] + f["duration_s"]) / ms, color="orange",
                           alpha=0.15)
     fig.suptitle(f"soak: {report['nodes']} nodes, {report['topology']}, {report['minutes']} min, "
                  f"chaos seed {report['chaos']} (red: kill / freeze / full disk, orange: loss / "
-                 "partition)",
+                 "partition / a faulty node)",
                  fontsize=9)
     fig.tight_layout()
     fig.savefig(path, dpi=110)
@@ -533,7 +546,7 @@ def soak(minutes: int, nodes: int, out: str | Path, *, chaos: int | None = None,
     plan = fault_plan(faults, adjacency, fps, chaos or 0)
     cluster.reset(clear_logs=True)
     fault_file = None
-    if "link" in plan or "partition" in plan:
+    if any(key in plan for key in ("link", "partition", "faulty")):
         fault_file = out / "chaos.toml"
         fault_file.write_text(_toml(plan))
         FaultPlan.load(fault_file, Network(adjacency, frames))  # as the nodes will check it
@@ -621,7 +634,7 @@ def _reference_job(path: Path, scenario: str, seed: int, frames: int, nodes: int
 
 def _toml(plan: dict) -> str:
     lines = [f"seed = {plan['seed']}"]
-    for key in ("link", "partition"):
+    for key in ("link", "partition", "faulty"):
         for rule in plan.get(key, []):
             lines.append(f"\n[[{key}]]")
             lines += [f"{k} = {json.dumps(v)}" for k, v in rule.items()]
@@ -646,8 +659,9 @@ def summary_lines(report: dict) -> list[str]:
         events = [f"{e['kind']} {'' if e.get('node') is None else e['node']}".strip()
                   for e in report["events"] if int(e["t_s"] // ms) == m["minute"]
                   and (stops_node(e["kind"]) or e["kind"] in ("disk_full", "flood"))]
-        events += [f["kind"] for f in report["faults"]
-                   if f["kind"] in ("loss", "partition") and int(f["at_s"] // ms) == m["minute"]]
+        events += [f"{f['kind']} {f['faulty']} {f['node']}" if f["kind"] == "faulty" else f["kind"]
+                   for f in report["faults"]
+                   if f["kind"] in PLANNED and int(f["at_s"] // ms) == m["minute"]]
         note = ", ".join(events) + (" (exempt)" if m["exempt"] else "")
         lines.append(f"{m['minute'] + 1:>3} {rss:>28} {fps:>11} {tmo:>4} {rej:>4} "
                      f"{f(m['mota']):>6} {f(m['reference_mota']):>6} {f(m['ratio']):>6} "
