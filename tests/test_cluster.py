@@ -44,6 +44,17 @@ def _pids(out):
     return [p.pid for p in ClusterState.load(out).nodes.values()]
 
 
+def assert_same_tracks(out, ref):
+    """Every node's track file in ``out`` holds the in-process run ``ref``'s tracks: the same
+    ids per frame, states equal to 1e-6."""
+    for node in range(4):
+        got = read_tracks(out / "nodes" / f"tracks_node{node}.csv", FRAMES)
+        for k in range(FRAMES):
+            assert [t.id for t in got[k]] == [t.id for t in ref.tracks[node][k]], (node, k)
+            for a, b in zip(got[k], ref.tracks[node][k]):
+                np.testing.assert_allclose(a.x, b.x, rtol=0, atol=1e-6)
+
+
 @pytest.fixture(scope="module")
 def terrace():
     return load_scenario("terrace-sim", seed=0, frames=FRAMES)
@@ -55,12 +66,7 @@ def test_sync_cluster_reproduces_in_process_run(tmp_path, terrace, topology):
     # mode time, and check below that no timeout happened.
     _up(tmp_path, "--topology", topology, "--sync-timeout", "30")
     ref = run_network(terrace, build(topology, 4), TrackerConfig())
-    for node in range(4):
-        got = read_tracks(tmp_path / "nodes" / f"tracks_node{node}.csv", FRAMES)
-        for k in range(FRAMES):
-            assert [t.id for t in got[k]] == [t.id for t in ref.tracks[node][k]], (node, k)
-            for a, b in zip(got[k], ref.tracks[node][k]):
-                np.testing.assert_allclose(a.x, b.x, rtol=0, atol=1e-6)
+    assert_same_tracks(tmp_path, ref)
     summary = json.loads((tmp_path / "summary.json").read_text())
     for proc in summary["processes"].values():
         assert not proc["timeouts"] and not proc["late"] and not proc["rejected"]
@@ -81,12 +87,7 @@ def test_a_faulty_node_lies_alike_across_processes(tmp_path, terrace):
     out = tmp_path / "h"
     _up(out, "--topology", "ring", "--sync-timeout", "30", "--faults", str(plan))
     ref = run_network(terrace, build("ring", 4), TrackerConfig(), faults=FaultPlan.load(plan))
-    for node in range(4):
-        got = read_tracks(out / "nodes" / f"tracks_node{node}.csv", FRAMES)
-        for k in range(FRAMES):
-            assert [t.id for t in got[k]] == [t.id for t in ref.tracks[node][k]], (node, k)
-            for a, b in zip(got[k], ref.tracks[node][k]):
-                np.testing.assert_allclose(a.x, b.x, rtol=0, atol=1e-6)
+    assert_same_tracks(out, ref)
     for node in (1, 3):
         assert ref.stats[node].trust[0]["first_quarantine"] == 31
         log = (out / "logs" / f"node{node}.log").read_text()

@@ -118,7 +118,7 @@ class Scripted(Trust):
     def _statistics(self, state, msgs, resolve):
         return [(np.zeros(1, np.intp), [self.now[m.sender]]) for m in msgs]
 
-    def _used(self, state, k, m, entries, resolve):
+    def _used(self, m, entries, verdicts):
         return m
 
 

@@ -74,6 +74,7 @@ from edge_node.core.state import NodeState
 from protocol.messages import FrameMessage, TrackerId
 
 TRUSTED, SUSPECT, QUARANTINED = "trusted", "suspect", "quarantined"
+FAR = "far_merge"  # a merge of trackers this node's cameras measure apart: refused
 APART = "apart"  # a merge of trackers apart in this node's estimates only: weak evidence
 LEVEL_RATE = 0.05  # smoothing of a neighbour's usual score (about a second at 25 fps)
 
@@ -131,10 +132,6 @@ class Trust:
         self.scores: dict[int, float] = {}  # the last frame's score of each neighbour heard
         self.level: dict[int, float] = {}  # each neighbour's usual score (smoothed)
 
-    def distrusted(self) -> frozenset[int]:
-        """The neighbours that are suspect or quarantined."""
-        return frozenset(n for n, t in self.of.items() if t.state != TRUSTED)
-
     def __call__(self, state: NodeState, msgs: list[FrameMessage], k: int,
                  resolve: Callable[[TrackerId], TrackerId]) -> list[FrameMessage]:
         """Judge frame ``k``'s (screened) messages against this node's predictions, update
@@ -144,11 +141,14 @@ class Trust:
         self.scores = {}
         disputed = Counter()  # per sender, its merges this node disputes
         novel = Counter()  # of those, what the pairs disputed for the first time weigh
+        verdicts: list[list[str | None]] = []  # per message, why each of its merges is disputed
         for m in msgs:
             t = self.of.get(m.sender)
+            verdicts.append([])
             for mg in m.merges:
                 a, b = resolve(mg.loser), resolve(mg.winner)
                 why = None if t is None else self._implausible_merge(state, k, a, b)
+                verdicts[-1].append(why)
                 if why is None:
                     continue
                 disputed[m.sender] += 1
@@ -180,7 +180,7 @@ class Trust:
                 t.cusum += novel[n]
                 t.calm = 0
             self._transition(n, t, k)
-        return [self._used(state, k, m, e, resolve) for m, e in zip(msgs, entries)]
+        return [self._used(m, e, v) for m, e, v in zip(msgs, entries, verdicts)]
 
     def _implausible_merge(self, state: NodeState, k: int, a: TrackerId, b: TrackerId) -> str | None:
         """Why this node disputes a merge of ``a`` and ``b`` (module docstring), or None."""
@@ -196,7 +196,7 @@ class Trust:
                 zi, zj = (np.linalg.lstsq(state.U[r, :4, :4], state.u[r, :4], rcond=None)[0][:2]
                           for r in (i, j))
             if float(np.hypot(*(zi - zj))) > reach:
-                return "far_merge"
+                return FAR
         if float(np.hypot(*(state.x_bar[i, :2] - state.x_bar[j, :2]))) > reach:
             return APART
         return None
@@ -268,29 +268,24 @@ class Trust:
         t.suspect_frames += t.state == SUSPECT
         t.quarantined_frames += t.state == QUARANTINED
 
-    def _used(self, state: NodeState, k: int, m: FrameMessage,
-              entries: tuple[np.ndarray, list],
-              resolve: Callable[[TrackerId], TrackerId]) -> FrameMessage:
-        """``m`` as the node may use it: without the far merges it refuses; a quarantined sender's
-        without entries or merges, a suspect sender's without merges and with only the entries
-        about trackers this node holds that pass the gate alone."""
+    def _used(self, m: FrameMessage, entries: tuple[np.ndarray, list],
+              verdicts: list[str | None]) -> FrameMessage:
+        """``m`` as the node may use it: without the merges its own cameras refute
+        (``verdicts``, one per merge); a quarantined sender's without entries or merges, a
+        suspect sender's without merges and with only the entries about trackers this node
+        holds that pass the gate alone (``entries``: their rows and statistics)."""
         t = self.of.get(m.sender)
         if t is None or t.state == TRUSTED:
-            if not m.merges:
+            refused = sum(why == FAR for why in verdicts)
+            if not refused:
                 return m
-            keep = []
-            for mg in m.merges:
-                why = self._implausible_merge(state, k, resolve(mg.loser), resolve(mg.winner))
-                if why == "far_merge":
-                    self.rejected[why] += 1
-                else:
-                    keep.append(mg)
-            return m if len(keep) == len(m.merges) else replace(m, merges=tuple(keep))
+            self.rejected[FAR] += refused
+            return replace(m, merges=tuple(mg for mg, why in zip(m.merges, verdicts)
+                                           if why != FAR))
         if t.state == QUARANTINED:
             return replace(m, block=m.block.take([]), merges=())
-        rows, stat = entries
-        keep = rows[np.asarray(stat) <= self.cfg.trust_gate] if stat else rows  # held
-        # trackers' entries that pass alone
+        rows, stat = entries  # held trackers' entries that pass alone
+        keep = rows[np.asarray(stat, float) <= self.cfg.trust_gate]
         return replace(m, block=m.block.take(keep.tolist()), merges=())
 
     def summary(self) -> dict[int, dict]:

@@ -48,8 +48,8 @@ FAR_M = 2.0
 LONG_S = 1.0
 
 
-def _ground(result: RunResult, data, nodes, start: int, stop: int | None = None) -> dict:
-    sub = {n: result.tracks[n][:stop] if stop else result.tracks[n] for n in nodes}
+def _ground(result: RunResult, data, nodes, start: int) -> dict:
+    sub = {n: result.tracks[n] for n in nodes}
     per = evaluate(sub, data, views=("ground",), start=start)["ground"]["per_node"]
     return {m: float(np.median([per[str(n)][m] for n in nodes])) for m in ("mota", "idf1")}
 
