@@ -50,3 +50,60 @@ def test_a_duplicate_is_reported_under_the_older_id_while_the_older_is_unseen():
         changes = [k for k in range(1, len(seq)) if seq[k] != seq[k - 1]]
         assert len(changes) == 2 and seq[0] == seq[-1] == (0, 0)  # there and back
         assert {i[0] for i in ids_alias} == {(0, 0)}  # one id throughout
+
+
+def _first_reports(age: int, frames: int = 30):
+    """A chain of three nodes, only camera 0 sees one person standing at (2, 2) from frame 0;
+    per node, the frame of its first reported track and the ids it reported."""
+    cfg = TrackerConfig(registration=False, report_age=age)
+    nodes = make_nodes({0: (1,), 1: (0, 2), 2: (1,)}, cfg)
+    rng = np.random.default_rng(7)
+    first, ids = {}, {n: set() for n in nodes}
+    born = None
+    for k in range(frames):
+        out = step(nodes, k, {0: [Detection(det(2.0, 2.0, pid=0, rng=rng).box, None)]})
+        if born is None and len(nodes[0].trackers):
+            born = k  # the frame camera 0's second observation made the tracker
+        for n, tracks in out.items():
+            if tracks and n not in first:
+                first[n] = k
+            ids[n] |= {t.id for t in tracks}
+    return born, first, ids
+
+
+def test_a_new_tracker_is_reported_once_it_is_report_age_frames_old_on_every_node():
+    """``report_age`` counts from the birth at the tracker's camera, so every node starts
+    reporting it in the same frame, however many hops away (without it, each node as soon as
+    the news arrives: a frame later two hops away)."""
+    born, first, ids = _first_reports(age=0)
+    # a frame's message carries the trackers born in it, and a relay takes one frame more
+    assert first == {0: born, 1: born, 2: born + 1}
+    for age in (3, 6):
+        born_a, first_a, ids_a = _first_reports(age)
+        assert born_a == born and ids_a == ids  # the same tracker, only reported later
+        assert first_a == {0: born + age, 1: born + age, 2: born + age}
+
+
+def test_report_age_delays_an_id_and_keeps_the_alias():
+    """A young tracker reported under an older id (``pending_alias``) is tentative as long as
+    that id is: in the two-camera run of the first test, with ``report_age`` 10 nothing is
+    reported before the older id is 10 frames old, and from then on exactly what is reported
+    without it, the person under (0, 0) while the younger (1, 0) carries it."""
+    import dataclasses
+    base = TrackerConfig(registration=False, pending_alias=True)
+    runs = {}
+    for age in (0, 10):
+        nodes = make_nodes({0: (1,), 1: (0,)}, dataclasses.replace(base, report_age=age),
+                           offsets={1: (0.7, 0.0)})
+        rng = np.random.default_rng(5)
+        out = []
+        for k in range(40):
+            d = [Detection(det(*walk(k), pid=0, rng=rng).box, None)]
+            got = step(nodes, k, {0: d if k < 5 else [], 1: d})
+            out.append({n: [t.id for t in got[n]] for n in got})
+        runs[age] = out
+    born = next(k for k, r in enumerate(runs[0]) if r[0])  # both cameras start in frame 1
+    for n in (0, 1):
+        assert all(not r[n] for r in runs[10][:born + 10])
+        assert [r[n] for r in runs[10][born + 10:]] == [r[n] for r in runs[0][born + 10:]]
+        assert {i for r in runs[10][born + 10:] for i in r[n]} == {(0, 0)}

@@ -239,6 +239,7 @@ class ReporterSection:
     """``[tracker.reporter]``: what a node reports and draws in each camera's own view (``reporter``, ``views``)."""
 
     report_coast: int = integer(1, lo=0, doc="frames a tracker nobody sees is still reported")
+    report_age: int = integer(0, lo=0, doc="frames a new tracker must have lived, counted from its birth at its camera, before it is reported (tentative until then; docs/tuning.md)")
     hide_pending: bool = boolean(True, "a tracker new on this node (within comotion_frames) that "
                                  "agrees with an older one towards a merge is not reported "
                                  "until the pair merges or parts")

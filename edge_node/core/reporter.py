@@ -9,7 +9,11 @@ still predicted, fused, merged and kept until eq. 8 drops it). The test is on th
 as a second id: a young tracker on its way to merging into a reported older one
 (``hide_pending``), or reported under the older id while the older is not reported
 (``pending_alias``), and a new tracker that may still be a dropped one re-appearing
-(``reappear``). Pure and deterministic.
+(``reappear``). With ``report_age`` a tracker is tentative, not reported, until the id it is
+reported under is that many frames old, counted from its birth at its camera (so every node
+starts reporting it in the same frame): the trackers of a false detection and the duplicates
+merged within their first frames are never shown (the M-of-N confirmation of track
+initiation, here by age, as the birth already took two observations). Pure and deterministic.
 """
 from __future__ import annotations
 
@@ -29,11 +33,17 @@ class ReporterSettings(Slice):
     ``config.TrackerConfig``."""
 
     report_coast: int
+    report_age: int
     hide_pending: bool
     pending_alias: bool
     comotion_frames: int
     reappear_age: int
     reappear_hide: int
+
+
+def fresh_rows(state: NodeState, rows: np.ndarray, k: int, age: int) -> list[int]:
+    """The rows of ``rows`` born (at their camera) fewer than ``age`` frames before ``k``."""
+    return rows[(k - state.born.take(rows)) < age].tolist()
 
 
 class Reporter:
@@ -73,6 +83,10 @@ class Reporter:
             gone = self.gone()
             hidden |= {ids[i] for i in fresh.tolist()
                        if self.manager.awaiting(self.young(state, i), gone, k)}
+        if cfg.report_age:  # tentative while the id it is reported under is young
+            hidden |= {ids[i] for i in fresh_rows(state, shown, k, cfg.report_age)
+                       if ids[i] not in alias
+                       or k - state.born[state.row(alias[ids[i]])] < cfg.report_age}
         if hidden:
             shown = np.array([i for i in shown.tolist() if ids[i] not in hidden], np.intp)
         if not len(shown):
