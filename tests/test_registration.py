@@ -269,3 +269,36 @@ def test_debias_is_the_expected_pull_of_the_foot_points_own_noise():
     se = np.sqrt(var_mc)  # the Monte Carlo means' standard errors
     assert np.all(np.abs(total_mc + total_db) < 4 * se), (total_mc, -total_db, se)
     assert abs(total_db[3]) > 20 * se[3]  # the scale row's pull is real (the check can fail)
+
+
+def test_the_fused_regressor_has_no_errors_in_variables_pull():
+    """``reg_fused``: R2's regressor at the fused point of this camera's foot point ``g`` and the
+    others' ``z_o``. For a perfectly registered camera whose foot point and the others' both
+    carry the noise their covariances say, the sums ``A^T W r`` average zero (the fused point's
+    error is orthogonal to the residual ``z_o - g``), whatever the two noises; with ``A`` at
+    ``g`` itself, the scale row's pull is there (the check can fail)."""
+    cam = topdown_camera(0)
+    reg = Registration(cam, TrackerConfig(reg_fused=True))
+    reg.Sigma = np.zeros_like(reg.Sigma)  # R5's own part: pixels and sigma only
+    rng = np.random.default_rng(1)
+    total_f, var_f, total_g = np.zeros(5), np.zeros(5), np.zeros(5)
+    m = 100_000
+    for _ in range(3):
+        p = rng.uniform(1.0, 9.0, size=2)
+        a = rng.uniform(0.05, 0.6, size=2)
+        Rpx = np.diag(a ** 2)
+        Vo = np.diag(rng.uniform(0.05, 0.6, size=2) ** 2) + 0.02 * np.eye(2)
+        Ry = Rpx + reg.noise_var * np.eye(2)
+        g = p + rng.multivariate_normal(np.zeros(2), Ry, size=m)
+        zo = p + rng.multivariate_normal(np.zeros(2), Vo, size=m)
+        away = np.tile([0.0, 1.0], (m, 1))
+        A0 = reg.bases(g, away)
+        A = reg._fused_bases(g, away, A0, np.tile(Vo, (m, 1, 1)), zo, np.tile(Rpx, (m, 1, 1)))
+        W = np.linalg.inv(Ry + Vo)
+        terms = np.einsum("nji,jk,nk->ni", A, W, zo - g)
+        total_f += terms.mean(axis=0)
+        var_f += terms.var(axis=0) / m
+        total_g += np.einsum("nji,jk,nk->ni", A0, W, zo - g).mean(axis=0)
+    se = np.sqrt(var_f)
+    assert np.all(np.abs(total_f) < 4 * se), (total_f, se)
+    assert total_g[3] < -20 * se[3]  # at g the pull is real and a shrink

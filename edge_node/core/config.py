@@ -105,6 +105,8 @@ class RegistrarSection:
     reg_noise: float = positive(0.2, "m, sigma of a corrected foot point's error (stance, sway)")
     reg_gate: float = positive(13.8, "chi-square gate on a registration residual (2 dof, 99.9%)")
     reg_debias: bool = boolean(True, "compensate the errors-in-variables shrink of R2's scale")
+    reg_fused: bool = boolean(False, "R2's regressor at the fused point of the camera's and the "
+                                     "others' measurements (no shrink at any noise; replaces reg_debias)")
     reg_anchor: float = number(0.001, lo=0.0, hi=1.0,
                                doc="per frame, pull of every correction towards zero (common frame)")
 
