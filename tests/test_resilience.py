@@ -115,7 +115,7 @@ class Scripted(Trust):
         self.now = next(self.script)
         return super().__call__(state, msgs, k, resolve)
 
-    def _statistics(self, state, msgs, resolve):
+    def _statistics(self, state, msgs, resolve, k):
         return [(np.zeros(1, np.intp), [self.now[m.sender]]) for m in msgs]
 
     def _used(self, m, entries, verdicts):
