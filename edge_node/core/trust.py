@@ -88,6 +88,7 @@ deterministic.
 """
 from __future__ import annotations
 
+import math
 from collections import Counter, deque
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field, replace
@@ -307,7 +308,7 @@ class Trust:
         u = np.concatenate([msgs[i].block.u[r][:, :4] for i, r, _ in cols])
         lag = np.concatenate([np.full(len(r), (k - msgs[i].frame) * self.cfg.dt)
                               for i, r, _ in cols])
-        terms = self._terms(state, k, held, U, u, lag, ok)
+        terms = self._measured(state, k, held, U, u, lag, ok)
         starts = np.cumsum([0] + [len(r) for _, r, _ in cols[:-1]])
         for (i, _, _), t in zip(cols, np.add.reduceat(terms, starts, axis=0)):
             n = msgs[i].sender
@@ -320,10 +321,10 @@ class Trust:
         if not n:
             return np.zeros(11)
         rows = np.arange(n)
-        return self._terms(state, k, rows, state.U[:, :4, :4], state.u[:, :4], np.zeros(n),
+        return self._measured(state, k, rows, state.U[:, :4, :4], state.u[:, :4], np.zeros(n),
                            np.ones(n, bool)).sum(axis=0)
 
-    def _terms(self, state: NodeState, k: int, held: np.ndarray, U: np.ndarray, u: np.ndarray,
+    def _measured(self, state: NodeState, k: int, held: np.ndarray, U: np.ndarray, u: np.ndarray,
                lag: np.ndarray, ok: np.ndarray) -> np.ndarray:
         """Per measurement ``u, U`` (eq. 2, on ``(x, y, w, h)``) of tracker row ``held`` made
         ``lag`` s before this frame: its terms of the lag's normal equations (``_terms``),
@@ -378,9 +379,9 @@ class Trust:
             t.lag = tau - ref
             if not np.isfinite(var):
                 continue
-            z = (t.lag - self.cfg.trust_lag) / np.sqrt(var + ref_var)
+            z = (t.lag - self.cfg.trust_lag) / math.sqrt(var + ref_var)
             out[n] = min(self.cfg.trust_cap, z) - self.cfg.trust_lag_z
-            t.lagging_frames += out[n] > 0.0
+            t.lagging_frames += int(out[n] > 0.0)
         return out
 
     def _transition(self, n: int, t: NeighbourTrust, k: int, why: str) -> None:
