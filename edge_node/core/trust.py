@@ -104,7 +104,7 @@ TRUSTED, SUSPECT, QUARANTINED = "trusted", "suspect", "quarantined"
 FAR = "far_merge"  # a merge of trackers this node's cameras measure apart: refused
 APART = "apart"  # a merge of trackers apart in this node's estimates only: weak evidence
 LEVEL_RATE = 0.05  # smoothing of a neighbour's usual score (about a second at 25 fps)
-INCONSISTENT, LAGGING, MERGES = "inconsistent", "lagging", "merges"  # why a neighbour is distrusted
+INCONSISTENT, LAGGING, MERGES = "inconsistent", "lagging", "merges"  # why one is distrusted
 
 
 @dataclass(frozen=True)
@@ -322,10 +322,10 @@ class Trust:
             return np.zeros(11)
         rows = np.arange(n)
         return self._measured(state, k, rows, state.U[:, :4, :4], state.u[:, :4], np.zeros(n),
-                           np.ones(n, bool)).sum(axis=0)
+                              np.ones(n, bool)).sum(axis=0)
 
-    def _measured(self, state: NodeState, k: int, held: np.ndarray, U: np.ndarray, u: np.ndarray,
-               lag: np.ndarray, ok: np.ndarray) -> np.ndarray:
+    def _measured(self, state: NodeState, k: int, held: np.ndarray, U: np.ndarray,
+                  u: np.ndarray, lag: np.ndarray, ok: np.ndarray) -> np.ndarray:
         """Per measurement ``u, U`` (eq. 2, on ``(x, y, w, h)``) of tracker row ``held`` made
         ``lag`` s before this frame: its terms of the lag's normal equations (``_terms``),
         the innovation ``e = z - x_bar + lag v`` of its ground position ``z = U^-1 u``
