@@ -115,8 +115,11 @@ class Scripted(Trust):
         self.now = next(self.script)
         return super().__call__(state, msgs, k, resolve)
 
-    def _statistics(self, state, msgs, resolve):
+    def _statistics(self, state, msgs, resolve, k):
         return [(np.zeros(1, np.intp), [self.now[m.sender]]) for m in msgs]
+
+    def _lagging(self, state, k):  # no measurements, no lag
+        return {}
 
     def _used(self, m, entries, verdicts):
         return m

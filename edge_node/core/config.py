@@ -184,6 +184,9 @@ class TrustSection:
     trust_suspect: float = positive(30.0, "sum at which a neighbour is suspect: its merges and new ids are not taken")
     trust_quarantine: float = positive(100.0, "sum at which a neighbour is quarantined: none of its entries is used")
     trust_readmit: int = integer(25, lo=1, doc="frames in a row within the allowance after which a suspect or quarantined neighbour is trusted again")
+    trust_lag: float = positive(0.3, "s, the lag of a neighbour's measurements behind this node's own cameras' (least squares on its velocity estimates, beyond the lag of the message's own frame) above which it counts against the neighbour: a box re-sending old frames as new (stale)")
+    trust_lag_z: float = positive(3.0, "standard errors by which a neighbour's lag must exceed trust_lag to count; each frame it does adds (z - trust_lag_z)^2 to its sum")
+    trust_lag_frames: int = integer(50, lo=1, doc="frames the lag estimate remembers (its forgetting factor is 1 - 1/trust_lag_frames)")
 
     def __post_init__(self) -> None:
         check(self, "tracker.trust")

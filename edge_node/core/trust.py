@@ -23,6 +23,30 @@ a faulty neighbour is the one that stands out. States: ``trusted``; ``suspect`` 
 ``quarantined`` once it passes ``trust_quarantine``. A neighbour is trusted again after
 ``trust_readmit`` frames in a row whose score was within the allowance (the sum back at zero).
 
+**Lag.** A neighbour that re-sends old frames as new (a box whose frames lag; ``stale`` in
+``edge_node/forgery.py``) sends real measurements, each consistent with a person where he was
+``tau`` seconds ago: its innovations ``e = z - x_bar`` lag the node's estimate by ``v tau``
+(``v`` the node's velocity estimate), which the test above reads as a poor registration.
+Per neighbour, the lag is estimated by least squares over its measured entries of settled
+trackers (held ``comotion_frames``; ``z`` from the whole box's information, ``U^-1 u`` on
+``(x, y, w, h)``) and over the frames, forgotten by ``1 - 1/trust_lag_frames``:
+``e = b - tau v`` with an offset ``b`` (its registration), weighted by ``S^-1``, each ``e``
+first brought to the message's own frame (``+ v (k - k_msg) dt``: a late message is not a
+lagging one). Only ``tau`` is kept (``b`` eliminated); its variance is scaled by the fit's
+residual ``chi^2`` per degree of freedom when above 1 (entries the model does not explain make
+the lag uncertain, not significant). The same regression on the node's own cameras'
+measurements gives the reference: a stale neighbour's information pulls the node's estimates
+back, so its own cameras, and its honest neighbours, appear ahead by as much; the neighbour's
+lag is taken against its own cameras' (against 0 when they tell no lag). The lag's excess
+over ``trust_lag`` in standard errors, ``z = (tau_j - tau_own - trust_lag) / sqrt(var_j +
+var_own)``, feeds a second one-sided CUSUM per neighbour, ``max(0, sum + z - trust_lag_z)``,
+bounded at twice ``trust_quarantine``; the neighbour is suspect or quarantined when either sum
+passes the thresholds, and is not calm in a frame its ``z`` passes ``trust_lag_z``. Fresh
+again, its lag's sum falls by several a frame once the estimate has forgotten the old frames,
+and it is trusted again after ``trust_readmit`` calm frames. The lag needs people walking in
+different directions (a lag and an offset are the same thing when everyone walks alike) and
+is blind to a box that lags while nobody moves.
+
 **Merges.** A merge a neighbour announces is a claim that two trackers are one person. It is
 refused from anyone (``far_merge``) when this node's own cameras measure both trackers in this
 frame, farther apart than twice the merge rules' reach, and it has held both for
@@ -58,10 +82,13 @@ sequential-test view of secure distributed estimation of Mitra and Sundaram (Aut
 a faulty neighbour is cut once its evidence is strong, never on one frame's outlier.
 
 Counted per neighbour (``NodeStats.trust``): its state, the frames it spent suspect and
-quarantined, and the first frame it was quarantined. Pure and deterministic.
+quarantined, the first frame it was quarantined, why it was last distrusted (``inconsistent``,
+``lagging``, ``merges``), its latest lag (s) and the frames its lag stood out. Pure and
+deterministic.
 """
 from __future__ import annotations
 
+import math
 from collections import Counter, deque
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field, replace
@@ -77,6 +104,7 @@ TRUSTED, SUSPECT, QUARANTINED = "trusted", "suspect", "quarantined"
 FAR = "far_merge"  # a merge of trackers this node's cameras measure apart: refused
 APART = "apart"  # a merge of trackers apart in this node's estimates only: weak evidence
 LEVEL_RATE = 0.05  # smoothing of a neighbour's usual score (about a second at 25 fps)
+INCONSISTENT, LAGGING, MERGES = "inconsistent", "lagging", "merges"  # why one is distrusted
 
 
 @dataclass(frozen=True)
@@ -94,6 +122,9 @@ class TrustSettings(Slice):
     trust_suspect: float
     trust_quarantine: float
     trust_readmit: int
+    trust_lag: float
+    trust_lag_z: float
+    trust_lag_frames: int
     calib_sigma: float
     comotion_gate: float
     comotion_frames: int
@@ -108,17 +139,25 @@ class NeighbourTrust:
 
     state: str = TRUSTED
     cusum: float = 0.0
+    lag_sum: float = 0.0  # the lag's CUSUM (module docstring, "Lag")
     calm: int = 0  # frames in a row within the allowance
     suspect_frames: int = 0
     quarantined_frames: int = 0
     first_quarantine: int | None = None
     changes: list[tuple[int, str]] = field(default_factory=list)  # (frame, new state)
     disputed: deque = field(default_factory=lambda: deque(maxlen=256))  # pairs disputed, latest
+    reason: str | None = None  # why it was last distrusted: inconsistent, lagging, merges
+    lag: float = 0.0  # s, its latest lag estimate tau (module docstring, "Lag")
+    lagging_frames: int = 0  # frames its lag stood out (added to its sum)
+    N: np.ndarray = field(default_factory=lambda: np.zeros(6))  # the lag's normal equations
+    r: np.ndarray = field(default_factory=lambda: np.zeros(5))  # (forgetting sums)
 
     def summary(self) -> dict:
         return {"state": self.state, "suspect_frames": self.suspect_frames,
                 "quarantined_frames": self.quarantined_frames,
-                "first_quarantine": self.first_quarantine, "changes": len(self.changes)}
+                "first_quarantine": self.first_quarantine, "changes": len(self.changes),
+                "reason": self.reason, "lag_s": round(self.lag, 3),
+                "lagging_frames": self.lagging_frames}
 
 
 class Trust:
@@ -131,6 +170,9 @@ class Trust:
         self.of: dict[int, NeighbourTrust] = {n: NeighbourTrust() for n in neighbours}
         self.scores: dict[int, float] = {}  # the last frame's score of each neighbour heard
         self.level: dict[int, float] = {}  # each neighbour's usual score (smoothed)
+        self._lag_sums: dict[int, np.ndarray] = {}  # per sender, this frame's lag terms
+        self.own_N, self.own_r = np.zeros(6), np.zeros(5)  # the own cameras' lag (reference)
+        self.own_lag = 0.0  # s
 
     def __call__(self, state: NodeState, msgs: list[FrameMessage], k: int,
                  resolve: Callable[[TrackerId], TrackerId]) -> list[FrameMessage]:
@@ -157,7 +199,8 @@ class Trust:
                     t.disputed.append(pair)
                     novel[m.sender] += (self.cfg.trust_apart if why == APART
                                         else self.cfg.trust_merge)
-        entries = self._statistics(state, msgs, resolve)  # a sender may send several
+        self._lag_sums = {}
+        entries = self._statistics(state, msgs, resolve, k)  # a sender may send several
         cap = self.cfg.trust_cap  # (late ones, async): its score is the worst
         for m, (rows, stat) in zip(msgs, entries):
             if stat:
@@ -166,6 +209,7 @@ class Trust:
         for n, s in self.scores.items():
             lv = self.level.get(n)
             self.level[n] = s if lv is None else lv + LEVEL_RATE * (s - lv)
+        lagging = self._lagging(state, k)
         for n, t in sorted(self.of.items()):
             if n in self.scores:
                 # the others' scores this frame, or their usual level when not heard (a lost or
@@ -175,11 +219,14 @@ class Trust:
                                 self.cfg.trust_ratio * median(others) if others else 0.0)
                 step = self.scores[n] - allowance
                 t.cusum = max(0.0, t.cusum + step) + novel[n]
-                t.calm = t.calm + 1 if step <= 0.0 and not disputed[n] else 0
+                dz = lagging.get(n, 0.0)  # the lag's own CUSUM, bounded: fresh again, trusted
+                t.lag_sum = min(2.0 * self.cfg.trust_quarantine, max(0.0, t.lag_sum + dz))
+                t.calm = t.calm + 1 if step <= 0.0 and dz <= 0.0 and not disputed[n] else 0
             elif disputed[n]:
                 t.cusum += novel[n]
                 t.calm = 0
-            self._transition(n, t, k)
+            why = MERGES if novel[n] else LAGGING if t.lag_sum > t.cusum else INCONSISTENT
+            self._transition(n, t, k, why)
         return [self._used(m, e, v) for m, e, v in zip(msgs, entries, verdicts)]
 
     def _implausible_merge(self, state: NodeState, k: int, a: TrackerId, b: TrackerId) -> str | None:
@@ -202,11 +249,13 @@ class Trust:
         return None
 
     def _statistics(self, state: NodeState, msgs: list[FrameMessage],
-                    resolve: Callable[[TrackerId], TrackerId]) -> list[tuple[np.ndarray, list]]:
+                    resolve: Callable[[TrackerId], TrackerId],
+                    k: int) -> list[tuple[np.ndarray, list]]:
         """Per message: its rows naming a tracker this node holds, and each one's normalised
-        distance from this node's prediction (module docstring). Every message's entries in
-        one batch, the 2 x 2 inverses written out: a fixed number of array operations a frame,
-        whatever the number of neighbours and messages."""
+        distance from this node's prediction (module docstring); per sender, this frame's terms
+        of its lag's normal equations (``_lag_sums``). Every message's entries in one batch,
+        the 2 x 2 inverses written out: a fixed number of array operations a frame, whatever
+        the number of neighbours and messages."""
         index = state.index
         cols: list[tuple[int, np.ndarray, np.ndarray]] = []  # (message, its rows, held rows)
         for i, m in enumerate(msgs):
@@ -241,25 +290,115 @@ class Trust:
             s22 = np.where(measured, vd, 0.0) + w * P[:, 1, 1] + c2
             stat = (s22 * e[:, 0] ** 2 - 2.0 * s12 * e[:, 0] * e[:, 1] + s11 * e[:, 1] ** 2) \
                 / (s11 * s22 - s12 * s12)
-        stat = np.where(np.isfinite(stat), stat, self.cfg.trust_cap).tolist()
+        stat = np.where(np.isfinite(stat), stat, self.cfg.trust_cap)
+        self._lag_terms(state, k, msgs, cols, held, stat < self.cfg.trust_cap)
+        stat = stat.tolist()
         at = 0
         for i, rows, _ in cols:
             out[i] = (rows, stat[at:at + len(rows)])
             at += len(rows)
         return out
 
-    def _transition(self, n: int, t: NeighbourTrust, k: int) -> None:
+    def _lag_terms(self, state: NodeState, k: int, msgs: list[FrameMessage], cols: list,
+                   held: np.ndarray, ok: np.ndarray) -> None:
+        """This frame's terms of each sender's lag regression (module docstring, "Lag"): per
+        measured entry of a settled tracker (``ok``: not capped), the innovation of its
+        measurement brought to the message's own frame; summed per message, then per sender."""
+        U = np.concatenate([msgs[i].block.U[r][:, :4, :4] for i, r, _ in cols])
+        u = np.concatenate([msgs[i].block.u[r][:, :4] for i, r, _ in cols])
+        lag = np.concatenate([np.full(len(r), (k - msgs[i].frame) * self.cfg.dt)
+                              for i, r, _ in cols])
+        terms = self._measured(state, k, held, U, u, lag, ok)
+        starts = np.cumsum([0] + [len(r) for _, r, _ in cols[:-1]])
+        for (i, _, _), t in zip(cols, np.add.reduceat(terms, starts, axis=0)):
+            n = msgs[i].sender
+            self._lag_sums[n] = t if n not in self._lag_sums else self._lag_sums[n] + t
+
+    def _own_terms(self, state: NodeState, k: int) -> np.ndarray:
+        """This frame's terms of the lag regression of the node's own cameras' measurements
+        (``u, U`` of this frame), the reference every neighbour's lag is taken against."""
+        n = len(state)
+        if not n:
+            return np.zeros(11)
+        rows = np.arange(n)
+        return self._measured(state, k, rows, state.U[:, :4, :4], state.u[:, :4], np.zeros(n),
+                              np.ones(n, bool)).sum(axis=0)
+
+    def _measured(self, state: NodeState, k: int, held: np.ndarray, U: np.ndarray,
+                  u: np.ndarray, lag: np.ndarray, ok: np.ndarray) -> np.ndarray:
+        """Per measurement ``u, U`` (eq. 2, on ``(x, y, w, h)``) of tracker row ``held`` made
+        ``lag`` s before this frame: its terms of the lag's normal equations (``_terms``),
+        the innovation ``e = z - x_bar + lag v`` of its ground position ``z = U^-1 u``
+        (the whole box: a camera couples position and size) against the node's estimate at that
+        time, ``S = V + P + C``; only settled trackers (``comotion_frames``) and ``ok``."""
+        ok = ok & (U[:, 0, 0] > 0.0) & (state.since[held] <= k - self.cfg.comotion_frames)
+        out = np.zeros((len(held), 11))
+        if not ok.any():
+            return out
+        held, lag = held[ok], lag[ok]
+        with np.errstate(all="ignore"):
+            det = np.linalg.det(U[ok])
+            good = np.isfinite(det) & (det > 0.0)
+            V = np.full((len(held), 4, 4), np.nan)
+            if good.any():
+                V[good] = np.linalg.inv(U[ok][good])
+            z = np.einsum("nij,nj->ni", V, u[ok])[:, :2]
+            v = state.x_bar[held, 4:6]
+            e = z - state.x_bar[held, :2] + v * lag[:, None]
+            P = state.P[held][:, :2, :2]
+            c2 = self.cfg.m(self.cfg.calib_sigma) ** 2
+            s11 = V[:, 0, 0] + P[:, 0, 0] + c2
+            s12 = 0.5 * (V[:, 0, 1] + V[:, 1, 0] + P[:, 0, 1] + P[:, 1, 0])
+            s22 = V[:, 1, 1] + P[:, 1, 1] + c2
+        out[ok] = _terms(e, v, s11, s12, s22, good)
+        return out
+
+    def _lagging(self, state: NodeState, k: int) -> dict[int, float]:
+        """Per neighbour heard this frame, its lag's evidence (module docstring, "Lag"): its
+        normal equations forgotten by ``1 - 1/trust_lag_frames`` and added this frame's terms,
+        its lag ``tau`` and variance solved (the offset ``b`` eliminated), taken against the
+        own cameras' lag; the step of its lag's CUSUM: ``z - trust_lag_z``, ``z`` its lag's
+        excess over ``trust_lag`` in standard errors (bounded at ``trust_cap``). A neighbour
+        whose velocities tell no lag gets no step."""
+        keep = 1.0 - 1.0 / self.cfg.trust_lag_frames
+        own = self._own_terms(state, k)
+        self.own_N = keep * self.own_N + own[:6]
+        self.own_r = keep * self.own_r + own[6:]
+        ref, ref_var = lag_estimate(self.own_N, self.own_r)
+        if not np.isfinite(ref_var):  # its cameras tell no lag: the estimates are the reference
+            ref, ref_var = 0.0, 0.0
+        self.own_lag = ref
+        out = {}
+        for n, sums in self._lag_sums.items():
+            t = self.of.get(n)
+            if t is None:
+                continue
+            t.N = keep * t.N + sums[:6]
+            t.r = keep * t.r + sums[6:]
+            tau, var = lag_estimate(t.N, t.r)
+            t.lag = tau - ref
+            if not np.isfinite(var):
+                continue
+            z = (t.lag - self.cfg.trust_lag) / math.sqrt(var + ref_var)
+            out[n] = min(self.cfg.trust_cap, z) - self.cfg.trust_lag_z
+            t.lagging_frames += int(out[n] > 0.0)
+        return out
+
+    def _transition(self, n: int, t: NeighbourTrust, k: int, why: str) -> None:
         cfg = self.cfg
         new = t.state
-        if t.cusum >= cfg.trust_quarantine:
+        total = max(t.cusum, t.lag_sum)  # either test
+        if total >= cfg.trust_quarantine:
             new = QUARANTINED
-        elif t.state == TRUSTED and t.cusum >= cfg.trust_suspect:
+        elif t.state == TRUSTED and total >= cfg.trust_suspect:
             new = SUSPECT
         elif t.state != TRUSTED and t.calm >= cfg.trust_readmit:
             new = TRUSTED
-            t.cusum = 0.0
+            t.cusum = t.lag_sum = 0.0
         if new != t.state:
             t.state = new
+            if new != TRUSTED:
+                t.reason = why
             t.changes.append((k, new))
             if len(t.changes) > 64:  # bounded: the latest changes
                 del t.changes[0]
@@ -290,3 +429,45 @@ class Trust:
 
     def summary(self) -> dict[int, dict]:
         return {n: t.summary() for n, t in sorted(self.of.items())}
+
+
+def _terms(e: np.ndarray, v: np.ndarray, s11: np.ndarray, s12: np.ndarray, s22: np.ndarray,
+           ok: np.ndarray) -> np.ndarray:
+    """Per entry, its terms of the lag's normal equations (``lag_estimate``) for the innovation
+    ``e = b - tau v`` with covariance ``S`` (``s11, s12, s22``), ``W = S^-1``, ``A = [I, -v]``:
+    ``A^T W A`` (``W``'s three entries, ``-W v``, ``v^T W v``), ``A^T W e`` (``W e``,
+    ``-v^T W e``), ``e^T W e`` and 1; zero where not ``ok``."""
+    with np.errstate(all="ignore"):
+        det = s11 * s22 - s12 * s12
+        w11, w12, w22 = s22 / det, -s12 / det, s11 / det
+        wv1, wv2 = w11 * v[:, 0] + w12 * v[:, 1], w12 * v[:, 0] + w22 * v[:, 1]
+        we1, we2 = w11 * e[:, 0] + w12 * e[:, 1], w12 * e[:, 0] + w22 * e[:, 1]
+        terms = np.stack([w11, w12, w22, -wv1, -wv2, v[:, 0] * wv1 + v[:, 1] * wv2,
+                          we1, we2, -(v[:, 0] * we1 + v[:, 1] * we2),
+                          e[:, 0] * we1 + e[:, 1] * we2, np.ones(len(v))], axis=1)
+    ok = ok & np.isfinite(terms).all(axis=1)
+    return np.where(ok[:, None], terms, 0.0)
+
+
+def lag_estimate(N: np.ndarray, r: np.ndarray) -> tuple[float, float]:
+    """The least-squares lag ``tau`` (s) and its variance from the normal equations of
+    ``e = b - tau v`` (``N``: ``W``'s three entries, ``-W v``'s two, ``v^T W v``; ``r``: ``W e``,
+    ``-v^T W e``, then ``e^T W e`` and the entries' count), the offset ``b`` eliminated (its
+    Schur complement). The variance is scaled by the fit's residual ``chi^2`` per degree of
+    freedom when above 1: entries the model does not explain (a registration that varies over
+    the ground, a hijack's offsets per id) make the lag uncertain, not significant.
+    ``(0, inf)`` when the velocities do not tell a lag from an offset."""
+    a, b, d, g1, g2, h = (float(x) for x in N)
+    rb1, rb2, rt, ewe, n = (float(x) for x in r)
+    det = a * d - b * b
+    dof = 2.0 * n - 3.0
+    if not (det > 0.0 and dof > 0.0):
+        return 0.0, float("inf")
+    m1, m2 = (d * g1 - b * g2) / det, (a * g2 - b * g1) / det  # N_bb^-1 g
+    schur = h - (g1 * m1 + g2 * m2)
+    if not schur > 1e-12 * max(h, 1e-300):
+        return 0.0, float("inf")
+    tau = (rt - (m1 * rb1 + m2 * rb2)) / schur
+    # residual: e^T W e - r^T N^-1 r = e^T W e - r_b^T N_bb^-1 r_b - schur tau^2
+    rss = ewe - (d * rb1 * rb1 - 2.0 * b * rb1 * rb2 + a * rb2 * rb2) / det - schur * tau * tau
+    return tau, max(1.0, rss / dof) / schur

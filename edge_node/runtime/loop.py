@@ -427,8 +427,9 @@ class FrameLoop:
         for n, t in self.node.stats.trust.items():
             if self._trust_seen.get(n, "trusted") != t["state"]:
                 level = logging.INFO if t["state"] == "trusted" else logging.WARNING
-                log.log(level, "node %d: frame %d: neighbour %d is %s", self.node.id, k, n,
-                        t["state"])
+                why = f" ({t['reason']})" if t["state"] != "trusted" and t.get("reason") else ""
+                log.log(level, "node %d: frame %d: neighbour %d is %s%s", self.node.id, k, n,
+                        t["state"], why)
             self._trust_seen[n] = t["state"]
 
     def _output(self, k: int, tracks: list) -> None:
@@ -624,6 +625,9 @@ class FrameLoop:
             "core_restarts": st.core_restarts,
             # each neighbour's trust state (trusted, suspect, quarantined; core/trust.py)
             "trust": {str(n): t["state"] for n, t in self.node.stats.trust.items()},
+            # why each distrusted neighbour is (inconsistent, lagging, merges)
+            "trust_reason": {str(n): t.get("reason") for n, t in self.node.stats.trust.items()
+                             if t["state"] != "trusted"},
             "output_errors": self.output_errors,
             "output_failures": st.output_failures,
             "stall_after_s": self.rt.stall_after_s,

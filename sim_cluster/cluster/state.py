@@ -127,9 +127,11 @@ def status_table(state: ClusterState) -> str:
         running = alive(p.pid)
         phase = health(st, running)
         distrusted = {n: v for n, v in (st.get("trust") or {}).items() if v != "trusted"}
+        why = st.get("trust_reason") or {}
         if distrusted:  # a neighbour this node no longer believes (edge_node/core/trust.py)
             reasons.append(f"node {p.node} distrusts: " + ", ".join(
-                f"neighbour {n} {v}" for n, v in sorted(distrusted.items(), key=lambda kv: int(kv[0]))))
+                f"neighbour {n} {v}" + (f" ({why[n]})" if why.get(n) else "")
+                for n, v in sorted(distrusted.items(), key=lambda kv: int(kv[0]))))
         if st.get("output_errors") and running:
             reasons.append(f"node {p.node} output failing: " + ", ".join(
                 f"{k} ({v})" for k, v in sorted(st["output_errors"].items())))
