@@ -72,7 +72,7 @@ mean correction, 20 bytes) removes the offset quickly on complete graphs but bia
 against the data (ring and chain lost up to 0.03 ground MOTA at a rate of 0.02; at 0.05 a
 plain neighbourhood mean even amplifies the alternating mode of a ring); a network-wide average
 (dynamic average consensus) would need a state that a restarted or dead node leaves biased.
-Measured again without a word on the wire (issue 37, item 5): the offset is born in the first
+Measured again without a word on the wire: the offset is born in the first
 update (0.011 m at frame 1, 0.206 m at frame 2, each camera fitting its 2-4 residuals at full
 gain) and none of an unbiased regressor (``reg_fused``), a smaller shift prior, folding the
 first 25 frames at once, or a firmer pull of the scale alone removes it (the last also biases

@@ -41,11 +41,6 @@ class ReporterSettings(Slice):
     reappear_hide: int
 
 
-def fresh_rows(state: NodeState, rows: np.ndarray, k: int, age: int) -> list[int]:
-    """The rows of ``rows`` born (at their camera) fewer than ``age`` frames before ``k``."""
-    return rows[(k - state.born.take(rows)) < age].tolist()
-
-
 class Reporter:
     """``manager``: the DTM's rules (``pending``, ``awaiting``); ``young``, ``gone``: the
     lifecycle's views of new and dropped trackers (re-appearance); ``views``: what each camera
@@ -78,13 +73,14 @@ class Reporter:
                     if (old not in shown_ids and young in shown_ids and young not in alias
                             and old not in alias.values()):
                         alias[young] = old
-        fresh = shown[(k - state.born.take(shown)) < cfg.reappear_age + cfg.reappear_hide]
+        age = k - state.born.take(shown)  # frames since each birth at its camera
+        fresh = shown[age < cfg.reappear_age + cfg.reappear_hide]
         if len(fresh):  # not yet told whether they are a dropped tracker re-appearing
             gone = self.gone()
             hidden |= {ids[i] for i in fresh.tolist()
                        if self.manager.awaiting(self.young(state, i), gone, k)}
         if cfg.report_age:  # tentative while the id it is reported under is young
-            hidden |= {ids[i] for i in fresh_rows(state, shown, k, cfg.report_age)
+            hidden |= {ids[i] for i in shown[age < cfg.report_age].tolist()
                        if ids[i] not in alias
                        or k - state.born[state.row(alias[ids[i]])] < cfg.report_age}
         if hidden:
