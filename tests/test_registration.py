@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from edge_node.core import Detection, TrackerConfig
-from edge_node.core.measurement import box_measurement
+from edge_node.core.measurement import BoxMeasurements, box_measurement
 from edge_node.core.registration import Registration
 from fakes import box_at, det, graph, make_nodes, step, topdown_camera
 
@@ -302,3 +302,66 @@ def test_the_fused_regressor_has_no_errors_in_variables_pull():
     se = np.sqrt(var_f)
     assert np.all(np.abs(total_f) < 4 * se), (total_f, se)
     assert total_g[3] < -20 * se[3]  # at g the pull is real and a shrink
+
+
+def knocked(cfg: TrackerConfig, frames: int = 260, at: int = 120, jump=(1.5, -1.0), n: int = 3):
+    """``n`` nodes, complete; four people walking; node 0's camera knocked at frame ``at``:
+    from then on every detection of it lands ``jump`` metres away (what its old calibration
+    makes of the moved camera's view; no descriptors). Returns the nodes and the frame R7
+    re-locked node 0's camera (None: never)."""
+    nodes = make_nodes(graph("complete", n), cfg)
+    rng = np.random.default_rng(3)
+    relocked = None
+    for k in range(frames):
+        truth = [walk(k, lane) for lane in range(4)]
+        dets = {i: [undetected(x + rng.normal(0, 0.02), y + rng.normal(0, 0.02)) for x, y in truth]
+                for i in nodes}
+        if k >= at:
+            dets[0] = [undetected(x + jump[0], y + jump[1]) for x, y in truth]
+        step(nodes, k, dets)
+        if relocked is None and nodes[0].registrations[0].relocks:
+            relocked = k
+    return nodes, relocked
+
+
+def test_a_knocked_camera_relocks_onto_its_neighbours_within_a_second():
+    """R7: a camera knocked 1.8 m (detections land ``jump`` away, far outside every gate) is
+    re-locked by its two neighbours' agreeing view within 25 frames: its correction is then
+    the jump undone (to the 0.25 m grid and what R3 learns after), its neighbours did not
+    move, and its corrected measurements of the people land on them again. Without R7 the
+    correction stays where it was (R3's random walk cannot follow 1.8 m)."""
+    jump = np.array([1.5, -1.0])
+    nodes, relocked = knocked(TrackerConfig())
+    assert relocked is not None and 120 <= relocked <= 145, relocked
+    p = np.array([2.5, 3.0])
+    np.testing.assert_allclose(nodes[0].registrations[0].correction_at(p), -jump, atol=0.15)
+    for i in (1, 2):
+        assert nodes[i].registrations[i].relocks == 0
+        assert np.linalg.norm(nodes[i].registrations[i].correction_at(p)) < 0.15
+    assert nodes[0].registrations[0].relocks == 1
+    held, _ = knocked(TrackerConfig(reg_relock=False))
+    assert np.linalg.norm(held[0].registrations[0].correction_at(p) + jump) > 1.0
+
+
+def test_two_cameras_that_only_see_each_other_never_relock():
+    """R7 needs two other cameras that agree: of two cameras alone, neither can tell which of
+    them was knocked (both would jump, and then disagree the other way)."""
+    nodes, relocked = knocked(TrackerConfig(), frames=200, n=2)
+    assert relocked is None
+    assert nodes[1].registrations[1].relocks == 0
+
+
+def test_relock_votes_of_one_source_against_two_for_no_jump_do_not_move_a_camera():
+    """A neighbour of a knocked camera hears a jump from it alone, and of none from its other
+    neighbour: no re-lock, whatever the jump's support."""
+    cfg = TrackerConfig()
+    reg = Registration(topdown_camera(0), cfg)
+    rng = np.random.default_rng(1)
+    for k in range(60):
+        p = rng.uniform(0.0, 6.0, size=(5, 2))
+        ms = [box_measurement(reg.camera, box_at(x, y), cfg) for x, y in p]
+        z = np.concatenate([p + [2.0, 0.5], p])  # source 7 says the map moved, source 8 not
+        reg.vote(BoxMeasurements.of(ms), z, np.repeat([7, 8], 5))
+        reg.end_frame()
+    assert reg.relocks == 0
+    np.testing.assert_allclose(reg.theta[:2], 0.0, atol=1e-9)

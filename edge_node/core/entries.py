@@ -35,6 +35,7 @@ class Entries:
     x_bar: np.ndarray  # (m, 6)
     slot: np.ndarray  # (m,)
     slots: int  # slot.max() + 1, 0 without entries: the rows of summed's table
+    sender: np.ndarray | None = None  # (m,) the node that sent each entry
 
     def summed(self, start: np.ndarray, values: np.ndarray) -> np.ndarray:
         """``start`` (a row per tracker) plus each tracker's entries' ``values`` (a row per
@@ -78,9 +79,11 @@ class Inbox:
             self._u = np.concatenate([b.u for b in blocks])
             self._U = np.concatenate([b.U for b in blocks])
             self._x_bar = np.concatenate([b.x_bar for b in blocks])
+            self._sender = np.repeat(np.array(self._senders, np.int64), [len(b.ell) for b in blocks])
         else:
             self._ell, self._u = np.zeros(0, np.int64), np.zeros((0, 6))
             self._U, self._x_bar = np.zeros((0, 6, 6)), np.zeros((0, 6))
+            self._sender = np.zeros(0, np.int64)
         tells = ((self._U[:, 0, 0] > 0) | (self._ell == 0)).tolist()  # measured, or ell 0
         by_id: dict[TrackerId, list[int]] = {}  # surviving id -> stacked rows naming it
         self.by_id = by_id
@@ -140,4 +143,5 @@ class Inbox:
         slot = np.arange(len(rows)) - np.searchsorted(rows, rows)  # rows ascend: first of each
         # (rows by take: see stacks)
         return Entries(ids, rows, self._ell.take(sel), self._u.take(sel, axis=0), self._U.take(sel, axis=0),
-                       self._x_bar.take(sel, axis=0), slot, int(slot.max()) + 1 if len(slot) else 0)
+                       self._x_bar.take(sel, axis=0), slot, int(slot.max()) + 1 if len(slot) else 0,
+                       self._sender.take(sel))

@@ -47,6 +47,30 @@ def learn(registrations: Mapping[int, Registration], entries: Entries, state: No
         np.add.at(u_o, at, entries.u[:, :2].take(seen, axis=0))
         np.add.at(U_o, at, entries.U[:, :2, :2].take(seen, axis=0))
         np.add.at(count, at, 1)
+    votes: list[tuple[np.ndarray, np.ndarray]] = []  # R7: the others' measured targets, by source
+    if len(entries.rows) and next(iter(registrations.values())).cfg.reg_relock:
+        told = entries.U[:, 0, 0] > 0
+        Ue, ue = entries.U[:, :2, :2].compress(told, axis=0), entries.u[:, :2].compress(told, axis=0)
+        det = Ue[:, 0, 0] * Ue[:, 1, 1] - Ue[:, 0, 1] * Ue[:, 1, 0]
+        ok = det > 1e-9 * (Ue[:, 0, 0] + Ue[:, 1, 1]) ** 2
+        if ok.any():
+            votes.append((np.linalg.solve(Ue.compress(ok, axis=0), ue.compress(ok, axis=0)[..., None])[..., 0],
+                          entries.sender.compress(told).compress(ok)))
+
+    def compared(cam_id: int) -> tuple[np.ndarray, np.ndarray]:
+        """What R7 compares camera ``cam_id`` with: the neighbours' measured targets and this
+        node's other cameras' corrected foot points (source ``-1 - camera``)."""
+        parts = list(votes)
+        for o in cameras:
+            if o != cam_id and o in raws and len(raws[o].z):
+                ms = raws[o]
+                z = ms.z[:, :2] if o not in registrations else registrations[o].corrects(ms)[0][:, :2]
+                z = z.compress(~ms.cut, axis=0)
+                parts.append((z, np.full(len(z), -1 - o, np.int64)))
+        if not parts:
+            return np.zeros((0, 2)), np.zeros(0, np.int64)
+        return np.concatenate([p[0] for p in parts]), np.concatenate([p[1] for p in parts])
+
     # per camera: its raw measurements, the trackers' rows, and this node's other cameras'
     # information on them (None: the neighbours' alone)
     rows: dict[int, tuple[list, list, list]] = {c: ([], [], []) for c in registrations}
@@ -90,4 +114,7 @@ def learn(registrations: Mapping[int, Registration], entries: Entries, state: No
                 z_o = (V_o @ us.take(ok, axis=0)[..., None])[..., 0]
                 registrations[cam_id].observe_many(raws[cam_id].take(np.array(picked)[ok]),
                                                    z_o, V_o)
+        if cam_id in raws:
+            z, src = compared(cam_id)
+            registrations[cam_id].vote(raws[cam_id], z, src)
         registrations[cam_id].end_frame()

@@ -74,6 +74,7 @@ from __future__ import annotations
 
 import inspect
 import logging
+import math
 import os
 import signal
 import threading
@@ -263,6 +264,7 @@ class FrameLoop:
         self._level = (first_frame, time.monotonic())  # (frame, when) last level with the network
         self._output_error: dict[str, str] = {}  # file kind -> why its last write failed
         self._trust_seen: dict[int, str] = {}  # each neighbour's trust state last logged
+        self._relocks_seen: dict[int, int] = {}  # each camera's re-locks last logged
         self._logged_at: dict[str, float] = {}
         self._last_status: dict | None = None
         self.driver = self._new_driver(node)
@@ -432,8 +434,20 @@ class FrameLoop:
                         t["state"], why)
             self._trust_seen[n] = t["state"]
 
+    def _log_relocks(self, k: int) -> None:
+        """Each re-lock of a camera's registration (R7, ``edge_node/core/registration.py``),
+        logged once: the camera was knocked, or its calibration jumped."""
+        for cam, reg in self.node.registrations.items():
+            if reg.relocks > self._relocks_seen.get(cam, 0):
+                dx, dy = reg.last_jump.tolist()
+                log.warning("node %d: frame %d: camera %d re-locked: its ground map had jumped "
+                            "%.2f m (%.2f, %.2f); knocked?", self.node.id, k, cam,
+                            math.hypot(dx, dy), -dx, -dy)
+            self._relocks_seen[cam] = reg.relocks  # (a restarted core counts from 0 again)
+
     def _output(self, k: int, tracks: list) -> None:
         self._log_trust(k)
+        self._log_relocks(k)
         self.writer.write(tracks)
         if self.writer.failing:
             self._say("out:tracks", logging.WARNING, f"node {self.node.id}: cannot write "
@@ -628,6 +642,8 @@ class FrameLoop:
             # why each distrusted neighbour is (inconsistent, lagging, merges)
             "trust_reason": {str(n): t.get("reason") for n, t in self.node.stats.trust.items()
                              if t["state"] != "trusted"},
+            # how often each camera's registration re-locked after a jump (R7, core/registration.py)
+            "relocks": {str(c): r.relocks for c, r in self.node.registrations.items()},
             "output_errors": self.output_errors,
             "output_failures": st.output_failures,
             "stall_after_s": self.rt.stall_after_s,
