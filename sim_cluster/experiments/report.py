@@ -366,8 +366,10 @@ def trust_rows(summary: list[dict]) -> str:
     def f(x, fmt="{:.3f}"):
         return "-" if x is None else fmt.format(x)
     lines = ["| scenario | faulty kind | trust role | ground MOTA (x fault-free) | ground IDF1 "
-             "(x fault-free) | far tracks > 1 s | frames to quarantine (worst) | ids kept | "
-             "honest nodes quarantined |", "| --- | --- | --- | --- | --- | --- | --- | --- | --- |"]
+             "(x fault-free) | settled: node 0 and its neighbours 2 s on (x fault-free) "
+             "| far tracks > 1 s | frames to quarantine (worst) | ids kept | "
+             "honest nodes quarantined |",
+             "| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |"]
     for s in summary:
         kind = s["kind"] if s["kind"] != "none" else (
             "none (async, late and lost messages)" if s["late"] else "none")
@@ -377,6 +379,7 @@ def trust_rows(summary: list[dict]) -> str:
         lines.append(
             f"| {s['scenario']} | {kind} | {'on' if s['trust'] else 'off'} "
             f"| {f(s['mota'])} ({f(s['mota_ratio'])}x) | {f(s['idf1'])} ({f(s['idf1_ratio'])}x) "
+            f"| {f(s.get('settled_ratio'))}{'x' if s.get('settled_ratio') is not None else ''} "
             f"| {s['far']} | {q if s['kind'] != 'none' else '-'} | {f(s['kept_ids'], '{:.2f}')} "
             f"| {s['honest_quarantined']} |")
     return "\n".join(lines)
@@ -386,7 +389,9 @@ def trust_table(d: dict, omit: tuple[str, ...] = ()) -> str:
     meta = d["meta"]
     return (f"Node 0 of a ring faulty from a third of the run to two thirds; honest nodes only; "
             f"medians over seeds {', '.join(map(str, meta['seeds']))} ({meta['config']}); "
-            "ratios against the fault-free sync run of the same seed; far tracks: the most "
+            "ratios against the fault-free sync run of the same seed; settled: ground MOTA "
+            "of node 0 and its neighbours from 2 s after the fault starts and 2 s after it "
+            "ends; far tracks: the most "
             "episodes of a seed; frames to quarantine and ids kept: the worst neighbour and "
             "seed.\n\n" + trust_rows([s for s in d["summary"] if s["kind"] not in omit]))
 
