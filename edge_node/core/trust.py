@@ -171,6 +171,7 @@ class Trust:
         self.scores: dict[int, float] = {}  # the last frame's score of each neighbour heard
         self.level: dict[int, float] = {}  # each neighbour's usual score (smoothed)
         self._lag_sums: dict[int, np.ndarray] = {}  # per sender, this frame's lag terms
+        self._own_sums = np.zeros(11)  # this frame's lag terms of the own cameras
         self.own_N, self.own_r = np.zeros(6), np.zeros(5)  # the own cameras' lag (reference)
         self.own_lag = 0.0  # s
 
@@ -253,28 +254,14 @@ class Trust:
                     k: int) -> list[tuple[np.ndarray, list]]:
         """Per message: its rows naming a tracker this node holds, and each one's normalised
         distance from this node's prediction (module docstring); per sender, this frame's terms
-        of its lag's normal equations (``_lag_sums``). Every message's entries in one batch,
-        the 2 x 2 inverses written out: a fixed number of array operations a frame, whatever
-        the number of neighbours and messages."""
-        index = state.index
-        cols: list[tuple[int, np.ndarray, np.ndarray]] = []  # (message, its rows, held rows)
-        for i, m in enumerate(msgs):
-            if not len(m.block) or not index:
-                continue
-            pairs = [(r, index.get(resolve(t))) for r, t in enumerate(m.block.ids())]
-            pairs = [(r, j) for r, j in pairs if j is not None]
-            if pairs:
-                rows, held = zip(*pairs)
-                cols.append((i, np.array(rows, np.intp), np.array(held, np.intp)))
-        out: list[tuple[np.ndarray, list]] = [(np.zeros(0, np.intp), [])] * len(msgs)
-        if not cols:
-            return out
-        held = np.concatenate([h for _, _, h in cols])
-        U = np.concatenate([msgs[i].block.U[r][:, :2, :2] for i, r, _ in cols])
-        u = np.concatenate([msgs[i].block.u[r][:, :2] for i, r, _ in cols])
-        xj = np.concatenate([msgs[i].block.x_bar[r][:, :2] for i, r, _ in cols])
-        P = state.P[held][:, :2, :2]
-        x = state.x_bar[held][:, :2]
+        of its lag's normal equations (``_lag_sums``), and the own cameras' (``_own_sums``).
+        Every message's entries in one batch, the 2 x 2 inverses written out: a fixed number of
+        array operations a frame, whatever the number of neighbours and messages."""
+        which, rows, held, U, u, xj = _entries(state, msgs, resolve)
+        bounds = np.searchsorted(which, np.arange(len(msgs) + 1)).tolist()  # message i's
+        # entries: bounds[i]:bounds[i + 1]
+        P = state.P[held, :2, :2]
+        x = state.x_bar[held, :2]
         c2 = self.cfg.m(self.cfg.calib_sigma) ** 2
         a, b, d = U[:, 0, 0], 0.5 * (U[:, 0, 1] + U[:, 1, 0]), U[:, 1, 1]
         det = a * d - b * b
@@ -283,7 +270,7 @@ class Trust:
             # measured: V = U^-1, z = V u, e = z - x, S = V + P + C
             va, vb, vd = d / det, -b / det, a / det
             z = np.stack([va * u[:, 0] + vb * u[:, 1], vb * u[:, 0] + vd * u[:, 1]], axis=1)
-            e = np.where(measured[:, None], z - x, xj - x)  # without: d = x_bar_j - x
+            e = np.where(measured[:, None], z - x, xj[:, :2] - x)  # without: x_bar_j - x
             w = np.where(measured, 1.0, 2.0)  # S = 2 P + C without a measurement
             s11 = np.where(measured, va, 0.0) + w * P[:, 0, 0] + c2
             s12 = np.where(measured, vb, 0.0) + w * 0.5 * (P[:, 0, 1] + P[:, 1, 0])
@@ -291,38 +278,33 @@ class Trust:
             stat = (s22 * e[:, 0] ** 2 - 2.0 * s12 * e[:, 0] * e[:, 1] + s11 * e[:, 1] ** 2) \
                 / (s11 * s22 - s12 * s12)
         stat = np.where(np.isfinite(stat), stat, self.cfg.trust_cap)
-        self._lag_terms(state, k, msgs, cols, held, stat < self.cfg.trust_cap)
+        self._lag_terms(state, k, msgs, which, bounds, held, U, u, stat < self.cfg.trust_cap)
         stat = stat.tolist()
-        at = 0
-        for i, rows, _ in cols:
-            out[i] = (rows, stat[at:at + len(rows)])
-            at += len(rows)
-        return out
+        return [(rows[i:j], stat[i:j]) for i, j in zip(bounds, bounds[1:])]
 
-    def _lag_terms(self, state: NodeState, k: int, msgs: list[FrameMessage], cols: list,
-                   held: np.ndarray, ok: np.ndarray) -> None:
+    def _lag_terms(self, state: NodeState, k: int, msgs: list[FrameMessage], which: np.ndarray,
+                   bounds: list[int], held: np.ndarray, U: np.ndarray, u: np.ndarray,
+                   ok: np.ndarray) -> None:
         """This frame's terms of each sender's lag regression (module docstring, "Lag"): per
         measured entry of a settled tracker (``ok``: not capped), the innovation of its
-        measurement brought to the message's own frame; summed per message, then per sender."""
-        U = np.concatenate([msgs[i].block.U[r][:, :4, :4] for i, r, _ in cols])
-        u = np.concatenate([msgs[i].block.u[r][:, :4] for i, r, _ in cols])
-        lag = np.concatenate([np.full(len(r), (k - msgs[i].frame) * self.cfg.dt)
-                              for i, r, _ in cols])
-        terms = self._measured(state, k, held, U, u, lag, ok)
-        starts = np.cumsum([0] + [len(r) for _, r, _ in cols[:-1]])
-        for (i, _, _), t in zip(cols, np.add.reduceat(terms, starts, axis=0)):
-            n = msgs[i].sender
-            self._lag_sums[n] = t if n not in self._lag_sums else self._lag_sums[n] + t
-
-    def _own_terms(self, state: NodeState, k: int) -> np.ndarray:
-        """This frame's terms of the lag regression of the node's own cameras' measurements
-        (``u, U`` of this frame), the reference every neighbour's lag is taken against."""
+        measurement brought to the message's own frame (entries ``bounds[i]:bounds[i + 1]`` of
+        message ``i``, ``which`` each entry's); summed per message, then per sender. With them,
+        in the same batch, the terms of the node's own cameras' measurements (``u, U`` of this
+        frame), the reference every neighbour's lag is taken against (``_own_sums``)."""
         n = len(state)
-        if not n:
-            return np.zeros(11)
-        rows = np.arange(n)
-        return self._measured(state, k, rows, state.U[:, :4, :4], state.u[:, :4], np.zeros(n),
-                              np.ones(n, bool)).sum(axis=0)
+        lag = np.array([(k - m.frame) * self.cfg.dt for m in msgs])[which]
+        terms = self._measured(state, k, np.concatenate([np.arange(n), held]),
+                               np.concatenate([state.U[:, :4, :4], U[:, :4, :4]]),
+                               np.concatenate([state.u[:, :4], u[:, :4]]),
+                               np.concatenate([np.zeros(n), lag]),
+                               np.concatenate([np.ones(n, bool), ok]))
+        self._own_sums = terms[:n].sum(axis=0)
+        heard = [i for i, j in enumerate(bounds[1:]) if j > bounds[i]]  # messages with entries
+        if not heard:
+            return
+        for i, t in zip(heard, np.add.reduceat(terms[n:], [bounds[i] for i in heard], axis=0)):
+            s = msgs[i].sender
+            self._lag_sums[s] = t if s not in self._lag_sums else self._lag_sums[s] + t
 
     def _measured(self, state: NodeState, k: int, held: np.ndarray, U: np.ndarray,
                   u: np.ndarray, lag: np.ndarray, ok: np.ndarray) -> np.ndarray:
@@ -335,17 +317,17 @@ class Trust:
         out = np.zeros((len(held), 11))
         if not ok.any():
             return out
-        held, lag = held[ok], lag[ok]
+        held, lag, U = held[ok], lag[ok], U[ok]
         with np.errstate(all="ignore"):
-            det = np.linalg.det(U[ok])
+            det = np.linalg.det(U)
             good = np.isfinite(det) & (det > 0.0)
             V = np.full((len(held), 4, 4), np.nan)
             if good.any():
-                V[good] = np.linalg.inv(U[ok][good])
+                V[good] = np.linalg.inv(U[good])
             z = np.einsum("nij,nj->ni", V, u[ok])[:, :2]
             v = state.x_bar[held, 4:6]
             e = z - state.x_bar[held, :2] + v * lag[:, None]
-            P = state.P[held][:, :2, :2]
+            P = state.P[held, :2, :2]
             c2 = self.cfg.m(self.cfg.calib_sigma) ** 2
             s11 = V[:, 0, 0] + P[:, 0, 0] + c2
             s12 = 0.5 * (V[:, 0, 1] + V[:, 1, 0] + P[:, 0, 1] + P[:, 1, 0])
@@ -361,7 +343,7 @@ class Trust:
         excess over ``trust_lag`` in standard errors (bounded at ``trust_cap``). A neighbour
         whose velocities tell no lag gets no step."""
         keep = 1.0 - 1.0 / self.cfg.trust_lag_frames
-        own = self._own_terms(state, k)
+        own = self._own_sums
         self.own_N = keep * self.own_N + own[:6]
         self.own_r = keep * self.own_r + own[6:]
         ref, ref_var = lag_estimate(self.own_N, self.own_r)
@@ -429,6 +411,22 @@ class Trust:
 
     def summary(self) -> dict[int, dict]:
         return {n: t.summary() for n, t in sorted(self.of.items())}
+
+
+def _entries(state: NodeState, msgs: list[FrameMessage],
+             resolve: Callable[[TrackerId], TrackerId]) -> tuple[np.ndarray, ...]:
+    """The messages' entries naming a tracker this node holds, in message order: each one's
+    message, its row in the message, the tracker's row here, and its ``U, u, x_bar``."""
+    sizes = [len(m.block) for m in msgs]
+    index = state.index
+    here = np.array([index.get(resolve(t), -1) for m in msgs for t in m.block.ids()], np.intp)
+    at = np.flatnonzero(here >= 0)  # among all the messages' rows
+    which = np.repeat(np.arange(len(msgs)), sizes)[at]
+    rows = at - np.cumsum([0] + sizes[:-1], dtype=np.intp)[which]
+    cols = ([m.block.U for m in msgs] or [np.zeros((0, 6, 6))],
+            [m.block.u for m in msgs] or [np.zeros((0, 6))],
+            [m.block.x_bar for m in msgs] or [np.zeros((0, 6))])
+    return (which, rows, here[at], *(np.concatenate(c)[at] for c in cols))
 
 
 def _terms(e: np.ndarray, v: np.ndarray, s11: np.ndarray, s12: np.ndarray, s22: np.ndarray,
