@@ -149,8 +149,8 @@ class NeighbourTrust:
     reason: str | None = None  # why it was last distrusted: inconsistent, lagging, merges
     lag: float = 0.0  # s, its latest lag estimate tau (module docstring, "Lag")
     lagging_frames: int = 0  # frames its lag stood out (added to its sum)
-    N: np.ndarray = field(default_factory=lambda: np.zeros(6))  # the lag's normal equations
-    r: np.ndarray = field(default_factory=lambda: np.zeros(5))  # (forgetting sums)
+    N: list[float] = field(default_factory=lambda: [0.0] * 6)  # the lag's normal equations
+    r: list[float] = field(default_factory=lambda: [0.0] * 5)  # (forgetting sums)
 
     def summary(self) -> dict:
         return {"state": self.state, "suspect_frames": self.suspect_frames,
@@ -170,9 +170,9 @@ class Trust:
         self.of: dict[int, NeighbourTrust] = {n: NeighbourTrust() for n in neighbours}
         self.scores: dict[int, float] = {}  # the last frame's score of each neighbour heard
         self.level: dict[int, float] = {}  # each neighbour's usual score (smoothed)
-        self._lag_sums: dict[int, np.ndarray] = {}  # per sender, this frame's lag terms
-        self._own_sums = np.zeros(11)  # this frame's lag terms of the own cameras
-        self.own_N, self.own_r = np.zeros(6), np.zeros(5)  # the own cameras' lag (reference)
+        self._lag_sums: dict[int, list[float]] = {}  # per sender, this frame's lag terms
+        self._own_sums = [0.0] * 11  # this frame's lag terms of the own cameras
+        self.own_N, self.own_r = [0.0] * 6, [0.0] * 5  # the own cameras' lag (reference)
         self.own_lag = 0.0  # s
 
     def __call__(self, state: NodeState, msgs: list[FrameMessage], k: int,
@@ -298,13 +298,14 @@ class Trust:
                                np.concatenate([state.u[:, :4], u[:, :4]]),
                                np.concatenate([np.zeros(n), lag]),
                                np.concatenate([np.ones(n, bool), ok]))
-        self._own_sums = terms[:n].sum(axis=0)
+        self._own_sums = terms[:n].sum(axis=0).tolist()
         heard = [i for i, j in enumerate(bounds[1:]) if j > bounds[i]]  # messages with entries
         if not heard:
             return
-        for i, t in zip(heard, np.add.reduceat(terms[n:], [bounds[i] for i in heard], axis=0)):
+        sums = np.add.reduceat(terms[n:], [bounds[i] for i in heard], axis=0).tolist()
+        for i, t in zip(heard, sums):  # a few numbers a sender: Python's floats, not NumPy's
             s = msgs[i].sender
-            self._lag_sums[s] = t if s not in self._lag_sums else self._lag_sums[s] + t
+            self._lag_sums[s] = t if s not in self._lag_sums else _add(self._lag_sums[s], t)
 
     def _measured(self, state: NodeState, k: int, held: np.ndarray, U: np.ndarray,
                   u: np.ndarray, lag: np.ndarray, ok: np.ndarray) -> np.ndarray:
@@ -344,10 +345,10 @@ class Trust:
         whose velocities tell no lag gets no step."""
         keep = 1.0 - 1.0 / self.cfg.trust_lag_frames
         own = self._own_sums
-        self.own_N = keep * self.own_N + own[:6]
-        self.own_r = keep * self.own_r + own[6:]
+        self.own_N = _add([keep * a for a in self.own_N], own[:6])
+        self.own_r = _add([keep * a for a in self.own_r], own[6:])
         ref, ref_var = lag_estimate(self.own_N, self.own_r)
-        if not np.isfinite(ref_var):  # its cameras tell no lag: the estimates are the reference
+        if not math.isfinite(ref_var):  # its cameras tell no lag: the estimates are the reference
             ref, ref_var = 0.0, 0.0
         self.own_lag = ref
         out = {}
@@ -355,11 +356,11 @@ class Trust:
             t = self.of.get(n)
             if t is None:
                 continue
-            t.N = keep * t.N + sums[:6]
-            t.r = keep * t.r + sums[6:]
+            t.N = _add([keep * a for a in t.N], sums[:6])
+            t.r = _add([keep * a for a in t.r], sums[6:])
             tau, var = lag_estimate(t.N, t.r)
             t.lag = tau - ref
-            if not np.isfinite(var):
+            if not math.isfinite(var):
                 continue
             z = (t.lag - self.cfg.trust_lag) / math.sqrt(var + ref_var)
             out[n] = min(self.cfg.trust_cap, z) - self.cfg.trust_lag_z
@@ -429,6 +430,11 @@ def _entries(state: NodeState, msgs: list[FrameMessage],
     return (which, rows, here[at], *(np.concatenate(c)[at] for c in cols))
 
 
+def _add(a: list[float], b: list[float]) -> list[float]:
+    """``a + b`` elementwise."""
+    return [x + y for x, y in zip(a, b)]
+
+
 def _terms(e: np.ndarray, v: np.ndarray, s11: np.ndarray, s12: np.ndarray, s22: np.ndarray,
            ok: np.ndarray) -> np.ndarray:
     """Per entry, its terms of the lag's normal equations (``lag_estimate``) for the innovation
@@ -447,7 +453,7 @@ def _terms(e: np.ndarray, v: np.ndarray, s11: np.ndarray, s12: np.ndarray, s22: 
     return np.where(ok[:, None], terms, 0.0)
 
 
-def lag_estimate(N: np.ndarray, r: np.ndarray) -> tuple[float, float]:
+def lag_estimate(N: Sequence[float], r: Sequence[float]) -> tuple[float, float]:
     """The least-squares lag ``tau`` (s) and its variance from the normal equations of
     ``e = b - tau v`` (``N``: ``W``'s three entries, ``-W v``'s two, ``v^T W v``; ``r``: ``W e``,
     ``-v^T W e``, then ``e^T W e`` and the entries' count), the offset ``b`` eliminated (its
