@@ -92,6 +92,7 @@ import math
 from collections import Counter, deque
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field, replace
+from itertools import chain
 from statistics import median
 
 import numpy as np
@@ -105,6 +106,7 @@ FAR = "far_merge"  # a merge of trackers this node's cameras measure apart: refu
 APART = "apart"  # a merge of trackers apart in this node's estimates only: weak evidence
 LEVEL_RATE = 0.05  # smoothing of a neighbour's usual score (about a second at 25 fps)
 INCONSISTENT, LAGGING, MERGES = "inconsistent", "lagging", "merges"  # why one is distrusted
+_EYE = np.eye(4)  # in place of a 4 x 4 information matrix without an inverse
 
 
 @dataclass(frozen=True)
@@ -260,8 +262,8 @@ class Trust:
         which, rows, held, U, u, xj = _entries(state, msgs, resolve)
         bounds = np.searchsorted(which, np.arange(len(msgs) + 1)).tolist()  # message i's
         # entries: bounds[i]:bounds[i + 1]
-        P = state.P[held, :2, :2]
-        x = state.x_bar[held, :2]
+        P = state.P.take(held, axis=0)[:, :2, :2]
+        x = state.x_bar.take(held, axis=0)
         c2 = self.cfg.m(self.cfg.calib_sigma) ** 2
         a, b, d = U[:, 0, 0], 0.5 * (U[:, 0, 1] + U[:, 1, 0]), U[:, 1, 1]
         det = a * d - b * b
@@ -269,14 +271,14 @@ class Trust:
         with np.errstate(all="ignore"):
             # measured: V = U^-1, z = V u, e = z - x, S = V + P + C
             va, vb, vd = d / det, -b / det, a / det
-            z = np.stack([va * u[:, 0] + vb * u[:, 1], vb * u[:, 0] + vd * u[:, 1]], axis=1)
-            e = np.where(measured[:, None], z - x, xj[:, :2] - x)  # without: x_bar_j - x
+            z1, z2 = va * u[:, 0] + vb * u[:, 1], vb * u[:, 0] + vd * u[:, 1]
+            e1 = np.where(measured, z1 - x[:, 0], xj[:, 0] - x[:, 0])  # without: x_bar_j - x
+            e2 = np.where(measured, z2 - x[:, 1], xj[:, 1] - x[:, 1])
             w = np.where(measured, 1.0, 2.0)  # S = 2 P + C without a measurement
             s11 = np.where(measured, va, 0.0) + w * P[:, 0, 0] + c2
             s12 = np.where(measured, vb, 0.0) + w * 0.5 * (P[:, 0, 1] + P[:, 1, 0])
             s22 = np.where(measured, vd, 0.0) + w * P[:, 1, 1] + c2
-            stat = (s22 * e[:, 0] ** 2 - 2.0 * s12 * e[:, 0] * e[:, 1] + s11 * e[:, 1] ** 2) \
-                / (s11 * s22 - s12 * s12)
+            stat = (s22 * e1 ** 2 - 2.0 * s12 * e1 * e2 + s11 * e2 ** 2) / (s11 * s22 - s12 * s12)
         stat = np.where(np.isfinite(stat), stat, self.cfg.trust_cap)
         self._lag_terms(state, k, msgs, which, bounds, held, U, u, stat < self.cfg.trust_cap)
         stat = stat.tolist()
@@ -322,18 +324,18 @@ class Trust:
         with np.errstate(all="ignore"):
             det = np.linalg.det(U)
             good = np.isfinite(det) & (det > 0.0)
-            V = np.full((len(held), 4, 4), np.nan)
-            if good.any():
-                V[good] = np.linalg.inv(U[good])
+            U[~good] = _EYE  # no inverse: I in its place, its terms dropped (good)
+            V = np.linalg.inv(U)
             z = np.einsum("nij,nj->ni", V, u[ok])[:, :2]
-            v = state.x_bar[held, 4:6]
-            e = z - state.x_bar[held, :2] + v * lag[:, None]
-            P = state.P[held, :2, :2]
+            x = state.x_bar.take(held, axis=0)
+            v = x[:, 4:6]
+            e = z - x[:, :2] + v * lag[:, None]
+            P = state.P.take(held, axis=0)[:, :2, :2]
             c2 = self.cfg.m(self.cfg.calib_sigma) ** 2
             s11 = V[:, 0, 0] + P[:, 0, 0] + c2
             s12 = 0.5 * (V[:, 0, 1] + V[:, 1, 0] + P[:, 0, 1] + P[:, 1, 0])
             s22 = V[:, 1, 1] + P[:, 1, 1] + c2
-        out[ok] = _terms(e, v, s11, s12, s22, good)
+            out[ok] = _terms(e, v, s11, s12, s22, good)
         return out
 
     def _lagging(self, state: NodeState, k: int) -> dict[int, float]:
@@ -419,15 +421,17 @@ def _entries(state: NodeState, msgs: list[FrameMessage],
     """The messages' entries naming a tracker this node holds, in message order: each one's
     message, its row in the message, the tracker's row here, and its ``U, u, x_bar``."""
     sizes = [len(m.block) for m in msgs]
-    index = state.index
-    here = np.array([index.get(resolve(t), -1) for m in msgs for t in m.block.ids()], np.intp)
+    ids = list(chain.from_iterable(m.block.ids() for m in msgs))
+    index = state.index  # each id resolved once (the neighbours name mostly the same ones)
+    row = {t: index.get(resolve(t), -1) for t in set(ids)}
+    here = np.fromiter(map(row.__getitem__, ids), np.intp, len(ids))
     at = np.flatnonzero(here >= 0)  # among all the messages' rows
     which = np.repeat(np.arange(len(msgs)), sizes)[at]
     rows = at - np.cumsum([0] + sizes[:-1], dtype=np.intp)[which]
     cols = ([m.block.U for m in msgs] or [np.zeros((0, 6, 6))],
             [m.block.u for m in msgs] or [np.zeros((0, 6))],
             [m.block.x_bar for m in msgs] or [np.zeros((0, 6))])
-    return (which, rows, here[at], *(np.concatenate(c)[at] for c in cols))
+    return (which, rows, here[at], *(np.concatenate(c).take(at, axis=0) for c in cols))
 
 
 def _add(a: list[float], b: list[float]) -> list[float]:
@@ -440,15 +444,15 @@ def _terms(e: np.ndarray, v: np.ndarray, s11: np.ndarray, s12: np.ndarray, s22: 
     """Per entry, its terms of the lag's normal equations (``lag_estimate``) for the innovation
     ``e = b - tau v`` with covariance ``S`` (``s11, s12, s22``), ``W = S^-1``, ``A = [I, -v]``:
     ``A^T W A`` (``W``'s three entries, ``-W v``, ``v^T W v``), ``A^T W e`` (``W e``,
-    ``-v^T W e``), ``e^T W e`` and 1; zero where not ``ok``."""
-    with np.errstate(all="ignore"):
-        det = s11 * s22 - s12 * s12
-        w11, w12, w22 = s22 / det, -s12 / det, s11 / det
-        wv1, wv2 = w11 * v[:, 0] + w12 * v[:, 1], w12 * v[:, 0] + w22 * v[:, 1]
-        we1, we2 = w11 * e[:, 0] + w12 * e[:, 1], w12 * e[:, 0] + w22 * e[:, 1]
-        terms = np.stack([w11, w12, w22, -wv1, -wv2, v[:, 0] * wv1 + v[:, 1] * wv2,
-                          we1, we2, -(v[:, 0] * we1 + v[:, 1] * we2),
-                          e[:, 0] * we1 + e[:, 1] * we2, np.ones(len(v))], axis=1)
+    ``-v^T W e``), ``e^T W e`` and 1; zero where not ``ok``. (Under the caller's
+    ``np.errstate``.)"""
+    v1, v2, e1, e2 = v[:, 0], v[:, 1], e[:, 0], e[:, 1]
+    det = s11 * s22 - s12 * s12
+    w11, w12, w22 = s22 / det, -s12 / det, s11 / det
+    wv1, wv2 = w11 * v1 + w12 * v2, w12 * v1 + w22 * v2
+    we1, we2 = w11 * e1 + w12 * e2, w12 * e1 + w22 * e2
+    terms = np.array([w11, w12, w22, -wv1, -wv2, v1 * wv1 + v2 * wv2, we1, we2,
+                      -(v1 * we1 + v2 * we2), e1 * we1 + e2 * we2, np.ones(len(v))]).T
     ok = ok & np.isfinite(terms).all(axis=1)
     return np.where(ok[:, None], terms, 0.0)
 
