@@ -212,7 +212,7 @@ class Trust:
         for n, s in self.scores.items():
             lv = self.level.get(n)
             self.level[n] = s if lv is None else lv + LEVEL_RATE * (s - lv)
-        lagging = self._lagging(state, k)
+        lagging = self._lagging()
         for n, t in sorted(self.of.items()):
             if n in self.scores:
                 # the others' scores this frame, or their usual level when not heard (a lost or
@@ -338,7 +338,7 @@ class Trust:
             out[ok] = _terms(e, v, s11, s12, s22, good)
         return out
 
-    def _lagging(self, state: NodeState, k: int) -> dict[int, float]:
+    def _lagging(self) -> dict[int, float]:
         """Per neighbour heard this frame, its lag's evidence (module docstring, "Lag"): its
         normal equations forgotten by ``1 - 1/trust_lag_frames`` and added this frame's terms,
         its lag ``tau`` and variance solved (the offset ``b`` eliminated), taken against the
