@@ -92,6 +92,7 @@ import math
 from collections import Counter, deque
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field, replace
+from itertools import chain
 from statistics import median
 
 import numpy as np
@@ -105,6 +106,7 @@ FAR = "far_merge"  # a merge of trackers this node's cameras measure apart: refu
 APART = "apart"  # a merge of trackers apart in this node's estimates only: weak evidence
 LEVEL_RATE = 0.05  # smoothing of a neighbour's usual score (about a second at 25 fps)
 INCONSISTENT, LAGGING, MERGES = "inconsistent", "lagging", "merges"  # why one is distrusted
+_EYE = np.eye(4)  # in place of a 4 x 4 information matrix without an inverse
 
 
 @dataclass(frozen=True)
@@ -149,8 +151,8 @@ class NeighbourTrust:
     reason: str | None = None  # why it was last distrusted: inconsistent, lagging, merges
     lag: float = 0.0  # s, its latest lag estimate tau (module docstring, "Lag")
     lagging_frames: int = 0  # frames its lag stood out (added to its sum)
-    N: np.ndarray = field(default_factory=lambda: np.zeros(6))  # the lag's normal equations
-    r: np.ndarray = field(default_factory=lambda: np.zeros(5))  # (forgetting sums)
+    N: list[float] = field(default_factory=lambda: [0.0] * 6)  # the lag's normal equations
+    r: list[float] = field(default_factory=lambda: [0.0] * 5)  # (forgetting sums)
 
     def summary(self) -> dict:
         return {"state": self.state, "suspect_frames": self.suspect_frames,
@@ -170,8 +172,9 @@ class Trust:
         self.of: dict[int, NeighbourTrust] = {n: NeighbourTrust() for n in neighbours}
         self.scores: dict[int, float] = {}  # the last frame's score of each neighbour heard
         self.level: dict[int, float] = {}  # each neighbour's usual score (smoothed)
-        self._lag_sums: dict[int, np.ndarray] = {}  # per sender, this frame's lag terms
-        self.own_N, self.own_r = np.zeros(6), np.zeros(5)  # the own cameras' lag (reference)
+        self._lag_sums: dict[int, list[float]] = {}  # per sender, this frame's lag terms
+        self._own_sums = [0.0] * 11  # this frame's lag terms of the own cameras
+        self.own_N, self.own_r = [0.0] * 6, [0.0] * 5  # the own cameras' lag (reference)
         self.own_lag = 0.0  # s
 
     def __call__(self, state: NodeState, msgs: list[FrameMessage], k: int,
@@ -209,7 +212,7 @@ class Trust:
         for n, s in self.scores.items():
             lv = self.level.get(n)
             self.level[n] = s if lv is None else lv + LEVEL_RATE * (s - lv)
-        lagging = self._lagging(state, k)
+        lagging = self._lagging()
         for n, t in sorted(self.of.items()):
             if n in self.scores:
                 # the others' scores this frame, or their usual level when not heard (a lost or
@@ -253,28 +256,14 @@ class Trust:
                     k: int) -> list[tuple[np.ndarray, list]]:
         """Per message: its rows naming a tracker this node holds, and each one's normalised
         distance from this node's prediction (module docstring); per sender, this frame's terms
-        of its lag's normal equations (``_lag_sums``). Every message's entries in one batch,
-        the 2 x 2 inverses written out: a fixed number of array operations a frame, whatever
-        the number of neighbours and messages."""
-        index = state.index
-        cols: list[tuple[int, np.ndarray, np.ndarray]] = []  # (message, its rows, held rows)
-        for i, m in enumerate(msgs):
-            if not len(m.block) or not index:
-                continue
-            pairs = [(r, index.get(resolve(t))) for r, t in enumerate(m.block.ids())]
-            pairs = [(r, j) for r, j in pairs if j is not None]
-            if pairs:
-                rows, held = zip(*pairs)
-                cols.append((i, np.array(rows, np.intp), np.array(held, np.intp)))
-        out: list[tuple[np.ndarray, list]] = [(np.zeros(0, np.intp), [])] * len(msgs)
-        if not cols:
-            return out
-        held = np.concatenate([h for _, _, h in cols])
-        U = np.concatenate([msgs[i].block.U[r][:, :2, :2] for i, r, _ in cols])
-        u = np.concatenate([msgs[i].block.u[r][:, :2] for i, r, _ in cols])
-        xj = np.concatenate([msgs[i].block.x_bar[r][:, :2] for i, r, _ in cols])
-        P = state.P[held][:, :2, :2]
-        x = state.x_bar[held][:, :2]
+        of its lag's normal equations (``_lag_sums``), and the own cameras' (``_own_sums``).
+        Every message's entries in one batch, the 2 x 2 inverses written out: a fixed number of
+        array operations a frame, whatever the number of neighbours and messages."""
+        which, rows, held, U, u, xj = _entries(state, msgs, resolve)
+        bounds = np.searchsorted(which, np.arange(len(msgs) + 1)).tolist()  # message i's
+        # entries: bounds[i]:bounds[i + 1]
+        P = state.P.take(held, axis=0)[:, :2, :2]
+        x = state.x_bar.take(held, axis=0)
         c2 = self.cfg.m(self.cfg.calib_sigma) ** 2
         a, b, d = U[:, 0, 0], 0.5 * (U[:, 0, 1] + U[:, 1, 0]), U[:, 1, 1]
         det = a * d - b * b
@@ -282,47 +271,43 @@ class Trust:
         with np.errstate(all="ignore"):
             # measured: V = U^-1, z = V u, e = z - x, S = V + P + C
             va, vb, vd = d / det, -b / det, a / det
-            z = np.stack([va * u[:, 0] + vb * u[:, 1], vb * u[:, 0] + vd * u[:, 1]], axis=1)
-            e = np.where(measured[:, None], z - x, xj - x)  # without: d = x_bar_j - x
+            z1, z2 = va * u[:, 0] + vb * u[:, 1], vb * u[:, 0] + vd * u[:, 1]
+            e1 = np.where(measured, z1 - x[:, 0], xj[:, 0] - x[:, 0])  # without: x_bar_j - x
+            e2 = np.where(measured, z2 - x[:, 1], xj[:, 1] - x[:, 1])
             w = np.where(measured, 1.0, 2.0)  # S = 2 P + C without a measurement
             s11 = np.where(measured, va, 0.0) + w * P[:, 0, 0] + c2
             s12 = np.where(measured, vb, 0.0) + w * 0.5 * (P[:, 0, 1] + P[:, 1, 0])
             s22 = np.where(measured, vd, 0.0) + w * P[:, 1, 1] + c2
-            stat = (s22 * e[:, 0] ** 2 - 2.0 * s12 * e[:, 0] * e[:, 1] + s11 * e[:, 1] ** 2) \
-                / (s11 * s22 - s12 * s12)
+            stat = (s22 * e1 ** 2 - 2.0 * s12 * e1 * e2 + s11 * e2 ** 2) / (s11 * s22 - s12 * s12)
         stat = np.where(np.isfinite(stat), stat, self.cfg.trust_cap)
-        self._lag_terms(state, k, msgs, cols, held, stat < self.cfg.trust_cap)
+        self._lag_terms(state, k, msgs, which, bounds, held, U, u, stat < self.cfg.trust_cap)
         stat = stat.tolist()
-        at = 0
-        for i, rows, _ in cols:
-            out[i] = (rows, stat[at:at + len(rows)])
-            at += len(rows)
-        return out
+        return [(rows[i:j], stat[i:j]) for i, j in zip(bounds, bounds[1:])]
 
-    def _lag_terms(self, state: NodeState, k: int, msgs: list[FrameMessage], cols: list,
-                   held: np.ndarray, ok: np.ndarray) -> None:
+    def _lag_terms(self, state: NodeState, k: int, msgs: list[FrameMessage], which: np.ndarray,
+                   bounds: list[int], held: np.ndarray, U: np.ndarray, u: np.ndarray,
+                   ok: np.ndarray) -> None:
         """This frame's terms of each sender's lag regression (module docstring, "Lag"): per
         measured entry of a settled tracker (``ok``: not capped), the innovation of its
-        measurement brought to the message's own frame; summed per message, then per sender."""
-        U = np.concatenate([msgs[i].block.U[r][:, :4, :4] for i, r, _ in cols])
-        u = np.concatenate([msgs[i].block.u[r][:, :4] for i, r, _ in cols])
-        lag = np.concatenate([np.full(len(r), (k - msgs[i].frame) * self.cfg.dt)
-                              for i, r, _ in cols])
-        terms = self._measured(state, k, held, U, u, lag, ok)
-        starts = np.cumsum([0] + [len(r) for _, r, _ in cols[:-1]])
-        for (i, _, _), t in zip(cols, np.add.reduceat(terms, starts, axis=0)):
-            n = msgs[i].sender
-            self._lag_sums[n] = t if n not in self._lag_sums else self._lag_sums[n] + t
-
-    def _own_terms(self, state: NodeState, k: int) -> np.ndarray:
-        """This frame's terms of the lag regression of the node's own cameras' measurements
-        (``u, U`` of this frame), the reference every neighbour's lag is taken against."""
+        measurement brought to the message's own frame (entries ``bounds[i]:bounds[i + 1]`` of
+        message ``i``, ``which`` each entry's); summed per message, then per sender. With them,
+        in the same batch, the terms of the node's own cameras' measurements (``u, U`` of this
+        frame), the reference every neighbour's lag is taken against (``_own_sums``)."""
         n = len(state)
-        if not n:
-            return np.zeros(11)
-        rows = np.arange(n)
-        return self._measured(state, k, rows, state.U[:, :4, :4], state.u[:, :4], np.zeros(n),
-                              np.ones(n, bool)).sum(axis=0)
+        lag = np.array([(k - m.frame) * self.cfg.dt for m in msgs])[which]
+        terms = self._measured(state, k, np.concatenate([np.arange(n), held]),
+                               np.concatenate([state.U[:, :4, :4], U[:, :4, :4]]),
+                               np.concatenate([state.u[:, :4], u[:, :4]]),
+                               np.concatenate([np.zeros(n), lag]),
+                               np.concatenate([np.ones(n, bool), ok]))
+        self._own_sums = terms[:n].sum(axis=0).tolist()
+        heard = [i for i, j in enumerate(bounds[1:]) if j > bounds[i]]  # messages with entries
+        if not heard:
+            return
+        sums = np.add.reduceat(terms[n:], [bounds[i] for i in heard], axis=0).tolist()
+        for i, t in zip(heard, sums):  # a few numbers a sender: Python's floats, not NumPy's
+            s = msgs[i].sender
+            self._lag_sums[s] = t if s not in self._lag_sums else _add(self._lag_sums[s], t)
 
     def _measured(self, state: NodeState, k: int, held: np.ndarray, U: np.ndarray,
                   u: np.ndarray, lag: np.ndarray, ok: np.ndarray) -> np.ndarray:
@@ -335,25 +320,25 @@ class Trust:
         out = np.zeros((len(held), 11))
         if not ok.any():
             return out
-        held, lag = held[ok], lag[ok]
+        held, lag, U = held[ok], lag[ok], U[ok]
         with np.errstate(all="ignore"):
-            det = np.linalg.det(U[ok])
+            det = np.linalg.det(U)
             good = np.isfinite(det) & (det > 0.0)
-            V = np.full((len(held), 4, 4), np.nan)
-            if good.any():
-                V[good] = np.linalg.inv(U[ok][good])
+            U[~good] = _EYE  # no inverse: I in its place, its terms dropped (good)
+            V = np.linalg.inv(U)
             z = np.einsum("nij,nj->ni", V, u[ok])[:, :2]
-            v = state.x_bar[held, 4:6]
-            e = z - state.x_bar[held, :2] + v * lag[:, None]
-            P = state.P[held][:, :2, :2]
+            x = state.x_bar.take(held, axis=0)
+            v = x[:, 4:6]
+            e = z - x[:, :2] + v * lag[:, None]
+            P = state.P.take(held, axis=0)[:, :2, :2]
             c2 = self.cfg.m(self.cfg.calib_sigma) ** 2
             s11 = V[:, 0, 0] + P[:, 0, 0] + c2
             s12 = 0.5 * (V[:, 0, 1] + V[:, 1, 0] + P[:, 0, 1] + P[:, 1, 0])
             s22 = V[:, 1, 1] + P[:, 1, 1] + c2
-        out[ok] = _terms(e, v, s11, s12, s22, good)
+            out[ok] = _terms(e, v, s11, s12, s22, good)
         return out
 
-    def _lagging(self, state: NodeState, k: int) -> dict[int, float]:
+    def _lagging(self) -> dict[int, float]:
         """Per neighbour heard this frame, its lag's evidence (module docstring, "Lag"): its
         normal equations forgotten by ``1 - 1/trust_lag_frames`` and added this frame's terms,
         its lag ``tau`` and variance solved (the offset ``b`` eliminated), taken against the
@@ -361,11 +346,11 @@ class Trust:
         excess over ``trust_lag`` in standard errors (bounded at ``trust_cap``). A neighbour
         whose velocities tell no lag gets no step."""
         keep = 1.0 - 1.0 / self.cfg.trust_lag_frames
-        own = self._own_terms(state, k)
-        self.own_N = keep * self.own_N + own[:6]
-        self.own_r = keep * self.own_r + own[6:]
+        own = self._own_sums
+        self.own_N = _add([keep * a for a in self.own_N], own[:6])
+        self.own_r = _add([keep * a for a in self.own_r], own[6:])
         ref, ref_var = lag_estimate(self.own_N, self.own_r)
-        if not np.isfinite(ref_var):  # its cameras tell no lag: the estimates are the reference
+        if not math.isfinite(ref_var):  # its cameras tell no lag: the estimates are the reference
             ref, ref_var = 0.0, 0.0
         self.own_lag = ref
         out = {}
@@ -373,11 +358,11 @@ class Trust:
             t = self.of.get(n)
             if t is None:
                 continue
-            t.N = keep * t.N + sums[:6]
-            t.r = keep * t.r + sums[6:]
+            t.N = _add([keep * a for a in t.N], sums[:6])
+            t.r = _add([keep * a for a in t.r], sums[6:])
             tau, var = lag_estimate(t.N, t.r)
             t.lag = tau - ref
-            if not np.isfinite(var):
+            if not math.isfinite(var):
                 continue
             z = (t.lag - self.cfg.trust_lag) / math.sqrt(var + ref_var)
             out[n] = min(self.cfg.trust_cap, z) - self.cfg.trust_lag_z
@@ -431,25 +416,48 @@ class Trust:
         return {n: t.summary() for n, t in sorted(self.of.items())}
 
 
+def _entries(state: NodeState, msgs: list[FrameMessage],
+             resolve: Callable[[TrackerId], TrackerId]) -> tuple[np.ndarray, ...]:
+    """The messages' entries naming a tracker this node holds, in message order: each one's
+    message, its row in the message, the tracker's row here, and its ``U, u, x_bar``."""
+    sizes = [len(m.block) for m in msgs]
+    ids = list(chain.from_iterable(m.block.ids() for m in msgs))
+    index = state.index  # each id resolved once (the neighbours name mostly the same ones)
+    row = {t: index.get(resolve(t), -1) for t in set(ids)}
+    here = np.fromiter(map(row.__getitem__, ids), np.intp, len(ids))
+    at = np.flatnonzero(here >= 0)  # among all the messages' rows
+    which = np.repeat(np.arange(len(msgs)), sizes)[at]
+    rows = at - np.cumsum([0] + sizes[:-1], dtype=np.intp)[which]
+    cols = ([m.block.U for m in msgs] or [np.zeros((0, 6, 6))],
+            [m.block.u for m in msgs] or [np.zeros((0, 6))],
+            [m.block.x_bar for m in msgs] or [np.zeros((0, 6))])
+    return (which, rows, here[at], *(np.concatenate(c).take(at, axis=0) for c in cols))
+
+
+def _add(a: list[float], b: list[float]) -> list[float]:
+    """``a + b`` elementwise."""
+    return [x + y for x, y in zip(a, b)]
+
+
 def _terms(e: np.ndarray, v: np.ndarray, s11: np.ndarray, s12: np.ndarray, s22: np.ndarray,
            ok: np.ndarray) -> np.ndarray:
     """Per entry, its terms of the lag's normal equations (``lag_estimate``) for the innovation
     ``e = b - tau v`` with covariance ``S`` (``s11, s12, s22``), ``W = S^-1``, ``A = [I, -v]``:
     ``A^T W A`` (``W``'s three entries, ``-W v``, ``v^T W v``), ``A^T W e`` (``W e``,
-    ``-v^T W e``), ``e^T W e`` and 1; zero where not ``ok``."""
-    with np.errstate(all="ignore"):
-        det = s11 * s22 - s12 * s12
-        w11, w12, w22 = s22 / det, -s12 / det, s11 / det
-        wv1, wv2 = w11 * v[:, 0] + w12 * v[:, 1], w12 * v[:, 0] + w22 * v[:, 1]
-        we1, we2 = w11 * e[:, 0] + w12 * e[:, 1], w12 * e[:, 0] + w22 * e[:, 1]
-        terms = np.stack([w11, w12, w22, -wv1, -wv2, v[:, 0] * wv1 + v[:, 1] * wv2,
-                          we1, we2, -(v[:, 0] * we1 + v[:, 1] * we2),
-                          e[:, 0] * we1 + e[:, 1] * we2, np.ones(len(v))], axis=1)
+    ``-v^T W e``), ``e^T W e`` and 1; zero where not ``ok``. (Under the caller's
+    ``np.errstate``.)"""
+    v1, v2, e1, e2 = v[:, 0], v[:, 1], e[:, 0], e[:, 1]
+    det = s11 * s22 - s12 * s12
+    w11, w12, w22 = s22 / det, -s12 / det, s11 / det
+    wv1, wv2 = w11 * v1 + w12 * v2, w12 * v1 + w22 * v2
+    we1, we2 = w11 * e1 + w12 * e2, w12 * e1 + w22 * e2
+    terms = np.array([w11, w12, w22, -wv1, -wv2, v1 * wv1 + v2 * wv2, we1, we2,
+                      -(v1 * we1 + v2 * we2), e1 * we1 + e2 * we2, np.ones(len(v))]).T
     ok = ok & np.isfinite(terms).all(axis=1)
     return np.where(ok[:, None], terms, 0.0)
 
 
-def lag_estimate(N: np.ndarray, r: np.ndarray) -> tuple[float, float]:
+def lag_estimate(N: Sequence[float], r: Sequence[float]) -> tuple[float, float]:
     """The least-squares lag ``tau`` (s) and its variance from the normal equations of
     ``e = b - tau v`` (``N``: ``W``'s three entries, ``-W v``'s two, ``v^T W v``; ``r``: ``W e``,
     ``-v^T W e``, then ``e^T W e`` and the entries' count), the offset ``b`` eliminated (its
