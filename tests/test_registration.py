@@ -365,3 +365,24 @@ def test_relock_votes_of_one_source_against_two_for_no_jump_do_not_move_a_camera
         reg.end_frame()
     assert reg.relocks == 0
     np.testing.assert_allclose(reg.theta[:2], 0.0, atol=1e-9)
+
+
+def test_the_camera_process_logs_each_relock_once(caplog):
+    """``FrameLoop._log_relocks``: one warning per re-lock, with the jump the map had made
+    (the opposite of the correction's change), none again for the same count, none for a
+    restarted core counting from 0."""
+    import logging
+    from types import SimpleNamespace
+
+    from edge_node.runtime.loop import FrameLoop
+
+    reg = SimpleNamespace(relocks=1, last_jump=np.array([-0.6, 0.8]))
+    loop = SimpleNamespace(node=SimpleNamespace(id=3, registrations={5: reg}), _relocks_seen={})
+    with caplog.at_level(logging.WARNING, logger="edge_node.loop"):
+        FrameLoop._log_relocks(loop, 40)
+        FrameLoop._log_relocks(loop, 41)
+        reg.relocks = 0  # a restarted core
+        FrameLoop._log_relocks(loop, 42)
+    lines = [r.getMessage() for r in caplog.records if "re-locked" in r.getMessage()]
+    assert lines == ["node 3: frame 40: camera 5 re-locked: its ground map had jumped 1.00 m "
+                     "(0.60, -0.80); knocked?"]
