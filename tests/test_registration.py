@@ -331,7 +331,7 @@ def test_a_knocked_camera_relocks_onto_its_neighbours_within_a_second():
     move, and its corrected measurements of the people land on them again. Without R7 the
     correction stays where it was (R3's random walk cannot follow 1.8 m)."""
     jump = np.array([1.5, -1.0])
-    nodes, relocked = knocked(TrackerConfig())
+    nodes, relocked = knocked(TrackerConfig(reg_relock=True))
     assert relocked is not None and 120 <= relocked <= 145, relocked
     p = np.array([2.5, 3.0])
     np.testing.assert_allclose(nodes[0].registrations[0].correction_at(p), -jump, atol=0.15)
@@ -339,14 +339,14 @@ def test_a_knocked_camera_relocks_onto_its_neighbours_within_a_second():
         assert nodes[i].registrations[i].relocks == 0
         assert np.linalg.norm(nodes[i].registrations[i].correction_at(p)) < 0.15
     assert nodes[0].registrations[0].relocks == 1
-    held, _ = knocked(TrackerConfig(reg_relock=False))
+    held, _ = knocked(TrackerConfig())  # the default: off
     assert np.linalg.norm(held[0].registrations[0].correction_at(p) + jump) > 1.0
 
 
 def test_two_cameras_that_only_see_each_other_never_relock():
     """R7 needs two other cameras that agree: of two cameras alone, neither can tell which of
     them was knocked (both would jump, and then disagree the other way)."""
-    nodes, relocked = knocked(TrackerConfig(), frames=200, n=2)
+    nodes, relocked = knocked(TrackerConfig(reg_relock=True), frames=200, n=2)
     assert relocked is None
     assert nodes[1].registrations[1].relocks == 0
 
@@ -354,7 +354,7 @@ def test_two_cameras_that_only_see_each_other_never_relock():
 def test_relock_votes_of_one_source_against_two_for_no_jump_do_not_move_a_camera():
     """A neighbour of a knocked camera hears a jump from it alone, and of none from its other
     neighbour: no re-lock, whatever the jump's support."""
-    cfg = TrackerConfig()
+    cfg = TrackerConfig(reg_relock=True)
     reg = Registration(topdown_camera(0), cfg)
     rng = np.random.default_rng(1)
     for k in range(60):

@@ -102,7 +102,10 @@ residuals R2 still lets in, and at least two sources agree (a strict majority of
 there or at none), the peak is added to the translation and ``Sigma`` starts again from the
 prior, so that R3 learns the rest of the knock (its rotation) from the residuals that now pass
 (:meth:`Registration.vote`). This is the coarse step of point-set registration (a Hough vote on
-displacements) before the fine one.
+displacements) before the fine one. An option (``reg_relock``, off): a vote without
+correspondences cannot tell a knock from people walking side by side, each seen by other
+cameras, whose distance it votes for as steadily (Terrace's whole sequence, a chain: three
+re-locks of an honest camera, docs/tuning.md).
 
 Deterministic: the same residuals in the same order give the same correction.
 """

@@ -401,6 +401,9 @@ def trust_table(d: dict, omit: tuple[str, ...] = ()) -> str:
 #: fell silent instead); trust-phantom/trust.json has them re-measured after the fix
 table("trust", "trust/trust.json")(lambda d: trust_table(d, omit=("phantom",)))
 table("trust-phantom", "trust-phantom/trust.json")(trust_table)
+#: the same runs with the re-lock of a knocked camera on (registration R7, ``reg_relock``, an
+#: option), measured when it was the default
+table("trust-relock", "trust-relock/trust.json")(lambda d: trust_table(d, omit=("phantom",)))
 
 
 # -- detectors --------------------------------------------------------------------------------------
