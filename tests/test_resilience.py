@@ -118,7 +118,7 @@ class Scripted(Trust):
     def _statistics(self, state, msgs, resolve, k):
         return [(np.zeros(1, np.intp), [self.now[m.sender]]) for m in msgs]
 
-    def _lagging(self, state, k):  # no measurements, no lag
+    def _lagging(self):  # no measurements, no lag
         return {}
 
     def _used(self, m, entries, verdicts):

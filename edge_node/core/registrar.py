@@ -114,7 +114,7 @@ def learn(registrations: Mapping[int, Registration], entries: Entries, state: No
                 z_o = (V_o @ us.take(ok, axis=0)[..., None])[..., 0]
                 registrations[cam_id].observe_many(raws[cam_id].take(np.array(picked)[ok]),
                                                    z_o, V_o)
-        if cam_id in raws:
+        if cam_id in raws and registrations[cam_id].cfg.reg_relock:
             z, src = compared(cam_id)
             registrations[cam_id].vote(raws[cam_id], z, src)
         registrations[cam_id].end_frame()
