@@ -328,10 +328,10 @@ def test_a_knocked_camera_relocks_onto_its_neighbours_within_a_second():
     """R7: a camera knocked 1.8 m (detections land ``jump`` away, far outside every gate) is
     re-locked by its two neighbours' agreeing view within 25 frames: its correction is then
     the jump undone (to the 0.25 m grid and what R3 learns after), its neighbours did not
-    move, and its corrected measurements of the people land on them again. Without R7 the
-    correction stays where it was (R3's random walk cannot follow 1.8 m)."""
+    move, and its corrected measurements of the people land on them again (R7 is the default).
+    Without R7 the correction stays where it was (R3's random walk cannot follow 1.8 m)."""
     jump = np.array([1.5, -1.0])
-    nodes, relocked = knocked(TrackerConfig(reg_relock=True))
+    nodes, relocked = knocked(TrackerConfig())
     assert relocked is not None and 120 <= relocked <= 145, relocked
     p = np.array([2.5, 3.0])
     np.testing.assert_allclose(nodes[0].registrations[0].correction_at(p), -jump, atol=0.15)
@@ -339,7 +339,7 @@ def test_a_knocked_camera_relocks_onto_its_neighbours_within_a_second():
         assert nodes[i].registrations[i].relocks == 0
         assert np.linalg.norm(nodes[i].registrations[i].correction_at(p)) < 0.15
     assert nodes[0].registrations[0].relocks == 1
-    held, _ = knocked(TrackerConfig())  # the default: off
+    held, _ = knocked(TrackerConfig(reg_relock=False))
     assert np.linalg.norm(held[0].registrations[0].correction_at(p) + jump) > 1.0
 
 
@@ -365,6 +365,40 @@ def test_relock_votes_of_one_source_against_two_for_no_jump_do_not_move_a_camera
         reg.end_frame()
     assert reg.relocks == 0
     np.testing.assert_allclose(reg.theta[:2], 0.0, atol=1e-9)
+
+
+def _relock_run(own_shift, told_shift, frames: int = 60, at: int = 30) -> Registration:
+    """R7 fed 60 frames of five people walking about 1 m/s past a camera: two sources (7, 8)
+    both measure each person ``told_shift`` (m) from the truth; the camera's own foot points
+    are the truth until frame ``at``, then shifted by ``own_shift``. The camera's registration
+    has converged (``Sigma`` held at (5 cm)^2; R3's residuals are not fed here)."""
+    cfg = TrackerConfig(reg_relock=True)
+    reg = Registration(topdown_camera(0), cfg)
+    rng = np.random.default_rng(4)
+    p0, v = rng.uniform(1.0, 5.0, size=(5, 2)), rng.normal(0.0, 0.7, size=(5, 2))
+    for k in range(frames):
+        p = p0 + v * 0.04 * k
+        own = p + (np.asarray(own_shift) if k >= at else 0.0)
+        ms = [box_measurement(reg.camera, box_at(x, y), cfg) for x, y in own]
+        z = np.concatenate([p + told_shift, p + told_shift])
+        reg.Sigma = np.diag(np.full(5, 0.05 ** 2))
+        reg.vote(BoxMeasurements.of(ms), z, np.repeat([7, 8], 5))
+        reg.end_frame()
+    return reg
+
+
+def test_relock_needs_the_cameras_own_people_to_jump_at_once():
+    """R7's onset: two sources agreeing on a steady 2.06 m displacement are not enough (people
+    walking side by side, each seen by other cameras, vote for their distance as steadily);
+    the camera's own foot points must have jumped at once, by the displacement undone, within
+    ``reg_relock_onset`` frames. The same votes re-lock the camera when its own people jumped
+    by minus the displacement at frame 30 (a knock), not when they jumped elsewhere."""
+    d = np.array([2.0, 0.5])
+    assert _relock_run((0.0, 0.0), d).relocks == 0
+    knocked_ = _relock_run(-d, (0.0, 0.0))
+    assert knocked_.relocks == 1
+    np.testing.assert_allclose(knocked_.last_jump, d, atol=0.2)
+    assert _relock_run((0.0, -2.0), d).relocks == 0  # an onset, but not the votes' jump
 
 
 def test_the_camera_process_logs_each_relock_once(caplog):

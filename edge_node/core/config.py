@@ -109,14 +109,15 @@ class RegistrarSection:
                                      "others' measurements (no shrink at any noise; replaces reg_debias)")
     reg_anchor: float = number(0.001, lo=0.0, hi=1.0,
                                doc="per frame, pull of every correction towards zero (common frame)")
-    reg_relock: bool = boolean(False, "re-lock a camera whose map jumped (knocked) onto the others' "
-                                      "targets (R7, edge_node/core/registration.py; an option: it "
-                                      "re-locked an honest camera of a chain on Terrace)")
+    reg_relock: bool = boolean(True, "re-lock a camera whose map jumped (knocked) onto the others' "
+                                     "targets (R7, edge_node/core/registration.py)")
     reg_relock_reach: float = positive(4.0, "m, the largest jump R7 looks for")
     reg_relock_min: float = positive(0.75, "m, the smallest jump R7 re-locks (smaller: R3 follows)")
     reg_relock_frames: float = positive(10.0, "frames, the memory of R7's votes")
     reg_relock_support: float = positive(15.0, "votes (pairs, decayed) the jump needs")
     reg_relock_ratio: float = positive(2.0, "votes for the jump against votes for no jump, pooled and per source")
+    reg_relock_onset: float = positive(50.0, "frames R7 may take to re-lock after the camera's own "
+                                             "people all moved at once (the knock's onset)")
 
     def __post_init__(self) -> None:
         check(self, "tracker.registrar")

@@ -98,14 +98,15 @@ camera's corrected foot points and one of the other cameras' measured targets wi
 camera of the node), the votes decaying over ``reg_relock_frames``; people's own pairs pile
 up at one displacement, pairs of different people spread. When the pooled peak lies at least
 ``reg_relock_min`` from no displacement and outweighs both the votes for none and the
-residuals R2 still lets in, and at least two sources agree (a strict majority of those voting
-there or at none), the peak is added to the translation and ``Sigma`` starts again from the
-prior, so that R3 learns the rest of the knock (its rotation) from the residuals that now pass
-(:meth:`Registration.vote`). This is the coarse step of point-set registration (a Hough vote on
-displacements) before the fine one. An option (``reg_relock``, off): a vote without
-correspondences cannot tell a knock from people walking side by side, each seen by other
-cameras, whose distance it votes for as steadily (Terrace's whole sequence, a chain: three
-re-locks of an honest camera, docs/tuning.md).
+residuals R2 still lets in, at least two sources agree (a strict majority of those voting
+there or at none), and the camera's own foot points moved at once by that jump between two of
+its recent frames (the knock's onset: a vote without correspondences cannot tell a knock from
+people walking side by side, each seen by other cameras, whose distance it holds as steadily,
+nor from the parts of a real view where cameras disagree by metres; in neither do the camera's
+own people all jump between two frames), the peak is added to the translation and ``Sigma``
+starts again from the prior, so that R3 learns the rest of the knock (its rotation) from the
+residuals that now pass (:meth:`Registration.vote`). This is the coarse step of point-set
+registration (a Hough vote on displacements) before the fine one.
 
 Deterministic: the same residuals in the same order give the same correction.
 """
@@ -114,6 +115,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import math
+from collections import deque
 from collections.abc import Sequence
 
 import numpy as np
@@ -146,6 +148,7 @@ class RegistrationSettings(Slice):
     reg_relock_frames: float
     reg_relock_support: float
     reg_relock_ratio: float
+    reg_relock_onset: float
     units_per_metre: float
     fps: float
 
@@ -156,6 +159,18 @@ RELOCK_NEAR = 1  # R7's peak and no jump are sums over (2 RELOCK_NEAR + 1)^2 cel
 RELOCK_SOURCES = 64  # R7 keeps votes of at most this many sources (neighbours and own cameras)
 _ROT90 = np.array([[0.0, -1.0], [1.0, 0.0]])
 _I2 = np.eye(2)
+
+
+def _centroid(grid: np.ndarray, i: int, j: int, h: int) -> np.ndarray:
+    """The vote-weighted mean offset (cells, from the grid's centre) of the ``(2h + 1)^2``
+    cells of ``grid`` around cell ``(i, j)``."""
+    B = grid.shape[0]
+    c = B // 2
+    window = grid[max(i - h, 0):i + h + 1, max(j - h, 0):j + h + 1]
+    ii, jj = np.meshgrid(np.arange(max(i - h, 0), min(i + h + 1, B)),
+                         np.arange(max(j - h, 0), min(j + h + 1, B)), indexing="ij")
+    w = window / window.sum()
+    return np.array([(w * (ii - c)).sum(), (w * (jj - c)).sum()])
 
 
 def reference_point(camera: Camera) -> np.ndarray:
@@ -202,6 +217,8 @@ class Registration:
         self._sources: dict[int, int] = {}  # source id -> its grid in _votes
         self._jump: np.ndarray | None = None
         self._fits = 0.0  # residuals inside R2's gate, decaying as the votes
+        # R7's onset: the camera's own foot points of its last frames (as measured)
+        self._history: deque[np.ndarray] = deque(maxlen=int(cfg.reg_relock_onset) + 1)
 
     # -- R1 and R5 ------------------------------------------------------------------------------
     def basis(self, g: np.ndarray, away: np.ndarray) -> np.ndarray:
@@ -345,19 +362,22 @@ class Registration:
         beyond R2's gate on the translation's own uncertainty (a camera still learning its map,
         ``Sigma`` near the prior, is left to R3: re-locking then put the calibration world's
         rotations 1.1 degrees off at frame 290 instead of within 1), and a strict majority of
-        the sources that vote there or at no jump, at least two, say the same: a camera seen by two neighbours that agree moved; a neighbour of a knocked camera,
-        told of a jump by it alone and of none by its other neighbour, did not; and of two
-        cameras that only see each other, neither can tell which of them moved (both would jump,
-        and disagree again the other way), so neither does."""
+        the sources that vote there or at no jump, at least two, say the same (a camera seen by
+        two neighbours that agree moved; a neighbour of a knocked camera, told of a jump by it
+        alone and of none by its other neighbour, did not; and of two cameras that only see each
+        other, neither can tell which of them moved: both would jump, and disagree again the
+        other way, so neither does), and the camera's own foot points of its last
+        ``reg_relock_onset`` frames show the knock's onset (:meth:`_knocked`)."""
         cfg = self.cfg
         if not cfg.reg_relock:
             return
         self._votes *= 1.0 - 1.0 / cfg.reg_relock_frames
         self._fits *= 1.0 - 1.0 / cfg.reg_relock_frames
         take = (~ms.cut).nonzero()[0]
+        g = ms.z[:, :2].take(take, axis=0)
+        self._history.append(g)
         if not len(take) or not len(z_other):
             return
-        g = ms.z[:, :2].take(take, axis=0)
         y = g + times(self.bases(g, ms.away.take(take, axis=0)), self.theta)
         B, cell = self._bins, self._cell
         D = z_other[None] - y[:, None]  # (n, m, 2)
@@ -369,6 +389,28 @@ class Registration:
         S = len(self._sources)
         self._votes += np.bincount(flat[inside], minlength=S * B * B).reshape(S, B, B)
         self._decide()
+
+    def _knocked(self, jump: np.ndarray) -> bool:
+        """R7's onset: whether this camera's own foot points (as measured, before any
+        correction), between two consecutive frames of the last ``reg_relock_onset``, moved at
+        once by the jump the votes undo (``-jump``) rather than staying put: pairs of a foot
+        point and one of the frame before whose displacement lies within ``reg_relock_min`` of
+        ``-jump``, at least two and ``reg_relock_ratio`` times those within ``reg_relock_min``
+        of none. A knock moves every person the camera sees between two frames (by the jump
+        near the view's reference point, more or less with the rotation farther off); a person
+        walks a few centimetres. People walking side by side, whose distance the votes against
+        the other cameras hold as steadily as a knock's, and the parts of a view where EPFL's
+        cameras disagree by metres, never move at once in the camera's own frames."""
+        r2 = self.m_min ** 2
+        frames = list(self._history)
+        for prev, now in zip(frames, frames[1:]):
+            if len(prev) and len(now):
+                D = now[:, None] - prev[None]
+                moved = int((((D + jump) ** 2).sum(axis=2) < r2).sum())
+                stayed = int(((D ** 2).sum(axis=2) < r2).sum())
+                if moved >= 2 and moved >= self.cfg.reg_relock_ratio * stayed:
+                    return True
+        return False
 
     def _slot(self, source: int) -> int:
         """The grid of ``source`` in ``_votes`` (a new one, empty, for a source first heard;
@@ -401,11 +443,9 @@ class Registration:
         reach = self.cfg.reg_gate * float(np.linalg.eigvalsh(self.Sigma[:2, :2])[-1])
         if ((i - c) ** 2 + (j - c) ** 2) * self._cell ** 2 <= reach:
             return  # within what R3 still expects of its translation: R3 follows it
-        window = self._votes.sum(axis=0)[max(i - h, 0):i + h + 1, max(j - h, 0):j + h + 1]
-        ii, jj = np.meshgrid(np.arange(max(i - h, 0), min(i + h + 1, B)),
-                             np.arange(max(j - h, 0), min(j + h + 1, B)), indexing="ij")
-        w = window / window.sum()
-        self._jump = np.array([(w * (ii - c)).sum(), (w * (jj - c)).sum()]) * self._cell
+        jump = _centroid(self._votes.sum(axis=0), i, j, h) * self._cell
+        if self._knocked(jump):  # the camera's own people jumped at once (:meth:`_knocked`)
+            self._jump = jump
 
     def end_frame(self) -> None:
         """R3: fold this frame's residuals into ``theta``, then step to the next frame (R6's
@@ -422,6 +462,7 @@ class Registration:
             self._vec = np.zeros(N_PARAMS)
             self._votes = np.zeros_like(self._votes)
             self._jump = None
+            self._history.clear()
             self.relocks += 1
         if self._info.any():
             info = np.linalg.inv(self.Sigma) + self._info
@@ -442,6 +483,7 @@ class Registration:
         r.theta, r.Sigma = self.theta.copy(), self.Sigma.copy()
         r._info, r._vec = self._info.copy(), self._vec.copy()
         r._votes, r._sources = self._votes.copy(), dict(self._sources)
+        r._history = deque(self._history, maxlen=self._history.maxlen)
         return r
 
     def correction_at(self, xy: np.ndarray) -> np.ndarray:
