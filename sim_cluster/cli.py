@@ -267,6 +267,8 @@ def build_parser() -> argparse.ArgumentParser:
     tr.add_argument("--seeds", default="0-2", help="e.g. 0-2 or 0,3 (default 0-2)")
     tr.add_argument("--kinds", default="", help="comma-separated faulty kinds (default: all)")
     tr.add_argument("--config", default="dkf+lda+dtm", choices=CONFIG_NAMES)
+    tr.add_argument("--tracker-config", default=None, metavar="FILE",
+                    help="TOML file overriding tracker parameters (every run)")
     tr.add_argument("--baseline", action="store_true",
                     help="also run every faulty kind with the trust role off")
     tr.add_argument("--baseline-from", default=None, metavar="FILE",

@@ -47,3 +47,21 @@ def test_summary_takes_each_seeds_settled_ratio_against_its_fault_free_run():
             row(0, "bumped", 0.4), row(1, "bumped", 0.5), row(2, "bumped", 0.9)]
     bumped = next(s for s in summarise(rows) if s["kind"] == "bumped")
     assert bumped["settled_ratio"] == pytest.approx(0.9)  # median of 0.5, 1.0 and 0.9
+
+
+def test_tracker_config_reaches_every_cell_and_a_bad_file_is_one_typed_error(tmp_path):
+    """``trust-report --tracker-config``: every planned run carries the file, and a file with an
+    unknown parameter fails once, before any run, naming the file and the parameter."""
+    from sim_cluster.experiments.trust import main, plan_cells
+    cells = plan_cells(["terrace-sim"], [0, 1], ["hallucinate"], "dkf+lda+dtm", True, "t.toml")
+    assert len(cells) == 2 * 4 and {c["tracker_file"] for c in cells} == {"t.toml"}
+    bad = tmp_path / "bad.toml"
+    bad.write_text("[tracker]\nreport_unsen = 10\n")
+    args = SimpleNamespace(kinds="hallucinate", seeds="0", scenarios="terrace-sim",
+                           config="dkf+lda+dtm", baseline=False, tracker_config=str(bad),
+                           jobs=1, quiet=True, out=str(tmp_path / "out"))
+    from protocol.errors import DmttError
+    with pytest.raises(DmttError) as err:
+        main(args)
+    assert "bad.toml" in str(err.value) and "report_unsen" in str(err.value)
+    assert not (tmp_path / "out").exists()

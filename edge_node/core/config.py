@@ -272,6 +272,11 @@ class ReporterSection:
     view_depth: float = nonnegative(0.2, "how much nearer that target stands: its box's bottom "
                                     "edge lower by this fraction of the hidden box's height")
     view_unseen: bool = boolean(False, "draw targets a camera has not seen (at the network's size)")
+    report_unseen: int = integer(0, lo=0, doc="frames in a row one of the node's cameras should have "
+                                 "measured a target (its box inside the image, no nearer target "
+                                 "covering a third of it) and none did, after which the node no "
+                                 "longer reports it (a neighbour's false person; 0: never; "
+                                 "docs/tuning.md)")
     view_inside: float = number(0.9, lo=0.0, hi=1.0,
                                 doc="least fraction of a drawn box inside the image (0: any overlap)")
     view_fresh: int = integer(50, lo=0, doc="frames since the camera's last measurement of a target "

@@ -13,7 +13,11 @@ as a second id: a young tracker on its way to merging into a reported older one
 reported under is that many frames old, counted from its birth at its camera (so every node
 starts reporting it in the same frame): the trackers of a false detection and the duplicates
 merged within their first frames are never shown (the M-of-N confirmation of track
-initiation, here by age, as the birth already took two observations). Pure and deterministic.
+initiation, here by age, as the birth already took two observations). With
+``report_unseen`` a tracker one of the node's own cameras should have measured for that many
+frames in a row, and none did, is not reported (``views.OwnViews.expect``: negative evidence;
+a neighbour's false person, or a knocked camera's, that walks where this camera looks). Pure
+and deterministic.
 """
 from __future__ import annotations
 
@@ -34,6 +38,7 @@ class ReporterSettings(Slice):
 
     report_coast: int
     report_age: int
+    report_unseen: int
     hide_pending: bool
     pending_alias: bool
     comotion_frames: int
@@ -58,7 +63,10 @@ class Reporter:
         if not len(state):
             return []
         ids = state.ids
-        shown = np.flatnonzero(state.estimated & (state.coast <= cfg.report_coast))
+        keep = state.estimated & (state.coast <= cfg.report_coast)
+        if cfg.report_unseen:  # not what this node's own cameras should see and do not
+            keep &= state.unseen < cfg.report_unseen
+        shown = np.flatnonzero(keep)
         hidden: set[TrackerId] = set()
         alias: dict[TrackerId, TrackerId] = {}
         if cfg.pending_alias or (cfg.hide_pending and len(shown) > 1):

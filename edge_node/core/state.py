@@ -62,7 +62,7 @@ class NodeState:
     LASTING = {
         "born": ((), np.int64, 0), "since": ((), np.int64, 0), "heard": ((), np.int64, 0),
         "ell": ((), np.int64, 0), "coast": ((), np.int64, 0), "lag": ((), np.int64, 0),
-        "held": ((), np.int64, 0),
+        "held": ((), np.int64, 0), "unseen": ((), np.int64, 0),
         "informed": ((), bool, True), "announced": ((), bool, False),
         "heard_appearance": ((), bool, True), "has_origin": ((), bool, False),
         "estimated": ((), bool, False),

@@ -36,6 +36,10 @@ from edge_node.core.state import NodeState
 from edge_node.geometry import Camera
 
 
+HIDDEN_COVER = 1.0 / 3.0  # a person a nearer one covers by a third may be missed by a detector
+HEAD_CUT = 0.2  # a box whose top the image cuts by more than this fraction may be missed
+
+
 @dataclass(frozen=True)
 class ViewSettings(Slice):
     """What each camera's own view reads (the ``view_*`` parameters of the configuration's
@@ -52,6 +56,7 @@ class ViewSettings(Slice):
     view_inside: float
     view_fresh: int
     view_hidden: float
+    report_unseen: int
     units_per_metre: float
 
 
@@ -95,6 +100,50 @@ class OwnViews:
             state.view_k[rows, c] = k
             state.view_size[rows, c] = size
             state.view_at[rows, c] = np.where(located[:, None], ms.z.take(js, axis=0)[:, :2], np.nan)
+        if s.report_unseen:
+            self.expect(state)
+
+    def expect(self, state: NodeState) -> None:
+        """Negative evidence (``state.unseen``): a tracker that one of the node's cameras
+        should have measured this frame and none did counts one more frame; one that a camera
+        measured starts again from zero; one no camera could see keeps its count. A camera
+        should measure a target whose predicted box (``x_bar``, mapped back through the
+        camera's own registration, at the network's size) lies inside its image, the feet in
+        it, the head cut by at most a fifth, and that no nearer predicted box (its bottom edge
+        lower) covers by ``HIDDEN_COVER`` of its area: a detector finds such a person nine
+        times in ten, so a target it has missed for ``report_unseen`` frames in a row is not
+        there (a neighbour's false person) or is not where the network puts it. All trackers
+        of a camera at once."""
+        n = len(state)
+        if not n:
+            return
+        x = state.x_bar
+        expected = np.zeros(n, bool)
+        measured = (state.raw >= 0).any(axis=1)
+        for c, cam in enumerate(self.cameras):
+            reg = self.registrations.get(cam.id)
+            g = x[:, :2] if reg is None else reg.to_camera_many(x[:, :2])
+            W, H = cam.image_size
+            with np.errstate(invalid="ignore", divide="ignore", over="ignore"):
+                foot, J = cam.image_and_jacobians(g)
+                wh = x[:, 2:4] * pixels_per_unit(J)[:, None]
+                x0, x1 = foot[:, 0] - wh[:, 0] / 2.0, foot[:, 0] + wh[:, 0] / 2.0
+                y1 = foot[:, 1]
+                y0 = y1 - wh[:, 1]
+                drawn = np.isfinite(foot).all(axis=1) & (wh > 0).all(axis=1)
+                inside = drawn & (x0 >= 0) & (x1 <= W) & (y1 > 0) & (y1 <= H) \
+                    & (y0 >= -HEAD_CUT * wh[:, 1])
+            a = (inside & ~expected).nonzero()[0]
+            if not len(a):
+                continue
+            b = drawn.nonzero()[0]
+            cover = ((np.minimum(x1[a, None], x1[None, b]) - np.maximum(x0[a, None], x0[None, b])).clip(0.0)
+                     * (np.minimum(y1[a, None], y1[None, b]) - np.maximum(y0[a, None], y0[None, b])).clip(0.0))
+            nearer = y1[None, b] > y1[a, None]
+            hidden = ((cover * nearer) >= HIDDEN_COVER * (wh[a, 0] * wh[a, 1])[:, None]).any(axis=1)
+            expected[a[~hidden]] = True
+        state.unseen += expected
+        state.unseen[measured] = 0
 
     def boxes(self, state: NodeState, rows: np.ndarray, k: int,
               x_hat: np.ndarray) -> list[dict[int, np.ndarray]]:

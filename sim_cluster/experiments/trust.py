@@ -22,12 +22,15 @@ over the honest nodes (every node but 0):
 
 With ``--baseline`` every faulty run is repeated with the trust role off (``trust_check =
 false``): the harm each kind does without the defence; ``--baseline-from FILE`` takes those
-runs from an earlier ``trust.json`` instead (they do not depend on the role's parameters). Cells run in a process pool (``--jobs``),
+runs from an earlier ``trust.json`` instead (they do not depend on the role's parameters).
+``--tracker-config FILE`` sets tracker parameters for every run (recorded in the JSON's
+``meta``). Cells run in a process pool (``--jobs``),
 results in the plan's order whatever the pool. Writes ``trust.json`` (every cell, with its
 provenance) and prints a table; ``sim_cluster report`` renders the docs' table from the JSON.
 """
 from __future__ import annotations
 
+import dataclasses
 import json
 import multiprocessing as mp
 import time
@@ -35,11 +38,11 @@ from pathlib import Path
 
 import numpy as np
 
-from edge_node.core.config import TrackerConfig
 from edge_node.faults import FAULTY_KINDS, FaultPlan
 from sim_cluster.evaluation.metrics import evaluate
 from sim_cluster.experiments.ablation import AblationError, parse_seeds
 from sim_cluster.experiments.provenance import provenance
+from sim_cluster.experiments.run import tracker_config
 from sim_cluster.experiments.report import trust_rows as table
 from sim_cluster.network.inprocess import RunResult, run_network
 from sim_cluster.network.topology import build
@@ -134,8 +137,10 @@ LATE = {"loss": 0.1, "delay": 1, "jitter": 2}  # the fault-free async runs' link
 
 
 def run_cell(scenario: str, seed: int, kind: str | None, config: str = "dkf+lda+dtm",
-             mode: str = "sync", trust: bool = True, late: bool = False) -> dict:
-    """One run: node 0 of a ring faulty of ``kind`` (None: fault-free) for the middle third."""
+             mode: str = "sync", trust: bool = True, late: bool = False,
+             tracker_file: str | None = None) -> dict:
+    """One run: node 0 of a ring faulty of ``kind`` (None: fault-free) for the middle third;
+    ``tracker_file``: tracker parameters over ``config`` (``--tracker-config``)."""
     data = load_scenario(scenario, seed=seed)
     adj = build("ring", data.num_cameras)
     start, stop = data.frames // 3, 2 * data.frames // 3
@@ -144,7 +149,7 @@ def run_cell(scenario: str, seed: int, kind: str | None, config: str = "dkf+lda+
         plan["faulty"] = [{"node": FAULTY, "kind": kind, "start": start, "stop": stop}]
     if late:
         plan["link"] = [dict(LATE)]
-    cfg = TrackerConfig.for_ablation(config, trust_check=trust)
+    cfg = dataclasses.replace(tracker_config(config, tracker_file), trust_check=trust)
     t0 = time.process_time()
     r = run_network(data, adj, cfg, mode=mode, faults=FaultPlan.from_dict(plan))
     # the nodes scored: all but node 0, in the fault-free runs too (the ratios compare the same
@@ -168,11 +173,11 @@ def run_cell(scenario: str, seed: int, kind: str | None, config: str = "dkf+lda+
 
 
 def plan_cells(scenarios: list[str], seeds: list[int], kinds: list[str], config: str,
-               baseline: bool) -> list[dict]:
+               baseline: bool, tracker_file: str | None = None) -> list[dict]:
     cells = []
     for scenario in scenarios:
         for seed in seeds:
-            common = dict(scenario=scenario, seed=seed, config=config)
+            common = dict(scenario=scenario, seed=seed, config=config, tracker_file=tracker_file)
             cells.append(dict(common, kind=None))
             cells.append(dict(common, kind=None, mode="async", late=True))
             for kind in kinds:
@@ -230,7 +235,11 @@ def main(args) -> int:
         raise AblationError(f"--kinds: unknown faulty kind(s) {', '.join(bad)}; choose from "
                                f"{', '.join(FAULTY_KINDS)}")
     seeds = parse_seeds(args.seeds)
-    cells = plan_cells(args.scenarios.split(","), seeds, kinds, args.config, args.baseline)
+    tracker_file = getattr(args, "tracker_config", None)
+    if tracker_file:
+        tracker_config(args.config, tracker_file)  # a bad file is one error now, not one per run
+    cells = plan_cells(args.scenarios.split(","), seeds, kinds, args.config, args.baseline,
+                       tracker_file)
     reused, baseline_from = [], getattr(args, "baseline_from", None)
     if baseline_from:  # trust-off rows of an earlier report: they do not depend on the role
         old = json.loads(Path(baseline_from).read_text())
@@ -263,6 +272,8 @@ def main(args) -> int:
     out.mkdir(parents=True, exist_ok=True)
     (out / "trust.json").write_text(json.dumps(
         {"meta": {"provenance": provenance(), "seeds": seeds, "config": args.config,
+                  "tracker_config": None if not tracker_file else {
+                      "file": str(tracker_file), "text": Path(tracker_file).read_text()},
                   "faulty_node": FAULTY, "topology": "ring",
                   "baseline_from": None if not reused else {
                       "file": str(baseline_from), "rows": len(reused),
