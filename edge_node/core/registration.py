@@ -207,7 +207,7 @@ class Registration:
         self._info = np.zeros((N_PARAMS, N_PARAMS))
         self._vec = np.zeros(N_PARAMS)
         self._prior = self.Sigma.copy()
-        self.m_min = m(cfg.reg_relock_min)
+        self._min_jump = m(cfg.reg_relock_min)
         # R7: the votes, one (B, B) grid of displacements per source; the jump to apply
         self.relocks = 0
         self.last_jump = np.zeros(2)  # m, the jump R7 last undid
@@ -401,7 +401,7 @@ class Registration:
         walks a few centimetres. People walking side by side, whose distance the votes against
         the other cameras hold as steadily as a knock's, and the parts of a view where EPFL's
         cameras disagree by metres, never move at once in the camera's own frames."""
-        r2 = self.m_min ** 2
+        r2 = self._min_jump ** 2
         frames = list(self._history)
         for prev, now in zip(frames, frames[1:]):
             if len(prev) and len(now):
@@ -432,7 +432,7 @@ class Registration:
         pooled = near.sum(axis=0)
         i, j = divmod(int(pooled.argmax()), B)
         c = B // 2
-        if math.hypot(i - c, j - c) * self._cell < self.m_min or pooled[i, j] < cfg.reg_relock_support \
+        if math.hypot(i - c, j - c) * self._cell < self._min_jump or pooled[i, j] < cfg.reg_relock_support \
                 or pooled[i, j] < cfg.reg_relock_ratio * max(pooled[c, c], self._fits):
             return
         there, none = near[:, i, j], near[:, c, c]
