@@ -8,7 +8,9 @@ the gate that the second stage still gives to a tracker counts only as much as t
 allows (its ``R`` grown). What no tracker took goes back to the caller (the initiator's).
 
 The gate's covariance is the tracker's ``P``, except for a tracker only the consensus updated
-last frame (the naive-node bound, :meth:`Associator.gate_covariances`). Pure and deterministic.
+last frame (the naive-node bound, :meth:`Associator.gate_covariances`); with ``naive_yield``
+such a tracker gives up a measurement that a nearer tracker this node measures should decide
+(:meth:`Associator.yielded`). Pure and deterministic.
 """
 from __future__ import annotations
 
@@ -29,6 +31,8 @@ class AssociatorSettings(Slice):
 
     tau: float
     naive_bound: bool
+    naive_yield: bool
+    comotion_gate: float
     gallery_admit: float
     calib_sigma: float
     birth_vel_sigma: float
@@ -57,6 +61,8 @@ class Associator:
         cands = Candidates(state.x_bar, P, state.galleries)
         assigned: set[int] = set()
         pairs = self.lda(cands, obs)
+        if pairs and self.cfg.naive_yield and self.cfg.naive_bound:
+            pairs = self.yielded(state, obs, pairs)
         if pairs:
             rows = np.array([i for i, _ in pairs], np.intp)
             js = np.array([j for _, j in pairs], np.intp)
@@ -91,13 +97,49 @@ class Associator:
         filter's own ``M`` is not touched: the consensus pull (``gamma M``) stays the paper's."""
         cfg = self.cfg
         ell = state.ell + 1.0
-        naive = ~state.informed & (ell <= cfg.kappa)
+        naive = self.naive(state)
         if not naive.any():
             return P
         bound = cfg.m(cfg.calib_sigma) ** 2 + (ell * cfg.dt * cfg.m(cfg.birth_vel_sigma)) ** 2
         top = np.linalg.eigvalsh(P[:, :2, :2])[:, -1]
         scale = np.where(naive, np.minimum(bound / np.maximum(top, 1e-300), 1.0), 1.0)
         return P * scale[:, None, None]
+
+    def naive(self, state: NodeState) -> np.ndarray:
+        """Rows whose last update had no measurement information (``gate_covariances``)."""
+        return ~state.informed & (state.ell + 1.0 <= self.cfg.kappa)
+
+    def yielded(self, state: NodeState, obs, pairs: list[tuple[int, int]]
+                ) -> list[tuple[int, int]]:
+        """``naive_yield``: ``pairs`` without those in which a naive tracker (no measurement
+        information at this node last frame: its gate is wide because this node does not know
+        where the target is, not because the target is there) took a measurement that lies
+        nearer, within the second stage's co-motion reach (``comotion_gate``), to a tracker with
+        measurement information that took nothing of this camera; the second stage
+        (``recover``) then decides that measurement among the left-over trackers, nearest first.
+        Measured before (terrace-full chain, no descriptors, seed 0): node 0's camera measured
+        one person 0.74 m from that person's tracker, outside its tight gate, and 1.12 m from
+        another person's, which node 0 knew only by consensus; the naive tracker took it and
+        followed the wrong person on nodes 0-1 while nodes 2-3 kept it on its own, and node 1
+        then merged the two people (docs/tuning.md, "A naive tracker yields")."""
+        naive = self.naive(state)
+        taken = {i for i, _ in pairs}
+        free = np.flatnonzero(~naive)
+        free = free[~np.isin(free, list(taken))]
+        if not len(free) or not naive[[i for i, _ in pairs]].any():
+            return pairs
+        reach = self.cfg.m(self.cfg.comotion_gate)
+        xy = state.x_bar[free, :2]
+        out = []
+        for i, j in pairs:
+            if naive[i]:
+                z = obs.z[j][:2]
+                d_naive = float(np.linalg.norm(z - state.x_bar[i, :2]))
+                d = np.linalg.norm(xy - z, axis=1)
+                if (d < min(reach, d_naive)).any():
+                    continue  # left to the second stage
+            out.append((i, j))
+        return out
 
     def on_gate(self, x_bar: np.ndarray, P: np.ndarray, o: Observation) -> np.ndarray:
         """``R`` of a measurement outside the LDA gate, scaled so that its Mahalanobis distance
