@@ -384,7 +384,8 @@ class Registration:
         heard, which = np.unique(source, return_inverse=True)
         slots = np.array([self._slot(int(src)) for src in heard.tolist()], np.intp).take(which)
         at = np.floor(D / cell + B / 2.0).astype(np.intp)  # (n, m, 2)
-        inside = ((at >= 0) & (at < B)).all(axis=2) & (slots >= 0)[None]
+        within = at.astype(np.uintp) < B  # (a cell below 0 wraps to a huge unsigned one)
+        inside = within[..., 0] & within[..., 1] & (slots >= 0)[None]
         flat = (slots[None] * B + at[..., 0]) * B + at[..., 1]
         S = len(self._sources)
         self._votes += np.bincount(flat[inside], minlength=S * B * B).reshape(S, B, B)
@@ -427,15 +428,17 @@ class Registration:
         """R7's test on the votes (:meth:`vote`); sets the jump to take at :meth:`end_frame`."""
         cfg, B = self.cfg, self._bins
         h = RELOCK_NEAR  # the peak's and no jump's window: (2h + 1) x (2h + 1) cells
-        padded = np.pad(self._votes, ((0, 0), (h, h), (h, h)))
-        near = sum(padded[:, a:a + B, b:b + B] for a in range(2 * h + 1) for b in range(2 * h + 1))
-        pooled = near.sum(axis=0)
+        total = self._votes.sum(axis=0)  # pooled over the sources, then over each window
+        padded = np.pad(total, h)
+        pooled = sum(padded[a:a + B, b:b + B] for a in range(2 * h + 1) for b in range(2 * h + 1))
         i, j = divmod(int(pooled.argmax()), B)
         c = B // 2
         if math.hypot(i - c, j - c) * self._cell < self._min_jump or pooled[i, j] < cfg.reg_relock_support \
                 or pooled[i, j] < cfg.reg_relock_ratio * max(pooled[c, c], self._fits):
             return
-        there, none = near[:, i, j], near[:, c, c]
+        # each source's votes in the two windows the test reads
+        there = self._votes[:, max(i - h, 0):i + h + 1, max(j - h, 0):j + h + 1].sum(axis=(1, 2))
+        none = self._votes[:, c - h:c + h + 1, c - h:c + h + 1].sum(axis=(1, 2))
         voting = (there + none) > 0.0
         agree = voting & (there > cfg.reg_relock_ratio * none)
         if int(agree.sum()) < 2 or 2 * int(agree.sum()) <= int(voting.sum()):
@@ -443,7 +446,7 @@ class Registration:
         reach = self.cfg.reg_gate * float(np.linalg.eigvalsh(self.Sigma[:2, :2])[-1])
         if ((i - c) ** 2 + (j - c) ** 2) * self._cell ** 2 <= reach:
             return  # within what R3 still expects of its translation: R3 follows it
-        jump = _centroid(self._votes.sum(axis=0), i, j, h) * self._cell
+        jump = _centroid(total, i, j, h) * self._cell
         if self._knocked(jump):  # the camera's own people jumped at once (:meth:`_knocked`)
             self._jump = jump
 
