@@ -65,3 +65,26 @@ def test_tracker_config_reaches_every_cell_and_a_bad_file_is_one_typed_error(tmp
         main(args)
     assert "bad.toml" in str(err.value) and "report_unsen" in str(err.value)
     assert not (tmp_path / "out").exists()
+
+
+def test_baseline_from_a_report_of_other_tracker_parameters_is_refused(tmp_path):
+    """``--baseline-from``: trust-off runs made with other tracker parameters (or another
+    ``--config``) are not this report's; a typed error before any run, naming the file."""
+    import json
+    from protocol.errors import DmttError
+    from sim_cluster.experiments.trust import main
+    f = tmp_path / "t.toml"
+    f.write_text("[tracker.reporter]\nreport_unseen = 10\n")
+    old = tmp_path / "old.json"
+    old.write_text(json.dumps({"meta": {"config": "dkf+lda+dtm", "tracker_config": None},
+                               "rows": []}))
+    args = SimpleNamespace(kinds="hallucinate", seeds="0", scenarios="terrace-sim",
+                           config="dkf+lda+dtm", baseline=True, baseline_from=str(old),
+                           tracker_config=str(f), jobs=1, quiet=True, out=str(tmp_path / "out"))
+    with pytest.raises(DmttError) as err:
+        main(args)
+    assert "old.json" in str(err.value)
+    args.tracker_config, args.config = None, "dkf+dtm"
+    with pytest.raises(DmttError):
+        main(args)
+    assert not (tmp_path / "out").exists()

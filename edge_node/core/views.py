@@ -40,6 +40,14 @@ HIDDEN_COVER = 1.0 / 3.0  # a person a nearer one covers by a third may be misse
 HEAD_CUT = 0.2  # a box whose top the image cuts by more than this fraction may be missed
 
 
+def _overlap(x0: np.ndarray, y0: np.ndarray, x1: np.ndarray, y1: np.ndarray, a: np.ndarray,
+             b: np.ndarray) -> np.ndarray:
+    """The area ``(len(a), len(b))`` each box ``a`` shares with each box ``b`` (boxes by their
+    edges ``x0, y0, x1, y1``)."""
+    return ((np.minimum(x1[a, None], x1[None, b]) - np.maximum(x0[a, None], x0[None, b])).clip(0.0)
+            * (np.minimum(y1[a, None], y1[None, b]) - np.maximum(y0[a, None], y0[None, b])).clip(0.0))
+
+
 @dataclass(frozen=True)
 class ViewSettings(Slice):
     """What each camera's own view reads (the ``view_*`` parameters of the configuration's
@@ -137,8 +145,7 @@ class OwnViews:
             if not len(a):
                 continue
             b = drawn.nonzero()[0]
-            cover = ((np.minimum(x1[a, None], x1[None, b]) - np.maximum(x0[a, None], x0[None, b])).clip(0.0)
-                     * (np.minimum(y1[a, None], y1[None, b]) - np.maximum(y0[a, None], y0[None, b])).clip(0.0))
+            cover = _overlap(x0, y0, x1, y1, a, b)
             nearer = y1[None, b] > y1[a, None]
             hidden = ((cover * nearer) >= HIDDEN_COVER * (wh[a, 0] * wh[a, 1])[:, None]).any(axis=1)
             expected[a[~hidden]] = True
@@ -218,8 +225,7 @@ class OwnViews:
         a, b = np.flatnonzero(old), np.flatnonzero(now)
         x0, y0, w, h = box.T
         x1, y1 = x0 + w, y0 + h
-        cover = ((np.minimum(x1[a, None], x1[None, b]) - np.maximum(x0[a, None], x0[None, b])).clip(0.0)
-                 * (np.minimum(y1[a, None], y1[None, b]) - np.maximum(y0[a, None], y0[None, b])).clip(0.0))
+        cover = _overlap(x0, y0, x1, y1, a, b)
         nearer = y1[None, b] >= y1[a, None] + self.s.view_depth * h[a, None]
         out[a] = ((cover * nearer) >= self.s.view_behind * (w * h)[a, None]).any(axis=1)
         return out
@@ -255,8 +261,7 @@ class OwnViews:
         if s.view_hidden >= 1.0 or not stale.any() or ok.sum() < 2:
             return ok
         a, b = np.flatnonzero(stale), np.flatnonzero(ok)
-        cover = ((np.minimum(x1[a, None], x1[None, b]) - np.maximum(x0[a, None], x0[None, b])).clip(0.0)
-                 * (np.minimum(y1[a, None], y1[None, b]) - np.maximum(y0[a, None], y0[None, b])).clip(0.0))
+        cover = _overlap(x0, y0, x1, y1, a, b)
         nearer = y1[None, b] > y1[a, None]
         hidden = ((cover * nearer) >= s.view_hidden * area[a, None]).any(axis=1)
         ok[a[hidden]] = False

@@ -397,10 +397,10 @@ def trust_table(d: dict, omit: tuple[str, ...] = ()) -> str:
 
 
 table("trust", "trust/trust.json")(trust_table)
-#: the bumped camera without its re-lock (registration R7, reg_relock): runs of code whose
-#: default had it off
 #: negative evidence (report_unseen, an option), with the tracker config the runs were given
 table("trust-unseen", "trust-unseen/trust.json")(trust_table)
+#: the bumped camera without its re-lock (registration R7, reg_relock): runs of code whose
+#: default had it off
 table("trust-norelock", "trust-norelock/trust.json")(
     lambda d: trust_table(d, omit=tuple({s["kind"] for s in d["summary"]} - {"none", "bumped"})))
 

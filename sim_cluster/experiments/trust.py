@@ -243,6 +243,14 @@ def main(args) -> int:
     reused, baseline_from = [], getattr(args, "baseline_from", None)
     if baseline_from:  # trust-off rows of an earlier report: they do not depend on the role
         old = json.loads(Path(baseline_from).read_text())
+        was = old.get("meta", {})
+        told = (was.get("tracker_config") or {}).get("text")
+        now = Path(tracker_file).read_text() if tracker_file else None
+        if was.get("config") != args.config or told != now:
+            raise AblationError(
+                f"--baseline-from {baseline_from}: its runs used --config {was.get('config')} "
+                f"and {'no --tracker-config' if told is None else 'another --tracker-config'}; "
+                "they are not this report's trust-off runs")
         have = {(r["scenario"], r["seed"], r["kind"]): r for r in old["rows"] if not r["trust"]}
         keep = []
         for c in cells:
