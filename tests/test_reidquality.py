@@ -26,6 +26,20 @@ def test_histogram_quantiles_bound_the_sample_quantiles():
         assert low <= exact <= up and up - low == pytest.approx(0.01)
 
 
+def test_a_frame_is_counted_as_numpy_histograms_it_on_the_edges_and_between():
+    # the learned histograms count each distance in the bin numpy.histogram puts it in, also
+    # on an edge, one float either side of it, at 0 and at 2 (its last bin is closed)
+    rng = np.random.default_rng(7)
+    edges = np.linspace(0.0, 2.0, 201)
+    on = rng.choice(edges, 40)
+    d = np.concatenate([rng.uniform(0.0, 2.0, 300), on, np.nextafter(on, 3.0), np.nextafter(on, -1.0),
+                        [0.0, 2.0, 2.0]]).clip(0.0, 2.0)
+    q = ReidQuality(CFG)
+    q.learn(d, np.zeros(0))
+    assert q.same.tolist() == np.histogram(d, bins=edges)[0].astype(float).tolist()
+    assert q.same[-1] >= 2 and q.same.sum() == len(d)
+
+
 def test_thresholds_stay_configured_until_enough_samples_then_follow_them():
     cfg = CFG.with_(reid_samples=1000, reid_error=0.01)  # 1 %: this test's hand-set rate
     q = ReidQuality(cfg)

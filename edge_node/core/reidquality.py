@@ -102,7 +102,7 @@ class ReidQuality:
             d = d[np.isfinite(d)]
             if not len(d):
                 continue
-            hist += np.histogram(np.clip(d, 0.0, TOP), bins=_EDGES)[0]
+            hist += _counts(np.clip(d, 0.0, TOP))
             if hist.sum() > self.cfg.reid_memory:
                 hist *= 0.5
             changed = True
@@ -122,6 +122,14 @@ class ReidQuality:
         t = self.thresholds
         return {"same": float(self.same.sum()), "two": float(self.two.sum()),
                 "gate": t.gate, "veto": t.veto, "match": t.match, "epsilon": t.epsilon}
+
+
+def _counts(d: np.ndarray) -> np.ndarray:
+    """``np.histogram(d, bins=_EDGES)[0]`` for distances in ``[0, TOP]``, at a fraction of its
+    cost: each distance's bin found by the same comparisons with the same edges (``edges[i] <=
+    d < edges[i + 1]``, ``TOP`` itself in the last bin), so the counts are the same."""
+    i = np.searchsorted(_EDGES, d, side="right") - 1
+    return np.bincount(np.minimum(i, BINS - 1), minlength=BINS)
 
 
 def quantile(hist: np.ndarray, p: float, upper: bool) -> float:
