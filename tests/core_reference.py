@@ -58,6 +58,13 @@ And when a tracker on its way to merging into an older one that is not reported 
 reported under the older id (``pending_alias``; issue 37, no retroactive id switches): 5
 track-frames of the event-triggered run and 4 of the calibration world's carry the older id
 instead of the younger; positions, covariances and every other track-frame unchanged.
+
+And when a camera that measured two trackers at once farther apart than the merge rules
+reach began to count as seeing two people (``manager.far_apart``: their pair's evidence is
+kept while both live, as within the ``comotion_gate``): the event-triggered run reports 4
+track-frames under another id (nodes 0-1, frames 72-87), the same 26 ids; the other four runs
+are unchanged (only that run's arrays were re-recorded).
+
 Re-record it (from the commit that changes them, saying why in the message) only when the
 tracks are meant to change.
 """

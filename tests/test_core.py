@@ -334,6 +334,54 @@ def test_co_motion_remembers_that_two_trackers_were_seen_as_two_people():
     assert key not in ev
 
 
+def test_co_motion_remembers_two_people_a_camera_saw_as_two_while_far_apart():
+    """Two trackers one camera measures at once, 3 m apart (farther than any merge rule
+    reaches: no co-motion is scored there), are two people: a detector splits one person into
+    two boxes (``comotion_split``) a body's width apart, never metres. Each such frame adds
+    ln(0.02 / 0.5) = -3.219 nats, kept while both trackers live, as within the gate. Two
+    people seen as two for 5 frames while 3 m apart, who then walk together 0.7 m apart, one
+    hidden behind the other from each of two cameras (each measures one of the pair:
+    2 ln 2 = 1.386 nats a frame), need 30 + 5 x 3.219 = 46.09 nats, 34 frames, not 22
+    (terrace-full chain, seed 2, ``naive_yield``: such a pair merged on every node after 20
+    frames together)."""
+    cfg = TrackerConfig()  # comotion_miss 0.5, comotion_split 0.02, merge_llr 30, floor -70
+    g = _gallery(1)
+    far = [MergeView((0, 0), np.array([0.0, 0.0]), g, False, frozenset({0})),
+           MergeView((1, 0), np.array([3.0, 0.0]), g, False, frozenset({0}))]
+    near = [MergeView((0, 0), np.array([0.0, 0.0]), g, False, frozenset({0})),
+            MergeView((1, 0), np.array([0.7, 0.0]), g, False, frozenset(),
+                      measured_by=frozenset({1}))]
+    key = ((0, 0), (1, 0))
+    ev = {}
+    assert all(find_merges(far, ev, cfg) == [] for _ in range(5))
+    assert ev[key] == pytest.approx(5 * np.log(0.02 / 0.5))
+    got = [find_merges(near, ev, cfg) for _ in range(34)]
+    assert got[:33] == [[]] * 33 and got[33] == [((1, 0), (0, 0))]
+    # seen apart by a neighbour's camera too (its entries of both carry a measurement)
+    by_neighbour = [MergeView((0, 0), np.array([0.0, 0.0]), g, False, frozenset(),
+                              measured_by=frozenset({2})),
+                    MergeView((1, 0), np.array([0.0, 3.0]), g, False, frozenset(),
+                              measured_by=frozenset({2}))]
+    ev = {}
+    find_merges(by_neighbour, ev, cfg)
+    assert ev[key] == pytest.approx(np.log(0.02 / 0.5))
+    # far apart and each measured by a different camera, or by none: nothing said
+    ev = {}
+    find_merges([far[0], MergeView((1, 0), np.array([3.0, 0.0]), g, False, frozenset({1}))],
+                ev, cfg)
+    find_merges([far[0], MergeView((1, 0), np.array([3.0, 0.0]), g, False, frozenset())],
+                ev, cfg)
+    assert key not in ev
+    # down to the floor, like the evidence within the gate
+    ev = {}
+    for _ in range(100):
+        find_merges(far, ev, cfg)
+    assert ev[key] == -70.0
+    # and forgotten with a tracker that is gone
+    find_merges(far[:1], ev, cfg)
+    assert key not in ev
+
+
 def test_tracker_is_unit_invariant():
     """The same world in centimetres (units_per_metre=100) gives the same ids and the same
     states scaled by 100: every length parameter is in metres and converted, and the consensus

@@ -47,6 +47,26 @@ def test_the_gap_is_bridged_to_its_middle_from_both_sides():
     assert d_mid(young(now=(1.6, 0.0)), gone(), 160, CFG) == pytest.approx(2.0)
 
 
+def test_a_first_measurement_no_walker_could_have_come_from_is_not_the_course():
+    """A new tracker that would have walked from its camera's first measurement faster than
+    ``reid_speed`` (2 m/s, 0.08 m a frame at 25 fps) did not start there (a box the image cut
+    misplaces its foot point): the dropped tracker's course is carried on to now and compared
+    with where the new one is. The walker of ``gone`` (x = 0.64 at frame 116, 1 m/s) is at
+    x = 0.64 + 44 x 0.04 = 2.4 at frame 160; the new tracker born at frame 150, its first
+    measurement 1.5 m to the side, is there now: 0.155 m a frame since the origin."""
+    y = young(origin=(2.0, 1.5), now=(2.4, 0.0))
+    assert d_mid(y, gone(), 160, CFG) == pytest.approx(0.0, abs=1e-12)
+    assert reappearances([y], [gone()], 160, CFG) == [((0, 5), (1, 0))]
+    # elsewhere now: 1.6 m from the course carried on, beyond reappear_gate
+    y = young(origin=(2.0, 0.0), now=(2.4, 1.6))
+    assert d_mid(y, gone(), 160, CFG) == pytest.approx(1.6)
+    assert reappearances([y], [gone()], 160, CFG) == []
+    # 1.875 m/s is a walker's: its course carried back from the origin to the middle of the
+    # gap (frame 125), as before: 2.0 - 0.075 x 25 = 0.125, 0.875 from the forward point 1.0
+    y = young(origin=(2.0, 0.0), now=(2.75, 0.0))
+    assert d_mid(y, gone(), 160, CFG) == pytest.approx(0.875)
+
+
 def test_linked_at_the_decision_frame_only_and_within_the_gate():
     age = CFG.reappear_age
     assert reappearances([young()], [gone()], 150 + age, CFG) == [((0, 5), (1, 0))]

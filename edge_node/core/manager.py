@@ -206,6 +206,39 @@ def comotion_llr(a: MergeView, b: MergeView, cfg: ManagerSettings) -> float:
     return one * -math.log(q) + both * math.log(split / (1.0 - q))
 
 
+def far_apart(ordered: Sequence[MergeView], dist: np.ndarray,
+              evidence: dict[tuple[TrackerId, TrackerId], float], cfg: ManagerSettings) -> None:
+    """What a camera says of two trackers it measures at once farther apart than the merge
+    rules reach (``ordered`` in id order, ``dist`` their distances): two people. One person
+    gives a camera's detector one box, two only when it splits the person (``comotion_split``),
+    and a split's two boxes lie within a body's width of each other, never metres apart; so
+    each camera that measured both adds ``ln(comotion_split / (1 - comotion_miss))`` to the
+    pair's evidence, as within the ``comotion_gate`` (:func:`comotion_llr`; cameras measuring
+    one of the two say nothing here), down to ``merge_llr_floor``, kept while both trackers live
+    (:func:`find_merges`). Before (terrace-full chain, no descriptors, seed 2, ``naive_yield``):
+    two people measured as two by cameras 0 and 1 for 25 frames while 2-3 m apart walked
+    together, 0.7-0.9 m apart, with one hidden behind the other from both cameras for 20
+    frames while only camera 3, two hops from node 1, saw them both; node 1's evidence started
+    from nothing at the gate, reached ``merge_llr`` and merged them on every node."""
+    by: dict[int, list[int]] = {}  # camera -> the trackers it measured (this node's or a neighbour's)
+    for i, v in enumerate(ordered):
+        for c in v.seen_by | v.measured_by:
+            by.setdefault(c, []).append(i)
+    if not any(len(rows) > 1 for rows in by.values()):
+        return
+    reach = merge_reach(cfg)
+    both: dict[tuple[int, int], int] = {}
+    for rows in by.values():
+        for x, i in enumerate(rows):
+            for j in rows[x + 1:]:
+                if dist[i, j] >= reach:
+                    both[(i, j)] = both.get((i, j), 0) + 1
+    term = math.log(cfg.comotion_split / (1.0 - cfg.comotion_miss))
+    for (i, j), n in both.items():
+        key = (ordered[i].id, ordered[j].id)
+        evidence[key] = max(min(evidence.get(key, 0.0), 0.0) + n * term, cfg.merge_llr_floor)
+
+
 def find_merges(views: Sequence[MergeView], evidence: dict[tuple[TrackerId, TrackerId], float],
                 cfg: ManagerSettings, th: Thresholds | None = None,
                 learn: ReidQuality | None = None,
@@ -274,6 +307,7 @@ def find_merges(views: Sequence[MergeView], evidence: dict[tuple[TrackerId, Trac
             if at_once or e >= 0.0:
                 alive.add(key)
                 scored.append((s, a, b, at_once or e >= cfg.merge_llr))
+        far_apart(ordered, dist, evidence, cfg)
     if learn is not None and two:
         learn.learn(np.zeros(0), np.array(two))
     if len(cache) > 2 * len(used) + 64:  # bounded: the pairs that were near lately
