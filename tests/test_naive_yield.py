@@ -1,4 +1,4 @@
-"""``naive_yield`` (an option): a tracker that only the consensus updated last frame (a naive
+"""``naive_yield`` (on by default): a tracker that only the consensus updated last frame (a naive
 tracker: its gate is wide because this node does not know where the target is) gives up a
 measurement its gate took when a tracker the node measures, and that took nothing of this
 camera, lies nearer to it within the co-motion reach; the second stage then gives the

@@ -133,7 +133,7 @@ class AssociatorSection:
     appearance_gate: float = nonnegative(0.6, "pairs with s_a above this are never assigned")
     recover: bool = boolean(True, "second LDA stage: GDA gate and appearance for the left-overs")
     naive_bound: bool = boolean(True, "gate a tracker that only the consensus updates with a covariance bounded by ell")
-    naive_yield: bool = boolean(False, "a tracker only the consensus updated last frame gives up a measurement to a nearer tracker this node measures (within comotion_gate); docs/tuning.md")
+    naive_yield: bool = boolean(True, "a tracker only the consensus updated last frame gives up a measurement to a nearer tracker this node measures (within comotion_gate); docs/tuning.md")
     gallery_size: int = integer(20, lo=1)
     gallery_every: int = integer(20, lo=1, doc="N: a new descriptor every N frames")
     gallery_admit: float = nonnegative(0.35, "a descriptor joins only if s_a to the gallery is below this")
