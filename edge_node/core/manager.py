@@ -224,19 +224,24 @@ def far_apart(ordered: Sequence[MergeView], dist: np.ndarray,
     for i, v in enumerate(ordered):
         for c in v.seen_by | v.measured_by:
             by.setdefault(c, []).append(i)
-    if not any(len(rows) > 1 for rows in by.values()):
+    groups = [rows for rows in by.values() if len(rows) > 1]
+    if not groups:
         return
-    reach = merge_reach(cfg)
-    both: dict[tuple[int, int], int] = {}
-    for rows in by.values():
-        for x, i in enumerate(rows):
-            for j in rows[x + 1:]:
-                if dist[i, j] >= reach:
-                    both[(i, j)] = both.get((i, j), 0) + 1
+    # every camera's pairs at once (rows ascending, so i < j), then the cameras' count per pair
+    n, reach = len(ordered), merge_reach(cfg)
+    keys = []
+    for rows in groups:
+        r = np.array(rows, np.intp)
+        a, b = np.triu_indices(len(r), 1)
+        i, j = r.take(a), r.take(b)
+        keys.append((i * n + j)[dist[i, j] >= reach])
+    pairs, count = np.unique(np.concatenate(keys), return_counts=True)
     term = math.log(cfg.comotion_split / (1.0 - cfg.comotion_miss))
-    for (i, j), n in both.items():
-        key = (ordered[i].id, ordered[j].id)
-        evidence[key] = max(min(evidence.get(key, 0.0), 0.0) + n * term, cfg.merge_llr_floor)
+    ids = [v.id for v in ordered]
+    keys = [(ids[i], ids[j]) for i, j in zip((pairs // n).tolist(), (pairs % n).tolist())]
+    get = evidence.get
+    e = np.minimum(np.array([get(key, 0.0) for key in keys]), 0.0) + count * term
+    evidence.update(zip(keys, np.maximum(e, cfg.merge_llr_floor).tolist()))
 
 
 def find_merges(views: Sequence[MergeView], evidence: dict[tuple[TrackerId, TrackerId], float],
@@ -458,8 +463,8 @@ class DistributedTrackerManager:
         it meanwhile shows a second id for one person (a fragment and, once merged, a switch
         back)."""
         out = []
-        for (a, b), e in sorted(self.evidence.items()):
-            if e > 0.0 and a in born and b in born:
+        for (a, b), e in sorted((key, e) for key, e in self.evidence.items() if e > 0.0):
+            if a in born and b in born:
                 old, young = sorted((a, b), key=lambda t: rank(born[t], t))
                 out.append((young, old))
         return out
