@@ -202,8 +202,13 @@ def comotion_llr(a: MergeView, b: MergeView, cfg: ManagerSettings) -> float:
     measurement information or say ``ell`` 0.)"""
     sa, sb = a.seen_by | a.measured_by, b.seen_by | b.measured_by
     one, both = len(sa ^ sb), len(sa & sb)
-    q, split = cfg.comotion_miss, cfg.comotion_split
-    return one * -math.log(q) + both * math.log(split / (1.0 - q))
+    return one * -math.log(cfg.comotion_miss) + both * both_term(cfg)
+
+
+def both_term(cfg: ManagerSettings) -> float:
+    """What one camera that measured both trackers of a pair says (nats): two people, unless
+    its detector split one person into two boxes, ``ln(comotion_split / (1 - comotion_miss))``."""
+    return math.log(cfg.comotion_split / (1.0 - cfg.comotion_miss))
 
 
 def far_apart(ordered: Sequence[MergeView], dist: np.ndarray,
@@ -212,15 +217,15 @@ def far_apart(ordered: Sequence[MergeView], dist: np.ndarray,
     rules reach (``ordered`` in id order, ``dist`` their distances): two people. One person
     gives a camera's detector one box, two only when it splits the person (``comotion_split``),
     and a split's two boxes lie within a body's width of each other, never metres apart; so
-    each camera that measured both adds ``ln(comotion_split / (1 - comotion_miss))`` to the
-    pair's evidence, as within the ``comotion_gate`` (:func:`comotion_llr`; cameras measuring
-    one of the two say nothing here), down to ``merge_llr_floor``, kept while both trackers live
-    (:func:`find_merges`). Before (terrace-full chain, no descriptors, seed 2, ``naive_yield``):
-    two people measured as two by cameras 0 and 1 for 25 frames while 2-3 m apart walked
-    together, 0.7-0.9 m apart, with one hidden behind the other from both cameras for 20
-    frames while only camera 3, two hops from node 1, saw them both; node 1's evidence started
-    from nothing at the gate, reached ``merge_llr`` and merged them on every node."""
-    by: dict[int, list[int]] = {}  # camera -> the trackers it measured (this node's or a neighbour's)
+    each camera that measured both adds :func:`both_term` to the pair's evidence, as within the
+    ``comotion_gate`` (:func:`comotion_llr`; cameras measuring one of the two say nothing
+    here), down to ``merge_llr_floor``, kept while both trackers live (:func:`find_merges`).
+    Before (terrace-full chain, no descriptors, seed 2, ``naive_yield``): two people measured
+    as two by cameras 0 and 1 for 25 frames while 2-3 m apart walked together, 0.7-0.9 m
+    apart, with one hidden behind the other from both cameras for 20 frames while only camera
+    3, two hops from node 1, saw them both; node 1's evidence started from nothing at the gate,
+    reached ``merge_llr`` and merged them on every node."""
+    by: dict[int, list[int]] = {}  # camera -> the trackers it measured (here or a neighbour's)
     for i, v in enumerate(ordered):
         for c in v.seen_by | v.measured_by:
             by.setdefault(c, []).append(i)
@@ -229,18 +234,17 @@ def far_apart(ordered: Sequence[MergeView], dist: np.ndarray,
         return
     # every camera's pairs at once (rows ascending, so i < j), then the cameras' count per pair
     n, reach = len(ordered), merge_reach(cfg)
-    keys = []
+    codes = []  # i * n + j of the pairs far apart
     for rows in groups:
         r = np.array(rows, np.intp)
         a, b = np.triu_indices(len(r), 1)
         i, j = r.take(a), r.take(b)
-        keys.append((i * n + j)[dist[i, j] >= reach])
-    pairs, count = np.unique(np.concatenate(keys), return_counts=True)
-    term = math.log(cfg.comotion_split / (1.0 - cfg.comotion_miss))
+        codes.append((i * n + j)[dist[i, j] >= reach])
+    pairs, count = np.unique(np.concatenate(codes), return_counts=True)
     ids = [v.id for v in ordered]
     keys = [(ids[i], ids[j]) for i, j in zip((pairs // n).tolist(), (pairs % n).tolist())]
     get = evidence.get
-    e = np.minimum(np.array([get(key, 0.0) for key in keys]), 0.0) + count * term
+    e = np.minimum(np.array([get(key, 0.0) for key in keys]), 0.0) + count * both_term(cfg)
     evidence.update(zip(keys, np.maximum(e, cfg.merge_llr_floor).tolist()))
 
 
