@@ -104,11 +104,11 @@ def d_mid(young: Young, gone: Gone, k: int, cfg: ReappearSettings) -> float:
         # no walker went from the origin to where the tracker is now (the first measurement
         # missed the person: a foot point the image cut, say): the new tracker's course is
         # unknown, and the dropped one's is carried on to now
-        forward = gone.x[POS] + gone.x[VEL] * (k - gone.frame) * cfg.dt
-        return float(np.linalg.norm(forward - young.x[POS]))
-    mid = 0.5 * (gone.seen + young.born)
-    forward = gone.x[POS] + gone.x[VEL] * (mid - gone.frame) * cfg.dt
-    backward = young.origin - v * (young.born - mid)
+        at, backward = k, young.x[POS]
+    else:
+        at = 0.5 * (gone.seen + young.born)
+        backward = young.origin - v * (young.born - at)
+    forward = gone.x[POS] + gone.x[VEL] * (at - gone.frame) * cfg.dt
     return float(np.linalg.norm(forward - backward))
 
 
