@@ -382,6 +382,26 @@ def test_co_motion_remembers_two_people_a_camera_saw_as_two_while_far_apart():
     assert key not in ev
 
 
+def test_far_apart_counts_each_camera_that_measured_both():
+    """Per pair, every camera that measured both trackers far apart adds ln(0.02 / 0.5) once:
+    camera 0 (this node's) measures a, b and c, 3 m apart in a row; a neighbour's camera 5
+    measures a and c (6 m apart); camera 7 measures b alone. So a-b and b-c are seen as two by
+    one camera, a-c by two; the pairs camera 7 takes part in gain nothing from it."""
+    cfg = TrackerConfig()
+    g = _gallery(1)
+    a = MergeView((0, 0), np.array([0.0, 0.0]), g, False, frozenset({0}),
+                  measured_by=frozenset({5}))
+    b = MergeView((0, 1), np.array([3.0, 0.0]), g, False, frozenset({0}),
+                  measured_by=frozenset({7}))
+    c = MergeView((2, 0), np.array([6.0, 0.0]), g, False, frozenset({0}),
+                  measured_by=frozenset({5}))
+    ev = {}
+    assert find_merges([c, a, b], ev, cfg) == []
+    one = np.log(0.02 / 0.5)
+    assert ev == pytest.approx({((0, 0), (0, 1)): one, ((0, 1), (2, 0)): one,
+                                ((0, 0), (2, 0)): 2 * one})
+
+
 def test_tracker_is_unit_invariant():
     """The same world in centimetres (units_per_metre=100) gives the same ids and the same
     states scaled by 100: every length parameter is in metres and converted, and the consensus

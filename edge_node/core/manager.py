@@ -225,24 +225,24 @@ def far_apart(ordered: Sequence[MergeView], dist: np.ndarray,
     apart, with one hidden behind the other from both cameras for 20 frames while only camera
     3, two hops from node 1, saw them both; node 1's evidence started from nothing at the gate,
     reached ``merge_llr`` and merged them on every node."""
-    by: dict[int, list[int]] = {}  # camera -> the trackers it measured (here or a neighbour's)
-    for i, v in enumerate(ordered):
-        for c in v.seen_by | v.measured_by:
-            by.setdefault(c, []).append(i)
-    groups = [rows for rows in by.values() if len(rows) > 1]
-    if not groups:
+    by = [v.seen_by | v.measured_by for v in ordered]  # the cameras that measured each
+    cams = sorted(set().union(*by))
+    if not cams:
         return
-    # every camera's pairs at once (rows ascending, so i < j), then the cameras' count per pair
+    # which trackers each camera measured (here or a neighbour's), then per pair how many
+    # cameras measured both at once: one product, not a loop over the cameras' pairs
+    col = {c: m for m, c in enumerate(cams)}
     n, reach = len(ordered), merge_reach(cfg)
-    codes = []  # i * n + j of the pairs far apart
-    for rows in groups:
-        r = np.array(rows, np.intp)
-        a, b = np.triu_indices(len(r), 1)
-        i, j = r.take(a), r.take(b)
-        codes.append((i * n + j)[dist[i, j] >= reach])
-    pairs, count = np.unique(np.concatenate(codes), return_counts=True)
+    B = np.zeros((n, len(cams)), np.int64)
+    at = [(i, col[c]) for i, cs in enumerate(by) for c in cs]
+    B[[i for i, _ in at], [m for _, m in at]] = 1
+    both = B @ B.T
+    i, j = np.triu((both > 0) & (dist >= reach), 1).nonzero()  # i < j, in (i, j) order
+    if not len(i):
+        return
+    count = both[i, j]
     ids = [v.id for v in ordered]
-    keys = [(ids[i], ids[j]) for i, j in zip((pairs // n).tolist(), (pairs % n).tolist())]
+    keys = [(ids[a], ids[b]) for a, b in zip(i.tolist(), j.tolist())]
     get = evidence.get
     e = np.minimum(np.array([get(key, 0.0) for key in keys]), 0.0) + count * both_term(cfg)
     evidence.update(zip(keys, np.maximum(e, cfg.merge_llr_floor).tolist()))
