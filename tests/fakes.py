@@ -67,6 +67,14 @@ def graph(kind: str, n: int) -> dict[int, tuple[int, ...]]:
     raise ValueError(kind)
 
 
+#: The fakes' cameras all view the same 10 m x 10 m, and a test gives each camera only the
+#: detections its story needs ("only node 0 sees the person"). Negative evidence (on by
+#: default: ``report_unseen``, ``views.OwnViews.expect``) would rightly refute, on a node, a
+#: target its camera looks at and is never given; the tests of something else switch it off
+#: with ``TrackerConfig(**SELECTIVE)``. tests/test_unseen.py tests it.
+SELECTIVE = {"report_unseen": 0}
+
+
 def make_nodes(adj: dict[int, tuple[int, ...]], cfg: TrackerConfig | None = None,
                offsets: dict[int, tuple[float, float]] | None = None) -> dict[int, CameraNode]:
     offsets = offsets or {}
@@ -282,6 +290,9 @@ class FakeViews(_Counted):
     def boxes(self, state, rows, k, x_hat):
         self.calls += 1
         return [{} for _ in rows]
+
+    def unseen_limit(self):
+        return 0
 
 
 def fake_roles(node) -> dict:

@@ -396,6 +396,9 @@ class NoViews:
         self.asked += 1
         return [{} for _ in rows]
 
+    def unseen_limit(self):
+        return 0  # no negative evidence
+
 
 def test_a_node_runs_with_a_fake_views_role():
     """The own-view role is injected like the others: the fake's (empty) boxes are what the

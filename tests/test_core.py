@@ -7,7 +7,7 @@ from edge_node.core.association import Candidate, LocalDataAssociation, Observat
 from edge_node.core.gallery import Gallery
 from edge_node.core import manager
 from edge_node.core.manager import MergeView, find_merges
-from fakes import det, graph as build, identity, make_nodes, step
+from fakes import SELECTIVE, det, graph as build, identity, make_nodes, step
 from protocol import codec
 from sim_cluster.network.topology import diameter
 
@@ -135,7 +135,7 @@ def test_duplicate_from_neighbour_and_own_camera_merges():
     camera that started it, and sees nobody else there) merges into the network's in the frame
     it is born: their galleries match and they are within ``tau_gda``."""
     def run(recover):
-        cfg = TrackerConfig(calib_sigma=0.05, registration=False, recover=recover)
+        cfg = TrackerConfig(calib_sigma=0.05, registration=False, recover=recover, **SELECTIVE)
         nodes = make_nodes({0: (1,), 1: (0,)}, cfg, offsets={1: (0.8, 0.0)})
         rng = np.random.default_rng(2)
         counts = []
@@ -217,7 +217,7 @@ def test_a_target_seen_far_away_in_the_network_is_reported_everywhere():
     """Coasting is ``ell`` *growing*, not its value: the far end of a chain holds ell = hops - 1
     for a target only node 0 sees, and reports it every frame."""
     adj = build("chain", 4)
-    nodes = make_nodes(adj, TrackerConfig(report_coast=0))
+    nodes = make_nodes(adj, TrackerConfig(report_coast=0, **SELECTIVE))
     rng = np.random.default_rng(12)
     for k in range(40):
         out = step(nodes, k, {0: [det(2.0 + 0.02 * k, 2.0, 5, rng)]})
@@ -498,7 +498,7 @@ def test_a_target_only_a_late_neighbour_sees_is_reported_every_frame():
     lag is no news that nobody sees the target. Once node 0 stops seeing the person, node 1
     stops reporting them within ``report_coast`` frames after the news can have arrived (the
     longest lag, 4). Before, node 1 missed the person in 16 of 75 frames."""
-    cfg = TrackerConfig()
+    cfg = TrackerConfig(**SELECTIVE)
     nodes = make_nodes({0: (1,), 1: (0,)}, cfg)
     rng, jitter = np.random.default_rng(3), np.random.default_rng(4)
     due: dict[int, list] = {}
@@ -540,7 +540,7 @@ def test_targets_only_a_dead_node_saw_are_dropped_by_the_survivors():
 def test_a_cut_chain_keeps_tracking_on_both_sides():
     """A chain 0-1-2-3 cut between 1 and 2: each half keeps tracking what its cameras see."""
     adj = build("chain", 4)
-    nodes = make_nodes(adj, TrackerConfig())
+    nodes = make_nodes(adj, TrackerConfig(**SELECTIVE))
     rng = np.random.default_rng(8)
     for k in range(60):
         dets = {0: [det(2.0, 2.0 + 0.02 * k, 1, rng)], 3: [det(7.0, 7.0 - 0.02 * k, 2, rng)]}

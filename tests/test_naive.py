@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 from edge_node.core import Detection, TrackerConfig
-from fakes import box_at, make_nodes, step
+from fakes import SELECTIVE, box_at, make_nodes, step
 
 CHAIN = {0: (1,), 1: (0, 2), 2: (1,)}
 
@@ -31,7 +31,7 @@ def test_a_naive_node_gates_as_well_as_ell_says():
     term. After 60 frames (2.4 s) node 2's own covariance has grown from the birth prior to
     metres; it gates with the bound of ``ell`` = 1 (node 1 sends 0 for a target it has
     information on); nodes 0 and 1 gate with their own covariances."""
-    cfg = TrackerConfig()
+    cfg = TrackerConfig(**SELECTIVE)
     nodes = make_nodes(CHAIN, cfg)
     for k in range(60):
         out = step(nodes, k, {0: [walker(k)]})
@@ -60,7 +60,7 @@ def test_a_naive_node_does_not_take_another_person_for_the_target(bound):
     """From frame 60 camera 2 sees person B standing 2.5 m from A's path. With the bound,
     node 2 gives B a tracker of its own and every node keeps A where A walks; gating with the
     naive covariance grown from the birth prior, node 2 takes B's detections for A."""
-    cfg = TrackerConfig(naive_bound=bound)
+    cfg = TrackerConfig(naive_bound=bound, **SELECTIVE)
     nodes = make_nodes(CHAIN, cfg)
     b = Detection(box_at(4.0, 5.5), None)
     far = 0.0

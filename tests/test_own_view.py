@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from edge_node.core import Detection, TrackerConfig
-from fakes import PX_PER_M, box_at, make_nodes, step
+from fakes import PX_PER_M, SELECTIVE, box_at, make_nodes, step
 
 W = 1000  # the fakes' image is 1000 x 1000 px over 10 x 10 m
 
@@ -110,7 +110,7 @@ def test_a_camera_draws_a_target_where_it_sees_it_not_where_the_network_puts_it(
     truth = box_at(x_true, 5.0)
     for place in (True, False):
         shift, x = {}, {}
-        cfg = TrackerConfig(registration=False, view_place=place)
+        cfg = TrackerConfig(registration=False, view_place=place, **SELECTIVE)
         nodes = make_nodes({0: (1,), 1: (0,)}, cfg, offsets={0: (0.3, 0.0)})
         for k in range(60):
             d = [Detection(box_at(x_true, 5.0), None)]

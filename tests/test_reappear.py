@@ -9,7 +9,7 @@ import pytest
 from edge_node.core import Detection, TrackerConfig
 from edge_node.core.gallery import Gallery
 from edge_node.core.reappear import Gone, Young, awaiting, d_mid, reappearances
-from fakes import box_at, make_nodes, step
+from fakes import SELECTIVE, box_at, make_nodes, step
 
 CFG = TrackerConfig()  # 1 ground unit per metre, 25 fps: dt = 0.04 s
 
@@ -125,7 +125,7 @@ def test_a_walker_hidden_longer_than_the_birth_rule_reaches_keeps_the_id(reappea
     than ``reid_frames`` after the drop and farther than ``reid_gate`` from where it was
     dropped: the birth-time rule gives a new id; the course gives the old one back, on both
     nodes, and neither ever reports the new id."""
-    cfg = TrackerConfig(reappear=reappear)
+    cfg = TrackerConfig(reappear=reappear, **SELECTIVE)
     nodes = make_nodes({0: (1,), 1: (0,)}, cfg)
     shown: dict[int, set] = {0: set(), 1: set()}
     for k in range(150):
@@ -147,7 +147,7 @@ def test_a_walker_hidden_longer_than_the_birth_rule_reaches_keeps_the_id(reappea
 def test_someone_else_walking_elsewhere_is_somebody_new():
     """Another person appears 3 m to the side of the hidden walker's course, walking back:
     a new id, shown once the wait is over."""
-    nodes = make_nodes({0: (1,), 1: (0,)}, TrackerConfig())
+    nodes = make_nodes({0: (1,), 1: (0,)}, TrackerConfig(**SELECTIVE))
     for k in range(150):
         if k < 30:
             dets = [walker(k)]

@@ -8,7 +8,7 @@ import pytest
 from edge_node.core import Detection, TrackerConfig
 from edge_node.core.measurement import BoxMeasurements, box_measurement
 from edge_node.core.registration import Registration
-from fakes import box_at, det, graph, make_nodes, step, topdown_camera
+from fakes import SELECTIVE, box_at, det, graph, make_nodes, step, topdown_camera
 
 
 def walk(k, lane):
@@ -135,7 +135,7 @@ def test_own_view_box_sits_on_the_cameras_detection():
 
 
 def test_a_target_a_camera_has_not_seen_is_not_in_its_view():
-    nodes = make_nodes({0: (1,), 1: (0,)}, TrackerConfig())
+    nodes = make_nodes({0: (1,), 1: (0,)}, TrackerConfig(**SELECTIVE))
     for k in range(30):
         out = step(nodes, k, {0: [det(3.0, 3.0, 1)], 1: []})
     assert out[1] and out[1][0].boxes == {}
@@ -157,7 +157,7 @@ def test_co_motion_merges_duplicates_without_appearance():
     (``hide_pending``): every node reports the one id from the first frame; without it, the
     duplicate shows until the merge."""
     for hide in (False, True):
-        cfg = TrackerConfig(registration=False, hide_pending=hide)
+        cfg = TrackerConfig(registration=False, hide_pending=hide, **SELECTIVE)
         nodes = make_nodes({0: (1,), 1: (0,)}, cfg, offsets={1: (0.7, 0.0)})
         rng = np.random.default_rng(5)
         counts, held = [], []

@@ -3,7 +3,7 @@
 import numpy as np
 
 from edge_node.core import Detection, TrackerConfig
-from fakes import det, make_nodes, step
+from fakes import SELECTIVE, det, make_nodes, step
 
 
 def walk(k):
@@ -17,7 +17,7 @@ def _run(alias: bool, frames: int = 60, hidden_from: int = 5):
     calibration is off): too far to merge at once, so the pair gathers co-motion evidence.
     From ``hidden_from`` on camera 0 no longer sees the person: the older tracker, (0, 0),
     coasts unreported while the younger, camera 1's (1, 0), goes on being measured."""
-    cfg = TrackerConfig(registration=False, pending_alias=alias)
+    cfg = TrackerConfig(registration=False, pending_alias=alias, **SELECTIVE)
     nodes = make_nodes({0: (1,), 1: (0,)}, cfg, offsets={1: (0.7, 0.0)})
     rng = np.random.default_rng(5)
     reported, held = [], []
@@ -90,7 +90,7 @@ def test_report_age_delays_an_id_and_keeps_the_alias():
     reported before the older id is 10 frames old, and from then on exactly what is reported
     without it, the person under (0, 0) while the younger (1, 0) carries it."""
     import dataclasses
-    base = TrackerConfig(registration=False, pending_alias=True)
+    base = TrackerConfig(registration=False, pending_alias=True, **SELECTIVE)
     runs = {}
     for age in (0, 10):
         nodes = make_nodes({0: (1,), 1: (0,)}, dataclasses.replace(base, report_age=age),

@@ -73,3 +73,54 @@ def test_a_false_person_behind_a_nearer_one_or_outside_the_view_is_still_reporte
         out = step(nodes, k, dets)
         seen += any(np.hypot(t.x[0] - q[0], t.x[1] - q[1]) < 0.5 for t in out[0])
     assert seen >= FRAMES - 5, seen
+
+
+def _runs(cfg: TrackerConfig, frames: int = 90):
+    """Node 0's detector misses the real person 15 frames in every 30 (frames 10-24, 40-54,
+    70-84: a person it cannot find in some pose), node 1's never does; node 1's detector also
+    adds the false walker of the first test. Returns the frames node 0 did not report the
+    real person (after frame 5) and the last frame it reported the false one."""
+    nodes = make_nodes(graph("complete", 2), cfg)
+    walker = lambda k: (8.0 - 0.04 * k, 3.0)  # noqa: E731
+    missing, last_false = [], None
+    for k in range(frames):
+        p, q = person(k), walker(k)
+        dets = {0: [] if 10 <= k % 30 < 25 else [Detection(box_at(*p), None)],
+                1: [Detection(box_at(*p), None), Detection(box_at(*q), None)]}
+        tracks = step(nodes, k, dets)[0]
+        if k > 5 and not any(np.hypot(t.x[0] - p[0], t.x[1] - p[1]) < 0.5 for t in tracks):
+            missing.append(k)
+        if any(np.hypot(t.x[0] - q[0], t.x[1] - q[1]) < 0.5 for t in tracks):
+            last_false = k
+    return missing, last_false
+
+
+def test_a_node_learns_how_long_its_camera_misses_real_people():
+    """With a fixed limit of 10 frames node 0 hides the real person from the 10th frame of
+    every 15-frame run of misses to its end. Learning from the runs that end (``unseen_runs``), it hides
+    them in the first run only: that run ends after 15 frames, and the limit becomes 16. The
+    false person, whom node 0's camera never measures, ends no run: still hidden from the
+    floor's 10 frames after it came on."""
+    fixed, false_fixed = _runs(TrackerConfig(report_unseen=10, unseen_runs=0))
+    assert fixed == [*range(19, 25), *range(49, 55), *range(79, 85)], fixed
+    learnt, false_learnt = _runs(TrackerConfig())  # the defaults: 10, learnt from 200 runs
+    assert learnt == [*range(19, 25)], learnt
+    assert false_fixed is not None and false_fixed <= 2 + 10
+    assert false_learnt == false_fixed
+
+
+def test_the_learnt_limit_falls_below_only_the_longest_runs():
+    """``OwnViews.unseen_limit``: the floor until runs end; then one more than the longest
+    kept run but a fraction ``unseen_tail`` of them; only the latest ``unseen_runs`` kept."""
+    from edge_node.core.views import OwnViews, ViewSettings
+    cfg = TrackerConfig(report_unseen=10, unseen_runs=100, unseen_tail=0.02)
+    views = OwnViews(ViewSettings.of(cfg), [], {})
+    assert views.unseen_limit() == 10
+    views.runs.extend([1] * 90 + [2] * 7 + [30, 40, 50])  # the two longest (2 %) may be passed
+    assert views.unseen_limit() == 31
+    views.runs.extend([1] * 97)  # 97 newer runs: only the 30, 40 and 50 are left of the old
+    assert views.unseen_limit() == 31  # still 2 of 100 may be passed: the 50 and the 40
+    views.runs.extend([1] * 3)  # and now they fall out of the 100 kept
+    assert views.unseen_limit() == 10
+    assert OwnViews(ViewSettings.of(TrackerConfig(report_unseen=0, unseen_runs=100)), [],
+                    {}).unseen_limit() == 0

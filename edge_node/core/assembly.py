@@ -50,7 +50,8 @@ class Components:
     manager: Manager  # the DTM's rules
     initiator: Callable[[], Initiator]  # one per camera
     registration: Callable[[Camera], Registration] | None = None  # one per camera, or none
-    #: what each camera draws, from the node's cameras and registrations
+    #: what each camera draws, from the node's cameras and registrations (``saw``, ``boxes``
+    #: and ``unseen_limit``, the reporter's negative-evidence limit, 0: none; ``OwnViews``)
     views: Callable[[Sequence[Camera], Mapping[int, Registration]], Any] | None = None
     predictor: Any = None  # the motion model's prediction (``Predictor``)
     updater: Callable[[NodeStats], Any] | None = None  # eqs. 3-4, given the node's counters

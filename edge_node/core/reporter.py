@@ -13,11 +13,12 @@ as a second id: a young tracker on its way to merging into a reported older one
 reported under is that many frames old, counted from its birth at its camera (so every node
 starts reporting it in the same frame): the trackers of a false detection and the duplicates
 merged within their first frames are never shown (the M-of-N confirmation of track
-initiation, here by age, as the birth already took two observations). With
-``report_unseen`` a tracker one of the node's own cameras should have measured for that many
-frames in a row, and none did, is not reported (``views.OwnViews.expect``: negative evidence;
-a neighbour's false person, or a knocked camera's, that walks where this camera looks). Pure
-and deterministic.
+initiation, here by age, as the birth already took two observations). By negative evidence
+a tracker one of the node's own cameras should have measured for
+``views.unseen_limit()`` frames in a row, and none did, is not reported
+(``views.OwnViews.expect``: a neighbour's false person, or a knocked camera's, that walks where
+this camera looks; the limit learnt from how long the node's cameras miss real people, at least
+``report_unseen``). Pure and deterministic.
 """
 from __future__ import annotations
 
@@ -38,7 +39,6 @@ class ReporterSettings(Slice):
 
     report_coast: int
     report_age: int
-    report_unseen: int
     hide_pending: bool
     pending_alias: bool
     comotion_frames: int
@@ -64,8 +64,9 @@ class Reporter:
             return []
         ids = state.ids
         keep = state.estimated & (state.coast <= cfg.report_coast)
-        if cfg.report_unseen:  # not what this node's own cameras should see and do not
-            keep &= state.unseen < cfg.report_unseen
+        limit = self.views.unseen_limit()  # 0: negative evidence hides nothing
+        if limit:  # not what this node's own cameras should see and do not
+            keep &= state.unseen < limit
         shown = np.flatnonzero(keep)
         hidden: set[TrackerId] = set()
         alias: dict[TrackerId, TrackerId] = {}

@@ -24,6 +24,7 @@ its cameras' measurements. Pure and deterministic.
 """
 from __future__ import annotations
 
+from collections import deque
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 
@@ -65,6 +66,8 @@ class ViewSettings(Slice):
     view_fresh: int
     view_hidden: float
     report_unseen: int
+    unseen_runs: int
+    unseen_tail: float
     units_per_metre: float
 
 
@@ -79,6 +82,8 @@ class OwnViews:
         self.s = settings
         self.cameras = list(cameras)
         self.registrations = registrations  # the node's, live: corrections learnt since count
+        # the latest ended runs of negative evidence (``expect``), longest kept first out
+        self.runs: deque[int] = deque(maxlen=max(1, settings.unseen_runs))
 
     def saw(self, state: NodeState, k: int, raws: Mapping[int, BoxMeasurements]) -> None:
         """The frame's measurements (``state.raw``: per camera, the row of each tracker's box
@@ -149,8 +154,28 @@ class OwnViews:
             nearer = y1[None, b] > y1[a, None]
             hidden = ((cover * nearer) >= HIDDEN_COVER * (wh[a, 0] * wh[a, 1])[:, None]).any(axis=1)
             expected[a[~hidden]] = True
+        if self.s.unseen_runs:  # runs a measurement ends: a real person missed that long
+            ended = state.unseen[measured]
+            self.runs.extend(ended[ended > 0].tolist())
         state.unseen += expected
         state.unseen[measured] = 0
+
+    def unseen_limit(self) -> int:
+        """Frames of negative evidence after which the node stops reporting a target
+        (``report_unseen``; 0: never). With ``unseen_runs`` learnt from how long the node's
+        cameras missed the people they measured again: one more than the longest of the kept
+        ended runs but a fraction ``unseen_tail`` of them, and never below ``report_unseen``.
+        A detector whose misses are independent (nine finds in ten) gives runs of one or two
+        frames, and the floor holds; one whose misses come in runs (a person it cannot find in
+        a pose, at a distance) raises the limit to what it really does, and the node no longer
+        hides the people it misses that long. A neighbour's false person is never measured
+        again, so it never ends a run: it does not raise the limit."""
+        floor = self.s.report_unseen
+        if not floor or not self.s.unseen_runs or not self.runs:
+            return floor
+        runs = np.sort(np.fromiter(self.runs, np.int64, len(self.runs)))
+        skip = int(self.s.unseen_tail * len(runs))  # the longest runs the limit may fall below
+        return max(floor, int(runs[len(runs) - 1 - skip]) + 1)
 
     def boxes(self, state: NodeState, rows: np.ndarray, k: int,
               x_hat: np.ndarray) -> list[dict[int, np.ndarray]]:
