@@ -157,6 +157,8 @@ def test_co_motion_merges_duplicates_without_appearance():
     (``hide_pending``): every node reports the one id from the first frame; without it, the
     duplicate shows until the merge."""
     for hide in (False, True):
+        # negative evidence off: node 0's camera never measures node 1's tracker, 0.7 m off
+        # its own, and would stop reporting it after 10 frames (the next test has it on)
         cfg = TrackerConfig(registration=False, hide_pending=hide, **SELECTIVE)
         nodes = make_nodes({0: (1,), 1: (0,)}, cfg, offsets={1: (0.7, 0.0)})
         rng = np.random.default_rng(5)
@@ -174,6 +176,27 @@ def test_co_motion_merges_duplicates_without_appearance():
         assert counts[1:n] == [1 if hide else 2] * (n - 1)
         assert counts[n:] == [1] * (60 - n)
         assert [t.id for t in out[0]] == [t.id for t in out[1]] == [(0, 0)]
+
+
+def test_a_merge_neither_hides_the_person_nor_teaches_a_miss():
+    """The previous test's duplicate with negative evidence on (the defaults). Each camera
+    measures its own tracker every frame and never its twin, whose count of misses climbs on
+    that node; the merge keeps the smaller count (a camera missed the person only as long as
+    it missed both). Before, the winner kept its own: node 1 showed nobody in the merge frame
+    and learnt a run of 21 misses its camera never made, raising its limit to 22."""
+    nodes = make_nodes({0: (1,), 1: (0,)}, TrackerConfig(registration=False),
+                       offsets={1: (0.7, 0.0)})
+    rng = np.random.default_rng(5)
+    counts = {0: [], 1: []}
+    for k in range(60):
+        d = [Detection(det(*walk(k, 0), pid=0, rng=rng).box, None)]
+        out = step(nodes, k, {0: d, 1: d})
+        for i in (0, 1):
+            counts[i].append(len(out[i]))
+    assert counts[0][1:] == counts[1][1:] == [1] * 59  # the person, on every frame
+    assert nodes[0].stats.merged + nodes[1].stats.merged >= 1  # the duplicate did merge
+    assert not nodes[0].own_views.runs and not nodes[1].own_views.runs
+    assert [t.id for t in out[0]] == [t.id for t in out[1]] == [(0, 0)]
 
 
 def test_simultaneous_births_on_top_of_each_other_merge_at_once_without_appearance():

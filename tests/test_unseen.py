@@ -116,11 +116,11 @@ def test_the_learnt_limit_falls_below_only_the_longest_runs():
     cfg = TrackerConfig(report_unseen=10, unseen_runs=100, unseen_tail=0.02)
     views = OwnViews(ViewSettings.of(cfg), [], {})
     assert views.unseen_limit() == 10
-    views.runs.extend([1] * 90 + [2] * 7 + [30, 40, 50])  # the two longest (2 %) may be passed
+    views.learn([1] * 90 + [2] * 7 + [30, 40, 50])  # the two longest (2 %) may be passed
     assert views.unseen_limit() == 31
-    views.runs.extend([1] * 97)  # 97 newer runs: only the 30, 40 and 50 are left of the old
+    views.learn([1] * 97)  # 97 newer runs: only the 30, 40 and 50 are left of the old
     assert views.unseen_limit() == 31  # still 2 of 100 may be passed: the 50 and the 40
-    views.runs.extend([1] * 3)  # and now they fall out of the 100 kept
+    views.learn([1] * 3)  # and now they fall out of the 100 kept
     assert views.unseen_limit() == 10
     assert OwnViews(ViewSettings.of(TrackerConfig(report_unseen=0, unseen_runs=100)), [],
                     {}).unseen_limit() == 0

@@ -273,10 +273,11 @@ class ReporterSection:
     view_depth: float = nonnegative(0.2, "how much nearer that target stands: its box's bottom "
                                     "edge lower by this fraction of the hidden box's height")
     view_unseen: bool = boolean(False, "draw targets a camera has not seen (at the network's size)")
-    report_unseen: int = integer(10, lo=0, doc="frames in a row one of the node's cameras should have "
-                                 "measured a target (its box inside the image, no nearer target "
-                                 "covering a third of it) and none did, after which the node no "
-                                 "longer reports it (a neighbour's false person; 0: never; "
+    report_unseen: int = integer(10, lo=0, doc="the least number of frames in a row one of the "
+                                 "node's cameras should have measured a target (its box inside the "
+                                 "image, no nearer target covering a third of it) and none did, "
+                                 "after which the node no longer reports it (a neighbour's false "
+                                 "person); the limit itself is learnt, unseen_runs (0: never; "
                                  "docs/tuning.md)")
     unseen_runs: int = integer(200, lo=0, doc="with report_unseen: how many of the node's latest "
                                "ended runs of such frames (a target it should have measured, "
@@ -285,9 +286,9 @@ class ReporterSection:
                                "limit is then above the longest of them but a fraction "
                                "unseen_tail, and report_unseen only its floor (0: report_unseen "
                                "alone)")
-    unseen_tail: float = number(0.0, lo=0.0, hi=0.5, doc="fraction of the kept runs the learnt "
-                                "limit may fall below (the longest real misses, which then hide "
-                                "a real person for what they run beyond it)")
+    unseen_tail: float = number(0.0, lo=0.0, hi=0.5, doc="fraction of the kept runs, rounded "
+                                "down, the learnt limit may fall below (the longest real misses, "
+                                "which then hide a real person for what they run beyond it)")
     view_inside: float = number(0.9, lo=0.0, hi=1.0,
                                 doc="least fraction of a drawn box inside the image (0: any overlap)")
     view_fresh: int = integer(50, lo=0, doc="frames since the camera's last measurement of a target "

@@ -276,6 +276,10 @@ class Lifecycle:
         state.heard[w] = min(state.heard[w], o["heard"])
         state.heard_appearance[w] |= o["heard_appearance"]
         state.held[w] = max(state.held[w], o["held"])
+        # negative evidence: the node's cameras missed the target only as long as they missed
+        # both (a duplicate that took the measurements leaves its twin's count climbing, and a
+        # merge must neither hide the person nor end a run of misses nobody made)
+        state.unseen[w] = min(state.unseen[w], o["unseen"])
         # per camera, what the later measurement taught its view: size, place, the foot point
         newer = o["view_k"] > state.view_k[w]
         state.view_k[w] = np.where(newer, o["view_k"], state.view_k[w])

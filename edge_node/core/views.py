@@ -82,8 +82,10 @@ class OwnViews:
         self.s = settings
         self.cameras = list(cameras)
         self.registrations = registrations  # the node's, live: corrections learnt since count
-        # the latest ended runs of negative evidence (``expect``), longest kept first out
+        # the latest ended runs of negative evidence (``expect``), the oldest first out, and
+        # the limit they give (``unseen_limit``), computed when they change
         self.runs: deque[int] = deque(maxlen=max(1, settings.unseen_runs))
+        self._limit = settings.report_unseen
 
     def saw(self, state: NodeState, k: int, raws: Mapping[int, BoxMeasurements]) -> None:
         """The frame's measurements (``state.raw``: per camera, the row of each tracker's box
@@ -124,7 +126,7 @@ class OwnViews:
         camera's own registration, at the network's size) lies inside its image, the feet in
         it, the head cut by at most a fifth, and that no nearer predicted box (its bottom edge
         lower) covers by ``HIDDEN_COVER`` of its area: a detector finds such a person nine
-        times in ten, so a target it has missed for ``report_unseen`` frames in a row is not
+        times in ten, so a target it has missed for ``unseen_limit()`` frames in a row is not
         there (a neighbour's false person) or is not where the network puts it. All trackers
         of a camera at once."""
         n = len(state)
@@ -156,7 +158,7 @@ class OwnViews:
             expected[a[~hidden]] = True
         if self.s.unseen_runs:  # runs a measurement ends: a real person missed that long
             ended = state.unseen[measured]
-            self.runs.extend(ended[ended > 0].tolist())
+            self.learn(ended[ended > 0].tolist())
         state.unseen += expected
         state.unseen[measured] = 0
 
@@ -170,6 +172,17 @@ class OwnViews:
         a pose, at a distance) raises the limit to what it really does, and the node no longer
         hides the people it misses that long. A neighbour's false person is never measured
         again, so it never ends a run: it does not raise the limit."""
+        return self._limit
+
+    def learn(self, runs: list[int]) -> None:
+        """Keep ``runs``, ended runs of misses (frames), and set the limit they give."""
+        if runs:
+            self.runs.extend(runs)
+            self._limit = self._learnt()
+
+    def _learnt(self) -> int:
+        """``unseen_limit`` from the kept runs (``int(unseen_tail * len)`` of the longest
+        may be passed)."""
         floor = self.s.report_unseen
         if not floor or not self.s.unseen_runs or not self.runs:
             return floor

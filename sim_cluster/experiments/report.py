@@ -397,7 +397,8 @@ def trust_table(d: dict, omit: tuple[str, ...] = ()) -> str:
 
 
 table("trust", "trust/trust.json")(trust_table)
-#: negative evidence (report_unseen, an option), with the tracker config the runs were given
+#: negative evidence with the fixed limit of 10 frames, when it was an option (report_unseen
+#: without unseen_runs), with the tracker config the runs were given
 table("trust-unseen", "trust-unseen/trust.json")(trust_table)
 #: the bumped camera without its re-lock (registration R7, reg_relock): runs of code whose
 #: default had it off
