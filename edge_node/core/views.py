@@ -175,20 +175,13 @@ class OwnViews:
         return self._limit
 
     def learn(self, runs: list[int]) -> None:
-        """Keep ``runs``, ended runs of misses (frames), and set the limit they give."""
-        if runs:
-            self.runs.extend(runs)
-            self._limit = self._learnt()
-
-    def _learnt(self) -> int:
-        """``unseen_limit`` from the kept runs (``int(unseen_tail * len)`` of the longest
-        may be passed)."""
-        floor = self.s.report_unseen
-        if not floor or not self.s.unseen_runs or not self.runs:
-            return floor
-        runs = np.sort(np.fromiter(self.runs, np.int64, len(self.runs)))
-        skip = int(self.s.unseen_tail * len(runs))  # the longest runs the limit may fall below
-        return max(floor, int(runs[len(runs) - 1 - skip]) + 1)
+        """Keep ``runs``, ended runs of misses (frames), and set the limit the kept ones give
+        (``int(unseen_tail * len)`` of the longest may be passed)."""
+        if not runs:
+            return
+        self.runs.extend(runs)
+        longest = sorted(self.runs)[-1 - int(self.s.unseen_tail * len(self.runs))]
+        self._limit = max(self.s.report_unseen, longest + 1) if self.s.report_unseen else 0
 
     def boxes(self, state: NodeState, rows: np.ndarray, k: int,
               x_hat: np.ndarray) -> list[dict[int, np.ndarray]]:
