@@ -58,6 +58,10 @@ import tempfile
 
 _CHILD = "DMTT_CORE_INSTRUCTIONS_CHILD"
 
+# this checkout's code, not the installed one: an old checkout's copy of this script (``git
+# worktree add``) counts the old code (the project's editable install points at one checkout)
+sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
+
 
 # NumPy's inner loops: the typed elementwise kernels (``DOUBLE_add``...), copies and casts, sorts;
 # not the per-element ``_setitem`` / ``_getitem`` of Python objects (conversion, not arithmetic)
