@@ -38,6 +38,7 @@ def _check(node: CameraNode, cfg: TrackerConfig, seen: dict) -> None:
     ev = node.manager.evidence  # co-motion evidence: pairs of trackers held, never more
     assert len(ev) <= n * (n - 1) // 2
     assert all(a in node.trackers and b in node.trackers for a, b in ev)
+    assert ev.holders() <= set(node.trackers)  # the table's slots: trackers held, never more
     seen["ids"].update(node.trackers)
     seen["max_born"] = max(seen["max_born"], len(book.born))
     seen["max_store"] = max(seen["max_store"], book.old.nbytes)

@@ -6,6 +6,7 @@ from edge_node.core import TrackerConfig
 from edge_node.core.association import Candidate, LocalDataAssociation, Observation
 from edge_node.core.gallery import Gallery
 from edge_node.core import manager
+from edge_node.core.evidence import PairEvidence
 from edge_node.core.manager import MergeView, find_merges
 from fakes import SELECTIVE, det, graph as build, identity, make_nodes, step
 from protocol import codec
@@ -251,13 +252,13 @@ def test_find_merges_needs_co_motion_for_established_trackers():
     g = _gallery(1)
     a = MergeView((0, 0), np.array([0.0, 0.0]), g, False, frozenset({0}))
     b = MergeView((1, 0), np.array([0.5, 0.0]), g, False, frozenset(), measured_by=frozenset({1}))
-    streaks = {}
+    streaks = PairEvidence()
     assert [find_merges([a, b], streaks, cfg) for _ in range(3)] == [[], [], []]
     assert streaks[(0, 0), (1, 0)] == pytest.approx(3 * 2 * np.log(2))
     assert find_merges([a, b], streaks, cfg) == [((1, 0), (0, 0))]
     # measured by nobody: no evidence either way, never merged
     a_, b_ = (MergeView(v.id, v.xy, g, False, frozenset()) for v in (a, b))
-    assert all(find_merges([a_, b_], {}, cfg) == [] for _ in range(30))
+    assert all(find_merges([a_, b_], PairEvidence(), cfg) == [] for _ in range(30))
     # identical galleries 1.2 m apart (beyond comotion_gate, within tau_gda): never merged
     far = MergeView((1, 0), np.array([1.2, 0.0]), g, False, frozenset(), measured_by=frozenset({1}))
     assert all(find_merges([a, far], streaks, cfg) == [] for _ in range(10))
@@ -265,10 +266,10 @@ def test_find_merges_needs_co_motion_for_established_trackers():
     # tau_gda (it sees nobody else there), and so do two trackers both new this frame (the
     # paper's simultaneous initialisations)...
     started = MergeView((1, 1), np.array([1.2, 0.0]), g, True, frozenset(), started=True)
-    assert find_merges([a, started], {}, cfg) == [((1, 1), (0, 0))]
+    assert find_merges([a, started], PairEvidence(), cfg) == [((1, 1), (0, 0))]
     both = [MergeView((0, 1), np.array([0.0, 0.0]), g, True, frozenset()),
             MergeView((1, 1), np.array([1.2, 0.0]), g, True, frozenset())]
-    assert find_merges(both, {}, cfg) == [((1, 1), (0, 1))]
+    assert find_merges(both, PairEvidence(), cfg) == [((1, 1), (0, 1))]
     # ...but a tracker adopted from a neighbour (new here, started elsewhere) merges at once
     # into an established one only right on top of it (under half the comotion_gate),
     # whatever it looks like: a look-alike next to it may be someone else
@@ -276,12 +277,12 @@ def test_find_merges_needs_co_motion_for_established_trackers():
         a0 = MergeView((0, 0), np.array([0.0, 0.0]), gallery, False, frozenset())
         near = MergeView((1, 1), np.array([0.4, 0.0]), gallery, True, frozenset())
         off = MergeView((1, 1), np.array([0.6, 0.0]), gallery, True, frozenset())
-        assert find_merges([a0, near], {}, cfg) == [((1, 1), (0, 0))]
-        assert find_merges([a0, off], {}, cfg) == []
+        assert find_merges([a0, near], PairEvidence(), cfg) == [((1, 1), (0, 0))]
+        assert find_merges([a0, off], PairEvidence(), cfg) == []
     # two trackers this node's camera saw as two measurements are never merged
     c = MergeView((0, 0), np.array([0.0, 0.0]), g, True, frozenset({0}))
     d = MergeView((1, 0), np.array([0.1, 0.0]), g, True, frozenset({0}))
-    assert find_merges([c, d], {}, cfg) == []
+    assert find_merges([c, d], PairEvidence(), cfg) == []
     # nor two whose entries from one neighbour both carry a measurement (it saw two people),
     # however alike they look
     e = MergeView((0, 0), np.array([0.0, 0.0]), g, False, frozenset(), measured_by=frozenset({3}))
@@ -309,7 +310,7 @@ def test_co_motion_remembers_that_two_trackers_were_seen_as_two_people():
                           measured_by=frozenset({1}))]
     apart = [one_each[0], MergeView((1, 0), np.array([5.0, 0.0]), g, False, frozenset())]
     key = ((0, 0), (1, 0))
-    ev = {}
+    ev = PairEvidence()
     assert all(find_merges(two, ev, cfg) == [] for _ in range(3))
     assert ev[key] == pytest.approx(3 * np.log(0.02 / 0.5))
     assert all(find_merges(apart, ev, cfg) == [] for _ in range(50))  # kept while apart
@@ -317,14 +318,14 @@ def test_co_motion_remembers_that_two_trackers_were_seen_as_two_people():
     got = [find_merges(one_each, ev, cfg) for _ in range(11)]
     assert got[:10] == [[]] * 10 and got[10] == [((1, 0), (0, 0))]
     # the floor: 100 frames seen as two weigh no more than -20 nats: 5 + 20 = 25 nats, 19 frames
-    ev = {}
+    ev = PairEvidence()
     for _ in range(100):
         find_merges(two, ev, cfg)
     assert ev[key] == -20.0
     got = [find_merges(one_each, ev, cfg) for _ in range(19)]
     assert got[:18] == [[]] * 18 and got[18] == [((1, 0), (0, 0))]
     # evidence for one target is forgotten when they part; a tracker gone takes its pairs along
-    ev = {}
+    ev = PairEvidence()
     find_merges(one_each, ev, cfg)
     assert ev[key] > 0
     find_merges(apart, ev, cfg)
@@ -352,7 +353,7 @@ def test_co_motion_remembers_two_people_a_camera_saw_as_two_while_far_apart():
             MergeView((1, 0), np.array([0.7, 0.0]), g, False, frozenset(),
                       measured_by=frozenset({1}))]
     key = ((0, 0), (1, 0))
-    ev = {}
+    ev = PairEvidence()
     assert all(find_merges(far, ev, cfg) == [] for _ in range(5))
     assert ev[key] == pytest.approx(5 * np.log(0.02 / 0.5))
     got = [find_merges(near, ev, cfg) for _ in range(34)]
@@ -362,18 +363,18 @@ def test_co_motion_remembers_two_people_a_camera_saw_as_two_while_far_apart():
                               measured_by=frozenset({2})),
                     MergeView((1, 0), np.array([0.0, 3.0]), g, False, frozenset(),
                               measured_by=frozenset({2}))]
-    ev = {}
+    ev = PairEvidence()
     find_merges(by_neighbour, ev, cfg)
     assert ev[key] == pytest.approx(np.log(0.02 / 0.5))
     # far apart and each measured by a different camera, or by none: nothing said
-    ev = {}
+    ev = PairEvidence()
     find_merges([far[0], MergeView((1, 0), np.array([3.0, 0.0]), g, False, frozenset({1}))],
                 ev, cfg)
     find_merges([far[0], MergeView((1, 0), np.array([3.0, 0.0]), g, False, frozenset())],
                 ev, cfg)
     assert key not in ev
     # down to the floor, like the evidence within the gate
-    ev = {}
+    ev = PairEvidence()
     for _ in range(100):
         find_merges(far, ev, cfg)
     assert ev[key] == -70.0
@@ -395,7 +396,7 @@ def test_far_apart_counts_each_camera_that_measured_both():
                   measured_by=frozenset({7}))
     c = MergeView((2, 0), np.array([6.0, 0.0]), g, False, frozenset({0}),
                   measured_by=frozenset({5}))
-    ev = {}
+    ev = PairEvidence()
     assert find_merges([c, a, b], ev, cfg) == []
     one = np.log(0.02 / 0.5)
     assert ev == pytest.approx({((0, 0), (0, 1)): one, ((0, 1), (2, 0)): one,
@@ -599,7 +600,7 @@ def test_merge_evidence_needs_a_measurement_of_both_here_or_next_door():
     for views, on, expected in ((half, False, [[], merge]), (half, True, [[], []]),
                                 (near, True, [merge, merge])):  # (a test repeats the pair)
         cfg = TrackerConfig(comotion_miss=0.25, merge_llr=2.7, merge_evidence=on)
-        streaks = {}
+        streaks = PairEvidence()
         got = [find_merges(views, streaks, cfg) for _ in range(2)]
         assert got == expected, (on, views[1].measured_by)
 
@@ -738,7 +739,7 @@ def test_simultaneous_means_before_news_of_the_other():
                                                since=9))
     cfg = TrackerConfig()
     assert find_merges([late, MergeView((0, 0), np.array([0.8, 0.0]), g, False, frozenset(),
-                                        since=8)], {}, cfg) == [((1, 0), (0, 0))]
+                                        since=8)], PairEvidence(), cfg) == [((1, 0), (0, 0))]
 
 
 def test_a_track_built_by_the_core_is_a_track():

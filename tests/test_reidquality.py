@@ -10,6 +10,7 @@ import pytest
 from edge_node.core import TrackerConfig
 from edge_node.core.association import Candidate, LocalDataAssociation, Observation, recover
 from edge_node.core.gallery import Gallery
+from edge_node.core.evidence import PairEvidence
 from edge_node.core.manager import MergeView, find_merges, pair_score, reidentify
 from edge_node.core.reidquality import ReidQuality, Thresholds, quantile, samples
 
@@ -126,7 +127,7 @@ def test_the_manager_learns_two_people_from_nearby_pairs_seen_as_two():
              _view((1, 1), (0.5, 0), b, seen_by=frozenset({0})),  # camera 0 sees both: two
              _view((2, 1), (0.8, 0), c, seen_by=frozenset({1}))]  # near, not seen as two
     q = ReidQuality(CFG)
-    find_merges(views, {}, CFG, learn=q)
+    find_merges(views, PairEvidence(), CFG, learn=q)
     assert q.two.sum() == 1
     bin_ = int(np.searchsorted(np.linspace(0, 2, 201), 1 - a @ b, "right") - 1)
     assert q.two[bin_] == 1

@@ -20,9 +20,11 @@ from __future__ import annotations
 import math
 from collections.abc import Collection, Iterable, Mapping, Sequence
 from dataclasses import dataclass
+from itertools import chain
 
 import numpy as np
 
+from edge_node.core.evidence import PairEvidence
 from edge_node.core.gallery import Gallery
 from edge_node.core.identity import rank
 from edge_node.core.reappear import Gone, ReappearSettings, Young, awaiting, reappearances
@@ -212,7 +214,7 @@ def both_term(cfg: ManagerSettings) -> float:
 
 
 def far_apart(ordered: Sequence[MergeView], dist: np.ndarray,
-              evidence: dict[tuple[TrackerId, TrackerId], float], cfg: ManagerSettings) -> None:
+              evidence: PairEvidence, cfg: ManagerSettings) -> None:
     """What a camera says of two trackers it measures at once farther apart than the merge
     rules reach (``ordered`` in id order, ``dist`` their distances): two people. One person
     gives a camera's detector one box, two only when it splits the person (``comotion_split``),
@@ -231,24 +233,24 @@ def far_apart(ordered: Sequence[MergeView], dist: np.ndarray,
         return
     # which trackers each camera measured (here or a neighbour's), then per pair how many
     # cameras measured both at once: one product, not a loop over the cameras' pairs
-    col = {c: m for m, c in enumerate(cams)}
     n, reach = len(ordered), merge_reach(cfg)
     B = np.zeros((n, len(cams)), np.int64)
-    at = [(i, col[c]) for i, cs in enumerate(by) for c in cs]
-    B[[i for i, _ in at], [m for _, m in at]] = 1
+    B[np.repeat(np.arange(n), [len(cs) for cs in by]),
+      np.searchsorted(cams, np.fromiter(chain.from_iterable(by), np.int64))] = 1
     both = B @ B.T
     i, j = np.triu((both > 0) & (dist >= reach), 1).nonzero()  # i < j, in (i, j) order
     if not len(i):
         return
-    count = both[i, j]
-    ids = [v.id for v in ordered]
-    keys = [(ids[a], ids[b]) for a, b in zip(i.tolist(), j.tolist())]
-    get = evidence.get
-    e = np.minimum(np.array([get(key, 0.0) for key in keys]), 0.0) + count * both_term(cfg)
-    evidence.update(zip(keys, np.maximum(e, cfg.merge_llr_floor).tolist()))
+    # the pairs' evidence in the table of slots (``PairEvidence``): absent pairs (NaN) are 0
+    slot = evidence.slots([v.id for v in ordered])
+    a, b = slot.take(i), slot.take(j)
+    table = evidence.table  # (after the slots: taking one may grow it)
+    old = table[a, b]
+    e = np.minimum(np.where(np.isnan(old), 0.0, old), 0.0) + both[i, j] * both_term(cfg)
+    table[a, b] = table[b, a] = np.maximum(e, cfg.merge_llr_floor)
 
 
-def find_merges(views: Sequence[MergeView], evidence: dict[tuple[TrackerId, TrackerId], float],
+def find_merges(views: Sequence[MergeView], evidence: PairEvidence,
                 cfg: ManagerSettings, th: Thresholds | None = None,
                 learn: ReidQuality | None = None,
                 distances: dict[tuple[TrackerId, TrackerId], tuple[int, int, float]] | None = None
@@ -322,13 +324,9 @@ def find_merges(views: Sequence[MergeView], evidence: dict[tuple[TrackerId, Trac
     if len(cache) > 2 * len(used) + 64:  # bounded: the pairs that were near lately
         for key in [key for key in cache if key not in used]:
             del cache[key]
-    held = {v.id for v in ordered}
-    for key in list(evidence):
-        if key in alive:
-            continue
-        if key[0] in held and key[1] in held and evidence[key] < 0.0:
-            continue  # seen as two people: remembered while both live
-        del evidence[key]  # parted (or gone): what spoke for one target is forgotten
+    # seen as two people: remembered while both live; parted (or gone): what spoke for one
+    # target is forgotten
+    evidence.settle({v.id for v in ordered}, alive)
     group: dict[TrackerId, list[MergeView]] = {}  # tracker -> its group (shared list)
     for s, a, b, ready in sorted(scored, key=lambda e: (e[0], e[1].id, e[2].id)):
         if not ready:
@@ -437,7 +435,7 @@ class DistributedTrackerManager:
     def __init__(self, cfg: ManagerSettings, quality: ReidQuality | None = None):
         self.cfg = cfg
         #: co-motion evidence per pair of trackers (:func:`find_merges`)
-        self.evidence: dict[tuple[TrackerId, TrackerId], float] = {}
+        self.evidence = PairEvidence()
         #: the nearby pairs' gallery distances, with the galleries' versions (:func:`find_merges`)
         self.distances: dict[tuple[TrackerId, TrackerId], tuple[int, int, float]] = {}
         #: the node's measured re-id, shared with its association (``reidquality``), or None
@@ -467,7 +465,7 @@ class DistributedTrackerManager:
         it meanwhile shows a second id for one person (a fragment and, once merged, a switch
         back)."""
         out = []
-        for (a, b), e in sorted((key, e) for key, e in self.evidence.items() if e > 0.0):
+        for (a, b), e in self.evidence.positive():
             if a in born and b in born:
                 old, young = sorted((a, b), key=lambda t: rank(born[t], t))
                 out.append((young, old))
@@ -476,8 +474,7 @@ class DistributedTrackerManager:
     def forget(self, tid: TrackerId) -> None:
         """``tid`` is gone (merged or dropped): forget the co-motion evidence of its pairs, so
         that the table holds pairs of trackers the node holds, never more."""
-        for key in [key for key in self.evidence if tid in key]:
-            del self.evidence[key]
+        self.evidence.forget(tid)
         for key in [key for key in self.distances if tid in key]:
             del self.distances[key]
 

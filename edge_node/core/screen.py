@@ -276,6 +276,8 @@ class Screen:
                 b, i = self._eigen(u[:, :4].take(todo.take(unsure), axis=0), U4.take(unsure, axis=0))
                 bad[todo[unsure]] |= b
                 implausible[todo[unsure]] = i
+        if not (bad.any() or implausible.any()):  # (the common case: every entry sound)
+            return [None] * n
         return ["bad_information" if b else "implausible_information" if i else None
                 for b, i in zip(bad.tolist(), implausible.tolist())]
 
