@@ -855,7 +855,7 @@ def test_a_dropped_tracker_passes_its_id_to_the_duplicate_on_its_way_to_merge_in
     assert manager.partner(lost, views, {}) is None
     # through the manager: only with heir_pending, and stitch takes precedence
     m = manager.DistributedTrackerManager(TrackerConfig())
-    m.evidence = {((0, 0), (2, 7)): 4.0}
+    m.evidence = PairEvidence({((0, 0), (2, 7)): 4.0})
     assert m.heir(lost, 16, views, 400) == (2, 7)
     m.cfg = TrackerConfig(heir_pending=False)
     assert m.heir(lost, 16, views, 400) is None

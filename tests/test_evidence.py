@@ -72,7 +72,7 @@ def test_slots_are_given_back_and_the_table_stays_bounded():
         if len(live) > 10:
             ev.forget(live.pop(0))
         ev.settle(set(live), set())
-    assert len(ev.table) <= 2 * 11
+    assert ev.size() <= 2 * 11
     # of the last ten, the oldest's partners are gone; the next pairs with it alone, the one
     # after with two, the other seven with their three before
     assert len(ev) == 1 + 2 + 3 * 7
@@ -86,3 +86,22 @@ def test_an_absent_pair_reads_as_the_callers_default_and_a_pair_is_one_key_both_
     assert list(ev) == [((0, 1), (2, 3))]
     assert ev.pop(((0, 1), (2, 3))) == -4.0 and len(ev) == 0
     assert ev.pop(((0, 1), (2, 3)), None) is None
+
+
+def test_the_table_shrinks_after_a_crowd_and_a_pair_of_one_tracker_is_refused():
+    """200 trackers, every one paired with the one before, then all gone but two: the table
+    (256 slots at its largest) is halved at each end of frame while at most a quarter used,
+    back to the smallest (8), the remaining pair intact; a tracker cannot pair with itself."""
+    ev = PairEvidence()
+    ids = [(0, n) for n in range(200)]
+    for a, b in zip(ids, ids[1:]):
+        ev[(a, b)] = -2.0
+    ev.settle(set(ids), set())
+    assert ev.size() == 256 and len(ev) == 199
+    for _ in range(6):
+        ev.settle(set(ids[:2]), set())
+    assert ev.size() == 8 and dict(ev.items()) == {(ids[0], ids[1]): -2.0}
+    assert ev.holders() == set(ids[:2])
+    with pytest.raises(KeyError):
+        ev[(ids[0], ids[0])] = 1.0
+    assert ev.holders() == set(ids[:2])

@@ -241,13 +241,8 @@ def far_apart(ordered: Sequence[MergeView], dist: np.ndarray,
     i, j = np.triu((both > 0) & (dist >= reach), 1).nonzero()  # i < j, in (i, j) order
     if not len(i):
         return
-    # the pairs' evidence in the table of slots (``PairEvidence``): absent pairs (NaN) are 0
-    slot = evidence.slots([v.id for v in ordered])
-    a, b = slot.take(i), slot.take(j)
-    table = evidence.table  # (after the slots: taking one may grow it)
-    old = table[a, b]
-    e = np.minimum(np.where(np.isnan(old), 0.0, old), 0.0) + both[i, j] * both_term(cfg)
-    table[a, b] = table[b, a] = np.maximum(e, cfg.merge_llr_floor)
+    evidence.seen_apart([v.id for v in ordered], i, j, both[i, j] * both_term(cfg),
+                        cfg.merge_llr_floor)
 
 
 def find_merges(views: Sequence[MergeView], evidence: PairEvidence,
