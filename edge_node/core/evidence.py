@@ -45,11 +45,11 @@ class PairEvidence(MutableMapping):
     def slots(self, ids: list[TrackerId]) -> np.ndarray:
         """The slots of ``ids``, a slot given to each id that has none (the table grows by
         doubling when it is full)."""
-        out = []
-        for tid in ids:
-            s = self._slot.get(tid)
-            out.append(self._take(tid) if s is None else s)
-        return np.array(out, np.intp)
+        return np.array([self._slot_of(tid) for tid in ids], np.intp)
+
+    def _slot_of(self, tid: TrackerId) -> int:
+        s = self._slot.get(tid)
+        return self._take(tid) if s is None else s
 
     def size(self) -> int:
         """Slots of the table (held and free)."""
@@ -104,15 +104,14 @@ class PairEvidence(MutableMapping):
     def __setitem__(self, key: Key, e: float) -> None:
         if key[0] == key[1]:
             raise KeyError(f"a pair of one tracker with itself: {key}")
-        a, b = self.slots(list(key)).tolist()
+        a, b = self._slot_of(key[0]), self._slot_of(key[1])  # (growing keeps the slots)
         self._table[a, b] = self._table[b, a] = e
 
     def __delitem__(self, key: Key) -> None:
-        e = self.get(key)
-        if e is None:
+        at = self._pair(key)
+        if at is None or np.isnan(self._table[at]):
             raise KeyError(key)
-        a, b = self._pair(key)
-        self._table[a, b] = self._table[b, a] = np.nan
+        self._table[at] = self._table[at[::-1]] = np.nan
 
     def __iter__(self) -> Iterator[Key]:
         return iter([key for key, _ in self._present(~np.isnan(self._table))])
