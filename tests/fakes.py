@@ -287,7 +287,7 @@ class FakeViews(_Counted):
     def saw(self, state, k, raws):
         self.calls += 1
 
-    def boxes(self, state, rows, k, x_hat):
+    def boxes(self, state, rows, k, x_hat, two_people=None):
         self.calls += 1
         return [{} for _ in rows]
 

@@ -130,3 +130,67 @@ def test_a_camera_draws_a_target_where_it_sees_it_not_where_the_network_puts_it(
         # camera 0 no longer measures: the estimate moves to camera 1's 5.0, and the box with it
         assert x[59] < x[49] - 0.02
         assert shift[59] - shift[49] == pytest.approx((x[59] - x[49]) * PX_PER_M, abs=0.5)
+
+
+def test_a_target_is_not_drawn_as_the_twin_of_one_the_camera_measured_more_recently():
+    """Hand-made boxes in a 1000 x 1000 image, all measured within ``view_frames``. Box 0 is a
+    target the camera measures now (bottom edge at row 500). A target it measured 5 frames ago
+    whose box overlaps box 0 with an IoU of at least ``view_twin`` (0.5) at the same depth
+    (bottom edges closer than ``view_depth`` (0.2) of the box's height) is one person held by
+    two trackers: not drawn, unless the node knows the two for two people. Boxes 6-8, far
+    from the others, are not measured now: 7 (IoU 0.82 with 6) was measured longer ago than
+    6 and is not drawn; 8 (IoU 0.82 with 6 as well) as long ago as 6, and both are drawn. IoUs by hand:
+    box 1 45 x 100 / (2 x 5000 - 4500) = 0.82; box 2 20 x 100 / 8000 = 0.25; box 3 (bottom
+    edge 30 px higher, one behind the other) 50 x 70 / 6500 = 0.54; box 5 as box 1 (and 0.75
+    with box 4)."""
+    from edge_node.core.views import OwnViews, ViewSettings
+    from edge_node.geometry import Camera
+    cam = Camera(0, (1000, 1000), np.eye(3))
+    views = OwnViews(ViewSettings.of(TrackerConfig(), view_frames=10), [cam], {})
+    assert views.s.view_twin == 0.5  # the default
+    h = 100.0
+    boxes = np.array([[100.0, 400, 50, h],   # measured now
+                      [105.0, 400, 50, h],   # its twin
+                      [130.0, 400, 50, h],   # beside it, IoU 0.25
+                      [100.0, 370, 50, h],   # behind it, not at its depth
+                      [102.0, 400, 50, h],   # measured now as well: two detections, two people
+                      [95.0, 400, 50, h],    # a twin the node knows for another person
+                      [600.0, 400, 50, h],   # measured 3 frames ago
+                      [605.0, 400, 50, h],   # its twin, measured 7 frames ago
+                      [595.0, 400, 50, h]])  # its twin, measured 3 frames ago too
+    age = np.array([0, 5, 5, 5, 0, 5, 3, 7, 3])
+    known_two = {(5, 0), (5, 4)}  # box 5 overlaps box 4 too (IoU 43 x 100 / 5700 = 0.75)
+    asked = []
+
+    def same(a, b):
+        asked.extend(zip(a.tolist(), b.tolist()))
+        return np.array([(i, j) not in known_two for i, j in zip(a.tolist(), b.tolist())], bool)
+
+    drawn = [True, False, True, True, True, True, True, False, True]
+    assert views.visible(cam, boxes, age, same).tolist() == drawn
+    assert sorted(asked) == [(1, 0), (1, 4), (5, 0), (5, 4), (7, 6), (7, 8)]
+    # without the node's knowledge (None) nothing is a twin; nor with view_twin 1
+    assert views.visible(cam, boxes, age).all()
+    never = OwnViews(ViewSettings.of(TrackerConfig(), view_frames=10, view_twin=1.0), [cam], {})
+    assert never.visible(cam, boxes, age, same).all()
+    # a looser IoU takes box 2 for a twin too
+    loose = OwnViews(ViewSettings.of(TrackerConfig(), view_frames=10, view_twin=0.2), [cam], {})
+    drawn[2] = False
+    assert loose.visible(cam, boxes, age, same).tolist() == drawn
+
+
+def test_the_managers_say_which_pairs_are_two_people():
+    """The DTM knows a pair for two people when its co-motion evidence is below zero (a camera
+    measured both at once far apart); a pair without evidence, or with evidence for one
+    person, may be one. Without a DTM nothing is merged: every pair is two people."""
+    from edge_node.core.manager import DistributedTrackerManager, IndependentTrackers, ManagerSettings
+    cfg = TrackerConfig()
+    dtm = DistributedTrackerManager(ManagerSettings.of(cfg))
+    a, b, c, d = (0, 1), (1, 1), (2, 1), (3, 1)
+    dtm.evidence[(a, b)] = -2.0
+    dtm.evidence[(a, c)] = 3.0
+    dtm.evidence[(b, c)] = 0.0
+    pairs = [(a, b), (b, a), (a, c), (b, c), (c, d), (a, d)]
+    assert dtm.two_people(pairs).tolist() == [True, True, False, False, False, False]
+    assert IndependentTrackers(ManagerSettings.of(cfg)).two_people(pairs).tolist() == [True] * 6
+    assert dtm.two_people([]).shape == (0,)

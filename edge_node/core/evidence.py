@@ -20,7 +20,7 @@ a table (and its per-frame cost) of that size.
 """
 from __future__ import annotations
 
-from collections.abc import Collection, Iterator, Mapping, MutableMapping
+from collections.abc import Collection, Iterator, Mapping, MutableMapping, Sequence
 
 import numpy as np
 
@@ -90,6 +90,16 @@ class PairEvidence(MutableMapping):
         return None if a is None or b is None or a == b else (a, b)
 
     # -- the mapping ------------------------------------------------------------------------
+    def apart(self, pairs: Sequence[Key]) -> np.ndarray:
+        """Which of ``pairs`` (either order) hold evidence below zero: two people (a camera
+        measured both at once, or they moved apart), ``(len(pairs),)`` bool; an absent pair
+        is not."""
+        out = np.zeros(len(pairs), bool)
+        for i, (a, b) in enumerate(pairs):
+            e = self.get((a, b) if a < b else (b, a))
+            out[i] = e is not None and e < 0.0
+        return out
+
     def get(self, key: Key, default: float | None = None) -> float | None:
         at = self._pair(key)
         e = np.nan if at is None else self._table.item(at)

@@ -473,6 +473,12 @@ class DistributedTrackerManager:
         for key in [key for key in self.distances if tid in key]:
             del self.distances[key]
 
+    def two_people(self, pairs: Sequence[tuple[TrackerId, TrackerId]]) -> np.ndarray:
+        """Which ``pairs`` of trackers the node knows for two people: their co-motion evidence
+        is below zero (:meth:`PairEvidence.apart`); a pair it has no evidence of may be one
+        person held twice (each camera's own view, ``views.OwnViews``)."""
+        return self.evidence.apart(pairs)
+
     def may_adopt(self, tid: TrackerId, dropped: Collection[TrackerId]) -> bool:
         return True
 
@@ -543,6 +549,10 @@ class IndependentTrackers:
 
     def forget(self, tid: TrackerId) -> None:
         pass
+
+    def two_people(self, pairs: Sequence[tuple[TrackerId, TrackerId]]) -> np.ndarray:
+        """Every pair: nothing is ever merged, so each tracker is its own target."""
+        return np.ones(len(pairs), bool)
 
     def may_adopt(self, tid: TrackerId, dropped: Collection[TrackerId]) -> bool:
         return tid not in dropped  # a camera's drop decision is its own and final

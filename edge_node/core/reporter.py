@@ -97,7 +97,7 @@ class Reporter:
         if not len(shown):
             return []
         x_hat = state.x_hat.take(shown, axis=0)  # the tracks' own
-        boxes = self.views.boxes(state, shown, k, x_hat)
+        boxes = self.views.boxes(state, shown, k, x_hat, self.manager.two_people)
         M = state.M.take(shown, axis=0)
         seen = state.seen_any().take(shown).tolist()
         ell = state.ell.take(shown).tolist()

@@ -25,7 +25,7 @@ its cameras' measurements. Pure and deterministic.
 from __future__ import annotations
 
 from collections import deque
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -35,8 +35,13 @@ from edge_node.core.measurement import BoxMeasurements, pixels_per_unit
 from edge_node.core.registration import Registration
 from edge_node.core.state import NodeState
 from edge_node.geometry import Camera
+from protocol.messages import TrackerId
 
 
+#: which pairs of tracker ids a node knows for two people (``DistributedTrackerManager.two_people``)
+TwoPeople = Callable[[Sequence[tuple[TrackerId, TrackerId]]], np.ndarray]
+#: which pairs of boxes, two index arrays, may be one person (:meth:`OwnViews.visible`)
+Same = Callable[[np.ndarray, np.ndarray], np.ndarray]
 HIDDEN_COVER = 1.0 / 3.0  # a person a nearer one covers by a third may be missed by a detector
 HEAD_CUT = 0.2  # a box whose top the image cuts by more than this fraction may be missed
 
@@ -65,6 +70,7 @@ class ViewSettings(Slice):
     view_inside: float
     view_fresh: int
     view_hidden: float
+    view_twin: float
     report_unseen: int
     unseen_runs: int
     unseen_tail: float
@@ -183,15 +189,17 @@ class OwnViews:
         longest = sorted(self.runs)[-1 - int(self.s.unseen_tail * len(self.runs))]
         self._limit = max(self.s.report_unseen, longest + 1) if self.s.report_unseen else 0
 
-    def boxes(self, state: NodeState, rows: np.ndarray, k: int,
-              x_hat: np.ndarray) -> list[dict[int, np.ndarray]]:
+    def boxes(self, state: NodeState, rows: np.ndarray, k: int, x_hat: np.ndarray,
+              two_people: TwoPeople | None = None) -> list[dict[int, np.ndarray]]:
         """Each tracker's box in each camera that draws it at frame ``k`` (``rows`` the
         trackers' rows of the table, ``x_hat`` ``(n, 6)`` their estimates, in order); all
         trackers of a camera at once. A camera that measured a tracker this frame first moves
         where it sees it against the estimate towards the measurement, at ``view_rate``
         (``view_place``). A target the camera never measured (with ``view_unseen``, not within
         ``view_frames``) is drawn at the network's size and estimate, and counts as not
-        measured for ``view_frames + 1`` frames."""
+        measured for ``view_frames + 1`` frames. ``two_people``: which pairs of tracker ids the
+        node knows for two people (the manager's); without it no target is taken for another's
+        twin (:meth:`visible`)."""
         s = self.s
         out: list[dict[int, np.ndarray]] = [{} for _ in range(len(rows))]
         for c, cam in enumerate(self.cameras):
@@ -219,7 +227,12 @@ class OwnViews:
                 foot, J = cam.image_and_jacobians(g)
                 wh = sizes * pixels_per_unit(J)[:, None]
             box = np.concatenate([foot[:, :1] - wh[:, :1] / 2.0, foot[:, 1:] - wh[:, 1:], wh], axis=1)
-            drawn = self.visible(cam, box, np.asarray(ages))
+            same = None
+            if two_people is not None:
+                ids = [state.ids[i] for i in at.tolist()]
+                same = lambda a, b, ids=ids: ~two_people([(ids[i], ids[j])  # noqa: E731
+                                                          for i, j in zip(a.tolist(), b.tolist())])
+            drawn = self.visible(cam, box, np.asarray(ages), same)
             for i, b, ok in zip(pick.tolist(), box, drawn.tolist()):
                 if ok:
                     out[i][cam.id] = b
@@ -261,7 +274,31 @@ class OwnViews:
         out[a] = ((cover * nearer) >= self.s.view_behind * (w * h)[a, None]).any(axis=1)
         return out
 
-    def visible(self, cam: Camera, box: np.ndarray, age: np.ndarray) -> np.ndarray:
+    def _twins(self, box: np.ndarray, ok: np.ndarray, age: np.ndarray, same: Same) -> np.ndarray:
+        """Which boxes of ``ok`` (the rest False) are the twin of another box of ``ok`` that
+        the camera measured more recently (``age``, frames since it last measured each): an
+        IoU of at least ``view_twin`` with it, their bottom edges within ``view_depth`` of the
+        box's height (the same depth: not one behind the other), and ``same`` of the pair (the
+        node does not know them for two people)."""
+        out = np.zeros(len(box), bool)
+        old = ok & (age > 0)
+        if self.s.view_twin >= 1.0 or not old.any() or ok.sum() < 2:
+            return out
+        a, b = np.flatnonzero(old), np.flatnonzero(ok)
+        x0, y0, w, h = box.T
+        x1, y1 = x0 + w, y0 + h
+        inter = _overlap(x0, y0, x1, y1, a, b)
+        area = w * h
+        close = (inter >= self.s.view_twin * (area[a, None] + area[None, b] - inter)) \
+            & (np.abs(y1[None, b] - y1[a, None]) < self.s.view_depth * h[a, None]) \
+            & (age[None, b] < age[a, None])
+        i, j = close.nonzero()
+        if len(i):
+            out[a[i[same(a[i], b[j])]]] = True
+        return out
+
+    def visible(self, cam: Camera, box: np.ndarray, age: np.ndarray,
+                same: Same | None = None) -> np.ndarray:
         """Which of a camera's boxes ``(n, 4)`` it can see (``age``: frames since it last
         measured each target): finite, overlapping the image with at least ``view_inside`` of
         the box's width between its left and right edges (people walk in and out of a view
@@ -274,8 +311,14 @@ class OwnViews:
         estimate is not this camera's person). Then, if ``view_hidden`` is below 1, a target
         the camera has not measured for more than ``view_fresh`` frames is left out when a
         nearer drawn box (its bottom edge lower in the image) covers ``view_hidden`` of it (for
-        annotations that leave hidden people out). A target the camera measures now is drawn
-        however crowded the scene."""
+        annotations that leave hidden people out). A target is not drawn where it is the twin
+        of one the camera measured more recently (:meth:`_twins`, ``view_twin``): one person
+        held by two trackers the node has not merged (cameras whose maps disagree by metres
+        each measure the person as their own tracker, and this camera's detection goes to one
+        of them one frame and to the other the next), whom its detector shows as one box;
+        ``same(a, b)`` (index arrays of pairs of boxes) says which pairs may be one person, and
+        without it none is. A target the camera measures now is drawn however crowded the
+        scene."""
         s = self.s
         W, H = cam.image_size
         with np.errstate(invalid="ignore", over="ignore"):
@@ -288,6 +331,8 @@ class OwnViews:
         old = ok & (age > s.view_frames) if not s.view_unseen else np.zeros_like(ok)
         if old.any():
             ok &= ~old | self._behind(box, old, ok & ~old)
+        if same is not None:
+            ok &= ~self._twins(box, ok, age, same)
         stale = ok & (age > s.view_fresh)
         if s.view_hidden >= 1.0 or not stale.any() or ok.sum() < 2:
             return ok
