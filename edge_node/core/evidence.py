@@ -94,10 +94,12 @@ class PairEvidence(MutableMapping):
         """Which of ``pairs`` (either order) hold evidence below zero: two people (a camera
         measured both at once, or they moved apart), ``(len(pairs),)`` bool; an absent pair
         is not."""
+        get = self._slot.get
+        at = np.array([(get(a, -1), get(b, -1)) for a, b in pairs], np.intp).reshape(-1, 2)
+        held = (at >= 0).all(axis=1) & (at[:, 0] != at[:, 1])
         out = np.zeros(len(pairs), bool)
-        for i, (a, b) in enumerate(pairs):
-            e = self.get((a, b) if a < b else (b, a))
-            out[i] = e is not None and e < 0.0
+        if held.any():  # (the table is symmetric; NaN, absent, is not below zero)
+            out[held] = self._table[at[held, 0], at[held, 1]] < 0.0
         return out
 
     def get(self, key: Key, default: float | None = None) -> float | None:

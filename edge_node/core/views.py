@@ -229,9 +229,9 @@ class OwnViews:
             box = np.concatenate([foot[:, :1] - wh[:, :1] / 2.0, foot[:, 1:] - wh[:, 1:], wh], axis=1)
             same = None
             if two_people is not None:
-                ids = [state.ids[i] for i in at.tolist()]
-                same = lambda a, b, ids=ids: ~two_people([(ids[i], ids[j])  # noqa: E731
-                                                          for i, j in zip(a.tolist(), b.tolist())])
+                ids = state.ids
+                same = lambda a, b, at=at: ~two_people([(ids[i], ids[j])  # noqa: E731
+                                                        for i, j in zip(at[a].tolist(), at[b].tolist())])
             drawn = self.visible(cam, box, np.asarray(ages), same)
             for i, b, ok in zip(pick.tolist(), box, drawn.tolist()):
                 if ok:
@@ -279,11 +279,24 @@ class OwnViews:
         the camera measured more recently (``age``, frames since it last measured each): an
         IoU of at least ``view_twin`` with it, their bottom edges within ``view_depth`` of the
         box's height (the same depth: not one behind the other), and ``same`` of the pair (the
-        node does not know them for two people)."""
+        node does not know them for two people). All pairs at once, in a few array calls."""
         out = np.zeros(len(box), bool)
         old = ok & (age > 0)
-        if self.s.view_twin >= 1.0 or not old.any() or ok.sum() < 2:
+        if self.s.view_twin >= 1.0 or not old.any():
             return out
+        a, b = old.nonzero()[0], ok.nonzero()[0]
+        A = box.take(a, axis=0)[:, None]  # (m, 1, 4): x0, y0, w, h
+        B = box.take(b, axis=0)[None]  # (1, p, 4)
+        A1, B1 = A[..., :2] + A[..., 2:], B[..., :2] + B[..., 2:]  # x1, y1
+        inter = (np.minimum(A1, B1) - np.maximum(A[..., :2], B[..., :2])).clip(0.0).prod(axis=2)
+        union = A[..., 2] * A[..., 3] + B[..., 2] * B[..., 3] - inter
+        close = (inter >= self.s.view_twin * union) \
+            & (np.abs(B1[..., 1] - A1[..., 1]) < self.s.view_depth * A[..., 3]) \
+            & (age.take(b)[None] < age.take(a)[:, None])
+        i, j = close.nonzero()
+        if len(i):
+            out[a[i[same(a[i], b[j])]]] = True
+        return out
         a, b = np.flatnonzero(old), np.flatnonzero(ok)
         x0, y0, w, h = box.T
         x1, y1 = x0 + w, y0 + h
