@@ -179,6 +179,52 @@ def test_a_target_is_not_drawn_as_the_twin_of_one_the_camera_measured_more_recen
     assert loose.visible(cam, boxes, age, same).tolist() == drawn
 
 
+def test_of_three_boxes_in_a_row_the_first_is_drawn_when_its_only_twin_is_not():
+    """Boxes 16 px apart (IoU 34 x 100 / 6600 = 0.52 between neighbours, 18 x 100 / 8200 =
+    0.22 between the first and the last), measured 7, 3 and 0 frames ago: the middle one is
+    the twin of the last and is not drawn; the first is the twin of the middle one only, which
+    is not drawn, so the first is (of each pair of twins the camera draws one)."""
+    from edge_node.core.views import OwnViews, ViewSettings
+    from edge_node.geometry import Camera
+    cam = Camera(0, (1000, 1000), np.eye(3))
+    views = OwnViews(ViewSettings.of(TrackerConfig(), view_frames=10), [cam], {})
+    boxes = np.array([[100.0, 400, 50, 100], [116.0, 400, 50, 100], [132.0, 400, 50, 100]])
+    assert views.visible(cam, boxes, np.array([7, 3, 0]),
+                         lambda a, b: np.ones(len(a), bool)).tolist() == [True, False, True]
+
+
+def test_the_twin_rule_asks_the_manager_about_the_drawn_trackers_ids():
+    """Through ``OwnViews.boxes`` on a node's table: of three trackers the reporter shows rows
+    1 and 2, at nearly the same place on the fakes' top-down camera; row 1 was measured now,
+    row 2 five frames ago. The manager is asked about the pair by the trackers' ids (not the
+    rows' or the boxes' positions), and row 2 is drawn only when the manager knows the two for
+    two people."""
+    from edge_node.core.gallery import Gallery
+    from edge_node.core.state import NodeState
+    from edge_node.core.views import OwnViews, ViewSettings
+    from fakes import topdown_camera
+    ids = [(0, 0), (0, 1), (1, 5)]
+    k = 20
+    for known_two in (False, True):
+        views = OwnViews(ViewSettings.of(TrackerConfig()), [topdown_camera(0)], {})
+        st = NodeState(1)
+        for t in ids:
+            st.insert(t, Gallery())
+        st.view_k[:, 0] = [k, k, k - 5]
+        st.view_size[:, 0] = [0.5, 1.7]
+        asked = []
+
+        def two_people(pairs, known_two=known_two):
+            asked.extend(pairs)
+            return np.full(len(pairs), known_two)
+
+        x_hat = np.array([[5.0, 5.0, 0.5, 1.7, 0, 0], [5.05, 5.0, 0.5, 1.7, 0, 0]])
+        out = views.boxes(st, np.array([1, 2]), k, x_hat, two_people)
+        assert asked == [((1, 5), (0, 1))]
+        assert 0 in out[0]
+        assert (0 in out[1]) is known_two
+
+
 def test_the_managers_say_which_pairs_are_two_people():
     """The DTM knows a pair for two people when its co-motion evidence is below zero (a camera
     measured both at once far apart); a pair without evidence, or with evidence for one

@@ -295,10 +295,10 @@ class ReporterSection:
                               "after which a nearer target can hide it")
     view_hidden: float = number(1.0, lo=0.0, hi=1.0,
                                 doc="fraction of a box a nearer drawn box must cover to hide it (1: never; docs/tuning.md)")
-    view_twin: float = number(0.5, lo=0.0, hi=1.0,
-                              doc="IoU with the box of a target the camera measures now, at the "
-                              "same depth (view_depth), from which a target it does not measure now "
-                              "is that person drawn twice and is not drawn, unless the node knows "
+    view_twin: float = number(0.5, lo=0.0, lo_open=True, hi=1.0,
+                              doc="IoU with the drawn box of a target the camera measured more "
+                              "recently, at the same depth (view_depth), from which a target is "
+                              "that person drawn twice and is not drawn, unless the node knows "
                               "the two for two people (1: never; docs/tuning.md)")
 
     def __post_init__(self) -> None:

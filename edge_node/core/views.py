@@ -279,7 +279,8 @@ class OwnViews:
         the camera measured more recently (``age``, frames since it last measured each): an
         IoU of at least ``view_twin`` with it, their bottom edges within ``view_depth`` of the
         box's height (the same depth: not one behind the other), and ``same`` of the pair (the
-        node does not know them for two people). All pairs at once, in a few array calls."""
+        node does not know them for two people), that is itself drawn. All pairs at once, in a
+        few array calls."""
         out = np.zeros(len(box), bool)
         old = ok & (age > 0)
         if self.s.view_twin >= 1.0 or not old.any():
@@ -295,19 +296,13 @@ class OwnViews:
             & (age.take(b)[None] < age.take(a)[:, None])
         i, j = close.nonzero()
         if len(i):
-            out[a[i[same(a[i], b[j])]]] = True
-        return out
-        a, b = np.flatnonzero(old), np.flatnonzero(ok)
-        x0, y0, w, h = box.T
-        x1, y1 = x0 + w, y0 + h
-        inter = _overlap(x0, y0, x1, y1, a, b)
-        area = w * h
-        close = (inter >= self.s.view_twin * (area[a, None] + area[None, b] - inter)) \
-            & (np.abs(y1[None, b] - y1[a, None]) < self.s.view_depth * h[a, None]) \
-            & (age[None, b] < age[a, None])
-        i, j = close.nonzero()
-        if len(i):
-            out[a[i[same(a[i], b[j])]]] = True
+            keep = same(a[i], b[j])
+            i, j = i[keep], j[keep]
+        # the most recently measured first: a box is left out only for a twin that is drawn
+        # (three boxes in a row, each overlapping the next: the middle one hidden, the first
+        # is drawn), so of each pair the camera draws one
+        for r in sorted(set(i.tolist()), key=lambda r: (age[a[r]], a[r])):
+            out[a[r]] = not out[b[j[i == r]]].all()
         return out
 
     def visible(self, cam: Camera, box: np.ndarray, age: np.ndarray,
