@@ -279,21 +279,19 @@ class OwnViews:
         the camera measured more recently (``age``, frames since it last measured each): an
         IoU of at least ``view_twin`` with it, their bottom edges within ``view_depth`` of the
         box's height (the same depth: not one behind the other), and ``same`` of the pair (the
-        node does not know them for two people), that is itself drawn. All pairs at once, in a
-        few array calls."""
+        node does not know them for two people), that is itself drawn. All pairs at once."""
         out = np.zeros(len(box), bool)
         old = ok & (age > 0)
         if self.s.view_twin >= 1.0 or not old.any():
             return out
         a, b = old.nonzero()[0], ok.nonzero()[0]
-        A = box.take(a, axis=0)[:, None]  # (m, 1, 4): x0, y0, w, h
-        B = box.take(b, axis=0)[None]  # (1, p, 4)
-        A1, B1 = A[..., :2] + A[..., 2:], B[..., :2] + B[..., 2:]  # x1, y1
-        inter = (np.minimum(A1, B1) - np.maximum(A[..., :2], B[..., :2])).clip(0.0).prod(axis=2)
-        union = A[..., 2] * A[..., 3] + B[..., 2] * B[..., 3] - inter
-        close = (inter >= self.s.view_twin * union) \
-            & (np.abs(B1[..., 1] - A1[..., 1]) < self.s.view_depth * A[..., 3]) \
-            & (age.take(b)[None] < age.take(a)[:, None])
+        x0, y0, w, h = box.T
+        x1, y1 = x0 + w, y0 + h
+        inter = _overlap(x0, y0, x1, y1, a, b)
+        area = w * h
+        close = (inter >= self.s.view_twin * (area[a, None] + area[None, b] - inter)) \
+            & (np.abs(y1[None, b] - y1[a, None]) < self.s.view_depth * h[a, None]) \
+            & (age[None, b] < age[a, None])
         i, j = close.nonzero()
         if len(i):
             keep = same(a[i], b[j])
