@@ -2,13 +2,14 @@
 quarantined, re-admitted; the honest nodes' tracks and ids survive it; honest networks never
 quarantine anyone. The faulty node's lies are the fault layer's (edge_node/forgery.py), the same
 in both shells (tests/test_cluster.py runs one across processes)."""
+from collections import Counter
 from dataclasses import replace
 
 import numpy as np
 import pytest
 
 from edge_node.core import TrackerConfig
-from edge_node.core.trust import QUARANTINED, SUSPECT, TRUSTED, Trust, TrustSettings
+from edge_node.core.trust import REFUTED, QUARANTINED, SUSPECT, TRUSTED, Trust, TrustSettings
 from edge_node.faults import FaultPlan, FaultyNode
 from edge_node.forgery import Forger
 from fakes import det, graph, make_nodes
@@ -18,10 +19,12 @@ START = 30  # the frame node 2 turns faulty
 PEOPLE = [(2.0, 2.0), (2.0, 6.5), (6.5, 2.0), (6.5, 6.5), (4.2, 8.8), (8.8, 4.2)]  # 4 m apart
 
 
-def triangle(kind: str | None, frames: int, cfg: TrackerConfig | None = None, people=PEOPLE[:2]):
+def triangle(kind: str | None, frames: int, cfg: TrackerConfig | None = None, people=PEOPLE[:2],
+             record: list | None = None):
     """Three nodes, each neighbour of the others, every camera seeing ``people`` walking
-    slowly; from ``START`` node 2's messages carry the lies of ``kind``. Returns the nodes and
-    every frame's tracks of nodes 0 and 1, and the people's positions per frame."""
+    slowly; from ``START`` node 2's messages carry the lies of ``kind`` (its detections, for
+    the kinds of a camera). Returns the nodes and every frame's tracks of nodes 0 and 1, and
+    the people's positions per frame; ``record`` gets each frame's ``stats.trust`` per node."""
     nodes = make_nodes(graph("complete", 3), cfg or TrackerConfig())
     forger = None
     if kind is not None:
@@ -33,7 +36,8 @@ def triangle(kind: str | None, frames: int, cfg: TrackerConfig | None = None, pe
     for k in range(frames):
         where = [(x + 0.01 * k, y) for x, y in people]
         dets = [det(x, y, p, rng) for p, (x, y) in enumerate(where)]
-        msgs = {i: n.prepare(k, dets) for i, n in nodes.items()}
+        msgs = {i: n.prepare(k, forger.detections(k, dets) if forger and i == 2 else dets)
+                for i, n in nodes.items()}
         if forger is not None:
             msgs[2] = forger.message(k, msgs[2])
         wire = {i: codec.encode(m) for i, m in msgs.items()}
@@ -41,6 +45,8 @@ def triangle(kind: str | None, frames: int, cfg: TrackerConfig | None = None, pe
                for i, n in nodes.items()}
         tracks.append(out)
         truth.append(where)
+        if record is not None:
+            record.append({i: n.stats.trust for i, n in nodes.items()})
     return nodes, tracks, truth
 
 
@@ -94,6 +100,38 @@ def test_a_neighbour_announcing_merges_of_people_apart_is_quarantined_before_any
         assert len(nodes[i].trust.of[2].disputed) == 5  # each far_merge pair, disputed once
     assert ids_at(tracks, START - 1) == ids_at(tracks, frames - 1)
     assert all(len(tracks[k][i]) == 6 for k in range(START, frames) for i in (0, 1))
+
+
+def test_a_neighbour_whose_detector_sees_people_who_are_not_there_is_quarantined():
+    """From ``START`` node 2's detector adds 3 invented people walking through its view
+    (``hallucinate``), which is also nodes 0 and 1's view: their cameras should measure them
+    and never do. Once a node has held one for ``unseen_limit()`` frames (10: these detectors
+    miss nobody, so nothing raises the floor) each of node 2's entries measuring it is refuted,
+    and each adds ``trust_refuted`` 2 less ``trust_refuted_allow`` 0.75 a frame: with the three
+    refuted from the same frame, 4.5 a frame, so node 2 is quarantined 23 frames after its
+    first refuted entry (103.5 >= 100; the refuted sum does not make a neighbour suspect), for
+    that reason. The honest nodes then drop its invented people and keep the two real people's
+    ids. With ``trust_refuted = 0`` nobody is quarantined, and the honest nodes go on holding
+    node 2's invented people."""
+    frames = START + 60
+    record = []
+    nodes, tracks, truth = triangle("hallucinate", frames, record=record)
+    for i in (0, 1):
+        t = nodes[i].trust.of[2]
+        total = [0] + [r[i][2]["refuted"] for r in record]
+        per_frame = [b - a for a, b in zip(total, total[1:])]  # node 2's refuted entries a frame
+        first = next(k for k, n in enumerate(per_frame) if n)
+        assert START + 10 <= first <= START + 16, first
+        assert per_frame[first:first + 23] == [3] * 23, per_frame[first:]
+        assert t.changes == [(first + 22, QUARANTINED)], (first, t.changes)
+        assert t.reason == REFUTED and t.state == QUARANTINED
+        assert nodes[i].trust.of[1 - i].state == TRUSTED and not nodes[i].trust.of[1 - i].changes
+    assert ids_at(tracks, START - 1) == ids_at(tracks, frames - 1) == ids_at(tracks, START - 1)
+
+    off, _, _ = triangle("hallucinate", frames, cfg=TrackerConfig(trust_refuted=0.0))
+    for i in (0, 1):
+        assert off[i].trust.of[2].state == TRUSTED and not off[i].trust.of[2].changes
+        assert sum(1 for t in off[i].state.ids if t[0] == 2) > sum(1 for t in nodes[i].state.ids if t[0] == 2)
 
 
 def test_honest_neighbours_are_never_suspected():
@@ -151,6 +189,43 @@ def test_the_cusum_by_hand():
     assert states[48] == QUARANTINED and states[49:] == [TRUSTED] * 41
     assert tr.of[1].cusum == 0.0 and tr.of[2].cusum == 0.0 and not tr.of[2].changes
     assert tr.of[1].quarantined_frames == 25 and tr.of[1].suspect_frames == 17
+
+
+class Refuting(Scripted):
+    """The trust role fed each neighbour's refuted entries a frame directly (its scores 0)."""
+
+    def __init__(self, settings, refuted):
+        super().__init__(settings, [{n: 0.0 for n in r} for r in refuted])
+        self.refuted = iter(refuted)
+
+    def _statistics(self, state, msgs, resolve, k):
+        self._refuted = Counter(next(self.refuted))
+        return super()._statistics(state, msgs, resolve, k)
+
+
+def test_the_refuted_sum_by_hand():
+    """Neighbour 1 has 3 entries refuted a frame for 30 frames: its refuted sum grows by
+    ``trust_refuted`` x (3 - ``trust_refuted_allow``) = 2 x 2.25 = 4.5 a frame: past
+    ``trust_suspect`` (30) at the 7th frame but not suspect (the refuted sum only quarantines:
+    honest cameras reach 30-46 on EPFL), quarantined at the 23rd (103.5), 135 after the 30th.
+    Then none: the sum falls by 2 x 0.75 = 1.5 a frame and is 0 after 90 more (frame index
+    119), the first calm frame; trusted again after 25 calm frames (index 143). Neighbour 2 has
+    one refuted a frame for 50 frames: 0.5 a frame, 25 at most. With ``trust_refuted = 0``
+    neither sum moves."""
+    script = [{1: 3, 2: 1}] * 30 + [{1: 0, 2: 1}] * 20 + [{1: 0, 2: 0}] * 110
+    tr = Refuting(SETTINGS, script)
+    for k in range(len(script)):
+        tr(None, [Msg(1), Msg(2)], k, lambda t: t)
+        if k == 29:
+            assert tr.of[1].refuted_sum == 135.0
+    assert tr.of[1].changes == [(22, QUARANTINED), (143, TRUSTED)]
+    assert tr.of[1].reason == REFUTED and tr.of[1].refuted_peak == 135.0
+    assert tr.summary()[1]["refuted"] == 90 and tr.summary()[2]["refuted"] == 50
+    assert not tr.of[2].changes and tr.of[2].refuted_peak == 25.0
+    off = Refuting(replace(SETTINGS, trust_refuted=0.0), script)
+    for k in range(len(script)):
+        off(None, [Msg(1), Msg(2)], k, lambda t: t)
+    assert not off.of[1].changes and off.of[1].refuted_peak == 0.0
 
 
 def test_a_quiet_neighbour_keeps_its_state():

@@ -47,6 +47,25 @@ and it is trusted again after ``trust_readmit`` calm frames. The lag needs peopl
 different directions (a lag and an offset are the same thing when everyone walks alike) and
 is blind to a box that lags while nobody moves.
 
+**Refuted.** A neighbour whose detector sees people who are not there (rain, reflections, a
+hallucinating network; ``hallucinate`` in ``edge_node/forgery.py``) sends measurements that
+agree with its own trackers and with nothing else: where nobody else looks no test above sees
+them. Where this node's own cameras look they are refuted: the node's negative evidence
+(``views.OwnViews.expect``) counts the frames in
+a row its cameras should have measured a tracker and did not, and past ``unseen_limit()`` (its
+cameras have not missed a real person that long lately) the tracker is not there. Each entry
+of this frame in which a neighbour claims to measure such a tracker (``U`` not zero) is refuted;
+a third one-sided CUSUM per neighbour adds ``trust_refuted`` times (its refuted entries less
+``trust_refuted_allow``) a frame, bounded at twice ``trust_quarantine``, against the same
+thresholds (reason ``refuted``). An honest camera's claims are refuted too, one at a time: a
+person it annotates or detects that this node's cameras miss for longer than usual (a static
+occluder, an annotation one camera lacks); a hallucinating detector's come several at once and
+for as long as it hallucinates. A neighbour quarantined for it is not calm while its refuted
+sum is above zero: it is trusted again ``trust_readmit`` frames after the sum drained, so one
+whose invented people this node no longer holds (and so cannot refute) is not re-admitted the
+moment they are gone. (Distrusted for another reason, its calm is as before: an honest network
+whose neighbour is suspect a while runs exactly as without this test.) A neighbour relaying a tracker it does not measure claims nothing and is not refuted.
+
 **Merges.** A merge a neighbour announces is a claim that two trackers are one person. It is
 refused from anyone (``far_merge``) when this node's own cameras measure both trackers in this
 frame, farther apart than twice the merge rules' reach, and it has held both for
@@ -83,8 +102,8 @@ a faulty neighbour is cut once its evidence is strong, never on one frame's outl
 
 Counted per neighbour (``NodeStats.trust``): its state, the frames it spent suspect and
 quarantined, the first frame it was quarantined, why it was last distrusted (``inconsistent``,
-``lagging``, ``merges``), its latest lag (s) and the frames its lag stood out. Pure and
-deterministic.
+``lagging``, ``merges``, ``refuted``), its latest lag (s) and the frames its lag stood out, its
+entries refuted and the largest its refuted sum reached. Pure and deterministic.
 """
 from __future__ import annotations
 
@@ -105,7 +124,7 @@ TRUSTED, SUSPECT, QUARANTINED = "trusted", "suspect", "quarantined"
 FAR = "far_merge"  # a merge of trackers this node's cameras measure apart: refused
 APART = "apart"  # a merge of trackers apart in this node's estimates only: weak evidence
 LEVEL_RATE = 0.05  # smoothing of a neighbour's usual score (about a second at 25 fps)
-INCONSISTENT, LAGGING, MERGES = "inconsistent", "lagging", "merges"  # why one is distrusted
+INCONSISTENT, LAGGING, MERGES, REFUTED = "inconsistent", "lagging", "merges", "refuted"  # why
 _EYE = np.eye(4)  # in place of a 4 x 4 information matrix without an inverse
 
 
@@ -127,6 +146,8 @@ class TrustSettings(Slice):
     trust_lag: float
     trust_lag_z: float
     trust_lag_frames: int
+    trust_refuted: float
+    trust_refuted_allow: float
     calib_sigma: float
     comotion_gate: float
     comotion_frames: int
@@ -142,13 +163,16 @@ class NeighbourTrust:
     state: str = TRUSTED
     cusum: float = 0.0
     lag_sum: float = 0.0  # the lag's CUSUM (module docstring, "Lag")
+    refuted_sum: float = 0.0  # the refuted claims' CUSUM (module docstring, "Refuted")
+    refuted: int = 0  # its entries refuted by this node's cameras, over the run
+    refuted_peak: float = 0.0  # the largest its refuted sum reached
     calm: int = 0  # frames in a row within the allowance
     suspect_frames: int = 0
     quarantined_frames: int = 0
     first_quarantine: int | None = None
     changes: list[tuple[int, str]] = field(default_factory=list)  # (frame, new state)
     disputed: deque = field(default_factory=lambda: deque(maxlen=256))  # pairs disputed, latest
-    reason: str | None = None  # why it was last distrusted: inconsistent, lagging, merges
+    reason: str | None = None  # why it was last distrusted: inconsistent, lagging, merges, refuted
     lag: float = 0.0  # s, its latest lag estimate tau (module docstring, "Lag")
     lagging_frames: int = 0  # frames its lag stood out (added to its sum)
     N: list[float] = field(default_factory=lambda: [0.0] * 6)  # the lag's normal equations
@@ -159,15 +183,19 @@ class NeighbourTrust:
                 "quarantined_frames": self.quarantined_frames,
                 "first_quarantine": self.first_quarantine, "changes": len(self.changes),
                 "reason": self.reason, "lag_s": round(self.lag, 3),
-                "lagging_frames": self.lagging_frames}
+                "lagging_frames": self.lagging_frames, "refuted": self.refuted,
+                "refuted_peak": round(self.refuted_peak, 1)}
 
 
 class Trust:
     """The trust role of a node with ``neighbours`` (module docstring)."""
 
     def __init__(self, settings: TrustSettings, neighbours: Sequence[int],
-                 rejected: Counter | None = None):
+                 rejected: Counter | None = None,
+                 unseen_limit: Callable[[], int] | None = None):
         self.cfg = settings
+        self.unseen_limit = unseen_limit  # the negative evidence's limit (views.OwnViews)
+        self._refuted: Counter = Counter()  # per sender, this frame's refuted entries
         self.rejected = Counter() if rejected is None else rejected  # the screen's counter
         self.of: dict[int, NeighbourTrust] = {n: NeighbourTrust() for n in neighbours}
         self.scores: dict[int, float] = {}  # the last frame's score of each neighbour heard
@@ -213,7 +241,14 @@ class Trust:
             lv = self.level.get(n)
             self.level[n] = s if lv is None else lv + LEVEL_RATE * (s - lv)
         lagging = self._lagging()
+        w, allow = self.cfg.trust_refuted, self.cfg.trust_refuted_allow
         for n, t in sorted(self.of.items()):
+            refuted = self._refuted[n]
+            t.refuted += refuted
+            if w:  # bounded like the lag's: its claims no longer refuted, trusted again
+                t.refuted_sum = min(2.0 * self.cfg.trust_quarantine,
+                                    max(0.0, t.refuted_sum + w * (refuted - allow)))
+                t.refuted_peak = max(t.refuted_peak, t.refuted_sum)
             if n in self.scores:
                 # the others' scores this frame, or their usual level when not heard (a lost or
                 # late message must not leave a neighbour alone against the bare drift)
@@ -224,11 +259,14 @@ class Trust:
                 t.cusum = max(0.0, t.cusum + step) + novel[n]
                 dz = lagging.get(n, 0.0)  # the lag's own CUSUM, bounded: fresh again, trusted
                 t.lag_sum = min(2.0 * self.cfg.trust_quarantine, max(0.0, t.lag_sum + dz))
-                t.calm = t.calm + 1 if step <= 0.0 and dz <= 0.0 and not disputed[n] else 0
-            elif disputed[n]:
+                draining = t.reason == REFUTED and t.refuted_sum > 0.0
+                t.calm = (t.calm + 1 if step <= 0.0 and dz <= 0.0 and not disputed[n]
+                          and not draining else 0)
+            elif disputed[n] or (t.reason == REFUTED and t.refuted_sum > 0.0):
                 t.cusum += novel[n]
                 t.calm = 0
-            why = MERGES if novel[n] else LAGGING if t.lag_sum > t.cusum else INCONSISTENT
+            why = (MERGES if novel[n] else REFUTED if t.refuted_sum > max(t.cusum, t.lag_sum)
+                   else LAGGING if t.lag_sum > t.cusum else INCONSISTENT)
             self._transition(n, t, k, why)
         return [self._used(m, e, v) for m, e, v in zip(msgs, entries, verdicts)]
 
@@ -280,9 +318,26 @@ class Trust:
             s22 = np.where(measured, vd, 0.0) + w * P[:, 1, 1] + c2
             stat = (s22 * e1 ** 2 - 2.0 * s12 * e1 * e2 + s11 * e2 ** 2) / (s11 * s22 - s12 * s12)
         stat = np.where(np.isfinite(stat), stat, self.cfg.trust_cap)
+        self._count_refuted(state, msgs, which, held, measured)
         self._lag_terms(state, k, msgs, which, bounds, held, U, u, stat < self.cfg.trust_cap)
         stat = stat.tolist()
         return [(rows[i:j], stat[i:j]) for i, j in zip(bounds, bounds[1:])]
+
+    def _count_refuted(self, state: NodeState, msgs: list[FrameMessage], which: np.ndarray,
+                       held: np.ndarray, measured: np.ndarray) -> None:
+        """Per sender, its entries of this frame that claim a measurement of a tracker this
+        node's own cameras should have measured and have not, ``unseen_limit()`` frames in a row
+        (``_refuted``; module docstring, "Refuted"); a sender of several messages (late ones)
+        counts with its largest."""
+        self._refuted = Counter()
+        limit = self.unseen_limit() if self.unseen_limit is not None else 0
+        if not limit or not self.cfg.trust_refuted or not len(which):
+            return
+        per = np.bincount(which, weights=measured & (state.unseen[held] >= limit),
+                          minlength=len(msgs))
+        for m, c in zip(msgs, per.tolist()):
+            if c:
+                self._refuted[m.sender] = max(self._refuted[m.sender], int(c))
 
     def _lag_terms(self, state: NodeState, k: int, msgs: list[FrameMessage], which: np.ndarray,
                    bounds: list[int], held: np.ndarray, U: np.ndarray, u: np.ndarray,
@@ -372,8 +427,8 @@ class Trust:
     def _transition(self, n: int, t: NeighbourTrust, k: int, why: str) -> None:
         cfg = self.cfg
         new = t.state
-        total = max(t.cusum, t.lag_sum)  # either test
-        if total >= cfg.trust_quarantine:
+        total = max(t.cusum, t.lag_sum)  # either test; the refuted sum only quarantines
+        if max(total, t.refuted_sum) >= cfg.trust_quarantine:
             new = QUARANTINED
         elif t.state == TRUSTED and total >= cfg.trust_suspect:
             new = SUSPECT

@@ -639,7 +639,7 @@ class FrameLoop:
             "core_restarts": st.core_restarts,
             # each neighbour's trust state (trusted, suspect, quarantined; core/trust.py)
             "trust": {str(n): t["state"] for n, t in self.node.stats.trust.items()},
-            # why each distrusted neighbour is (inconsistent, lagging, merges)
+            # why each distrusted neighbour is (inconsistent, lagging, merges, refuted)
             "trust_reason": {str(n): t.get("reason") for n, t in self.node.stats.trust.items()
                              if t["state"] != "trusted"},
             # how often each camera's registration re-locked after a jump (R7, core/registration.py)
