@@ -107,10 +107,10 @@ def test_a_neighbour_whose_detector_sees_people_who_are_not_there_is_quarantined
     (``hallucinate``), which is also nodes 0 and 1's view: their cameras should measure them
     and never do. Once a node has held one for ``unseen_limit()`` frames (10: these detectors
     miss nobody, so nothing raises the floor) each of node 2's entries measuring it is refuted,
-    and each adds ``trust_refuted`` 2 less ``trust_refuted_allow`` 0.75 a frame: with the three
-    refuted from the same frame, 4.5 a frame, so node 2 is quarantined 23 frames after its
-    first refuted entry (103.5 >= 100; the refuted sum does not make a neighbour suspect), for
-    that reason. The honest nodes then drop its invented people and keep the two real people's
+    and the sum grows by ``trust_refuted`` 4 times (the entries less ``trust_refuted_allow``
+    1) a frame: with the three refuted from the same frame, 8 a frame, so node 2 is quarantined
+    13 frames after its first refuted entry (104 >= 100; the refuted sum does not make a
+    neighbour suspect), for that reason. The honest nodes then drop its invented people and keep the two real people's
     ids. With ``trust_refuted = 0`` nobody is quarantined, and the honest nodes go on holding
     node 2's invented people."""
     frames = START + 60
@@ -122,8 +122,8 @@ def test_a_neighbour_whose_detector_sees_people_who_are_not_there_is_quarantined
         per_frame = [b - a for a, b in zip(total, total[1:])]  # node 2's refuted entries a frame
         first = next(k for k, n in enumerate(per_frame) if n)
         assert START + 10 <= first <= START + 16, first
-        assert per_frame[first:first + 23] == [3] * 23, per_frame[first:]
-        assert t.changes == [(first + 22, QUARANTINED)], (first, t.changes)
+        assert per_frame[first:first + 13] == [3] * 13, per_frame[first:]
+        assert t.changes == [(first + 12, QUARANTINED)], (first, t.changes)
         assert t.reason == REFUTED and t.state == QUARANTINED
         assert nodes[i].trust.of[1 - i].state == TRUSTED and not nodes[i].trust.of[1 - i].changes
     assert ids_at(tracks, START - 1) == ids_at(tracks, frames - 1) == ids_at(tracks, START - 1)
@@ -204,24 +204,31 @@ class Refuting(Scripted):
 
 
 def test_the_refuted_sum_by_hand():
-    """Neighbour 1 has 3 entries refuted a frame for 30 frames: its refuted sum grows by
-    ``trust_refuted`` x (3 - ``trust_refuted_allow``) = 2 x 2.25 = 4.5 a frame: past
-    ``trust_suspect`` (30) at the 7th frame but not suspect (the refuted sum only quarantines:
-    honest cameras reach 30-46 on EPFL), quarantined at the 23rd (103.5), 135 after the 30th.
-    Then none: the sum falls by 2 x 0.75 = 1.5 a frame and is 0 after 90 more (frame index
-    119), the first calm frame; trusted again after 25 calm frames (index 143). Neighbour 2 has
-    one refuted a frame for 50 frames: 0.5 a frame, 25 at most. With ``trust_refuted = 0``
-    neither sum moves."""
-    script = [{1: 3, 2: 1}] * 30 + [{1: 0, 2: 1}] * 20 + [{1: 0, 2: 0}] * 110
+    """Neighbour 1 has 3 entries refuted a frame for 25 frames: its refuted sum grows by
+    ``trust_refuted`` x (3 - ``trust_refuted_allow``) = 4 x 2 = 8 a frame: past
+    ``trust_suspect`` (30) at the 4th frame but not suspect (the refuted sum only quarantines),
+    quarantined at the 13th (104), bounded at 200 (twice ``trust_quarantine``) from the 25th
+    frame on. Then none: the sum falls by 4 x 1 = 4 a frame and is 0 after 50 more (frame
+    index 74), the first calm frame; trusted again after 25 calm frames (index 98). Neighbour
+    2 has two refuted a frame for 10 frames (40), then one a frame for 200 frames: one a frame
+    adds nothing (a person behind a pillar, however long he stays), so 40 stays 40 until no
+    entry is refuted, then falls 4 a frame. With ``trust_refuted = 0`` neither sum moves."""
+    script = ([{1: 3, 2: 2}] * 10 + [{1: 3, 2: 1}] * 15 + [{1: 0, 2: 1}] * 185
+              + [{1: 0, 2: 0}] * 20)
     tr = Refuting(SETTINGS, script)
     for k in range(len(script)):
         tr(None, [Msg(1), Msg(2)], k, lambda t: t)
-        if k == 29:
-            assert tr.of[1].refuted_sum == 135.0
-    assert tr.of[1].changes == [(22, QUARANTINED), (143, TRUSTED)]
-    assert tr.of[1].reason == REFUTED and tr.of[1].refuted_peak == 135.0
-    assert tr.summary()[1]["refuted"] == 90 and tr.summary()[2]["refuted"] == 50
-    assert not tr.of[2].changes and tr.of[2].refuted_peak == 25.0
+        if k == 11:
+            assert tr.of[1].refuted_sum == 96.0 and tr.of[1].state == TRUSTED
+        if k == 24:
+            assert tr.of[1].refuted_sum == 200.0
+        if k == 209:
+            assert tr.of[2].refuted_sum == 40.0
+    assert tr.of[1].changes == [(12, QUARANTINED), (98, TRUSTED)]
+    assert tr.of[1].reason == REFUTED and tr.of[1].refuted_peak == 200.0
+    assert tr.summary()[1]["refuted"] == 75 and tr.summary()[2]["refuted"] == 220
+    assert not tr.of[2].changes and tr.of[2].refuted_peak == 40.0
+    assert tr.of[2].refuted_sum == 0.0
     off = Refuting(replace(SETTINGS, trust_refuted=0.0), script)
     for k in range(len(script)):
         off(None, [Msg(1), Msg(2)], k, lambda t: t)

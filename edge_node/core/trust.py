@@ -57,10 +57,14 @@ cameras have not missed a real person that long lately) the tracker is not there
 of this frame in which a neighbour claims to measure such a tracker (``U`` not zero) is refuted;
 a third one-sided CUSUM per neighbour adds ``trust_refuted`` times (its refuted entries less
 ``trust_refuted_allow``) a frame, bounded at twice ``trust_quarantine``, against the same
-thresholds (reason ``refuted``). An honest camera's claims are refuted too, one at a time: a
-person it annotates or detects that this node's cameras miss for longer than usual (a static
-occluder, an annotation one camera lacks); a hallucinating detector's come several at once and
-for as long as it hallucinates. A neighbour quarantined for it is not calm while its refuted
+thresholds (reason ``refuted``), which only quarantines (never makes a neighbour suspect). An
+honest camera's claims are refuted too, one at a time: a person it sees that this node's
+cameras cannot, behind something the tracker does not know of (a pillar), for as long as he
+stays there, or a person one EPFL camera annotates and another does not box; with the
+allowance at one entry a frame such a person adds nothing however long he stays. A
+hallucinating detector's come several at once, for as long as it hallucinates. What it cannot
+tell: one invented person at a time is an honest camera's pattern, and two or more real people
+behind an unknown occluder at once are a hallucination's (each frame they stay adds to the sum). A neighbour quarantined for it is not calm while its refuted
 sum is above zero: it is trusted again ``trust_readmit`` frames after the sum drained, so one
 whose invented people this node no longer holds (and so cannot refute) is not re-admitted the
 moment they are gone. (Distrusted for another reason, its calm is as before: an honest network
