@@ -197,7 +197,7 @@ class TrustSection:
     trust_lag: float = positive(0.3, "s, the lag of a neighbour's measurements behind this node's own cameras' (least squares on its velocity estimates, beyond the lag of the message's own frame) above which it counts against the neighbour: a box re-sending old frames as new (stale)")
     trust_lag_z: float = positive(3.0, "standard errors by which a neighbour's lag must exceed trust_lag to count; each frame it does adds (z - trust_lag_z)^2 to its sum")
     trust_lag_frames: int = integer(50, lo=1, doc="frames the lag estimate remembers (its forgetting factor is 1 - 1/trust_lag_frames)")
-    trust_refuted: float = nonnegative(4.0, "added to a neighbour's refuted sum per entry of this frame in which it claims to measure a target that this node's own cameras should have measured and have not for unseen_limit frames in a row (negative evidence, [tracker.reporter]): a detector that sees people who are not there; 0: off")
+    trust_refuted: float = nonnegative(2.0, "added to a neighbour's refuted sum per entry of this frame in which it claims to measure a target that this node's own cameras should have measured and have not for unseen_limit frames in a row (negative evidence, [tracker.reporter]): a detector that sees people who are not there; 0: off")
     trust_refuted_allow: float = nonnegative(1.0, "entries a frame that an honest neighbour may have refuted without adding to its refuted sum: one person it sees that this node's cameras cannot (behind something the tracker does not know of), for as long as he stays there")
 
     def __post_init__(self) -> None:

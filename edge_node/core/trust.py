@@ -64,11 +64,20 @@ stays there, or a person one EPFL camera annotates and another does not box; wit
 allowance at one entry a frame such a person adds nothing however long he stays. A
 hallucinating detector's come several at once, for as long as it hallucinates. What it cannot
 tell: one invented person at a time is an honest camera's pattern, and two or more real people
-behind an unknown occluder at once are a hallucination's (each frame they stay adds to the sum). A neighbour quarantined for it is not calm while its refuted
-sum is above zero: it is trusted again ``trust_readmit`` frames after the sum drained, so one
-whose invented people this node no longer holds (and so cannot refute) is not re-admitted the
-moment they are gone. (Distrusted for another reason, its calm is as before: an honest network
-whose neighbour is suspect a while runs exactly as without this test.) A neighbour relaying a tracker it does not measure claims nothing and is not refuted.
+behind an unknown occluder at once are a hallucination's (each frame they stay adds to the
+sum). A quarantined neighbour's trackers are not adopted (or, held before, are dropped once
+nothing else supports them), so a distrusted sender's claims of trackers this node does not
+hold are judged on their own (``_judge_unheld``; a trusted sender's new trackers are adopted and
+counted by ``state.unseen`` from the next frame): the sender's state of the tracker
+inside one of the node's cameras' views (``views.OwnViews.expected``, the node's own targets as
+occluders) and no target the node measures this frame within ``tau_gda``, counted per sender
+and tracker like ``state.unseen``; without that, nothing was left to refute once the
+invented people were dropped, and the neighbour was re-admitted, its invented people adopted
+again, 75 frames later, while it still hallucinated. A neighbour quarantined for it is not
+calm while its refuted sum is above zero: it is trusted again ``trust_readmit`` frames after
+the sum drained. (Distrusted for another reason, its calm is as before: an honest network
+whose neighbour is suspect a while runs exactly as without this test.) A neighbour relaying a
+tracker it does not measure claims nothing and is not refuted.
 
 **Merges.** A merge a neighbour announces is a claim that two trackers are one person. It is
 refused from anyone (``far_merge``) when this node's own cameras measure both trackers in this
@@ -117,6 +126,7 @@ from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field, replace
 from itertools import chain
 from statistics import median
+from typing import Any
 
 import numpy as np
 
@@ -196,9 +206,14 @@ class Trust:
 
     def __init__(self, settings: TrustSettings, neighbours: Sequence[int],
                  rejected: Counter | None = None,
-                 unseen_limit: Callable[[], int] | None = None):
+                 views: Any = None):
         self.cfg = settings
-        self.unseen_limit = unseen_limit  # the negative evidence's limit (views.OwnViews)
+        # the node's negative evidence (views.OwnViews: unseen_limit, expected), None: none
+        has = hasattr(views, "unseen_limit") and hasattr(views, "expected")
+        self.views = views if has else None
+        # per sender and tracker it claims that this node does not hold: [frames in a row
+        # this node's cameras should have measured it and did not, the frame last claimed]
+        self._unheld: dict[tuple[int, TrackerId], list[int]] = {}
         self._refuted: Counter = Counter()  # per sender, this frame's refuted entries
         self.rejected = Counter() if rejected is None else rejected  # the screen's counter
         self.of: dict[int, NeighbourTrust] = {n: NeighbourTrust() for n in neighbours}
@@ -301,7 +316,7 @@ class Trust:
         of its lag's normal equations (``_lag_sums``), and the own cameras' (``_own_sums``).
         Every message's entries in one batch, the 2 x 2 inverses written out: a fixed number of
         array operations a frame, whatever the number of neighbours and messages."""
-        which, rows, held, U, u, xj = _entries(state, msgs, resolve)
+        which, rows, held, U, u, xj, unheld = _entries(state, msgs, resolve)
         bounds = np.searchsorted(which, np.arange(len(msgs) + 1)).tolist()  # message i's
         # entries: bounds[i]:bounds[i + 1]
         P = state.P.take(held, axis=0)[:, :2, :2]
@@ -322,26 +337,65 @@ class Trust:
             s22 = np.where(measured, vd, 0.0) + w * P[:, 1, 1] + c2
             stat = (s22 * e1 ** 2 - 2.0 * s12 * e1 * e2 + s11 * e2 ** 2) / (s11 * s22 - s12 * s12)
         stat = np.where(np.isfinite(stat), stat, self.cfg.trust_cap)
-        self._count_refuted(state, msgs, which, held, measured)
+        self._count_refuted(state, msgs, k, which, held, measured, unheld)
         self._lag_terms(state, k, msgs, which, bounds, held, U, u, stat < self.cfg.trust_cap)
         stat = stat.tolist()
         return [(rows[i:j], stat[i:j]) for i, j in zip(bounds, bounds[1:])]
 
-    def _count_refuted(self, state: NodeState, msgs: list[FrameMessage], which: np.ndarray,
-                       held: np.ndarray, measured: np.ndarray) -> None:
+    def _count_refuted(self, state: NodeState, msgs: list[FrameMessage], k: int,
+                       which: np.ndarray, held: np.ndarray, measured: np.ndarray,
+                       unheld: tuple) -> None:
         """Per sender, its entries of this frame that claim a measurement of a tracker this
         node's own cameras should have measured and have not, ``unseen_limit()`` frames in a row
         (``_refuted``; module docstring, "Refuted"); a sender of several messages (late ones)
-        counts with its largest."""
+        counts with its largest. A tracker this node holds by its own count
+        (``state.unseen``); one it does not (a quarantined or suspect sender's, not adopted) by
+        a count per sender and tracker (:meth:`_judge_unheld`)."""
         self._refuted = Counter()
-        limit = self.unseen_limit() if self.unseen_limit is not None else 0
-        if not limit or not self.cfg.trust_refuted or not len(which):
+        limit = self.views.unseen_limit() if self.views is not None else 0
+        if not limit or not self.cfg.trust_refuted:
             return
         per = np.bincount(which, weights=measured & (state.unseen[held] >= limit),
-                          minlength=len(msgs))
-        for m, c in zip(msgs, per.tolist()):
-            if c:
-                self._refuted[m.sender] = max(self._refuted[m.sender], int(c))
+                          minlength=len(msgs)).tolist()
+        refuted = self._judge_unheld(state, msgs, k, limit, *unheld)
+        for m, c, d in zip(msgs, per, refuted):
+            if c + d:
+                self._refuted[m.sender] = max(self._refuted[m.sender], int(c + d))
+
+    def _judge_unheld(self, state: NodeState, msgs: list[FrameMessage], k: int, limit: int,
+                      which: np.ndarray, keys: list, x: np.ndarray) -> list[int]:
+        """Per message of a sender this node distrusts (whose new trackers it does not adopt;
+        a trusted one's are adopted this frame and counted by ``state.unseen`` from the next),
+        its measured entries of trackers this node does not hold (entry ``i``: message
+        ``which[i]``, ``keys[i]`` its sender and id, ``x[i]`` the sender's state) that are
+        refuted: their state (the sender's ``x_bar``) is where one of this node's cameras should
+        measure them (``views.expected``, this node's targets as occluders) and no target this
+        node's cameras measure this frame is within ``tau_gda``, ``limit`` frames in a row (a
+        frame it cannot see keeps the count, one it measures a target there starts it again).
+        Counts of claims not heard for ``trust_readmit`` frames are forgotten."""
+        out = [0] * len(msgs)
+        runs = self._unheld
+        of = self.of
+        pick = [i for i, (s, _) in enumerate(keys) if s in of and of[s].state != TRUSTED]
+        if len(pick) < len(keys):
+            which, keys, x = which[pick], [keys[i] for i in pick], x[pick]
+        if keys:
+            n = len(state)
+            expected = self.views.expected(np.concatenate([state.x_bar, x]), n)[n:]
+            own = state.x_bar[(state.raw >= 0).any(axis=1), :2]
+            gate = self.cfg.m(self.cfg.tau_gda)
+            d = x[:, None, :2] - own[None]  # each claim against each target measured now
+            near = (np.hypot(d[..., 0], d[..., 1]) < gate).any(axis=1)
+            for i, key, e, nr in zip(which.tolist(), keys, expected.tolist(), near.tolist()):
+                run = runs.setdefault(key, [0, k - 1])
+                if run[1] != k:  # once a frame, whatever the sender's messages
+                    run[0] = 0 if nr else run[0] + int(e)
+                    run[1] = k
+                out[i] += run[0] >= limit
+        stale = k - self.cfg.trust_readmit
+        for key in [key for key, run in runs.items() if run[1] < stale]:
+            del runs[key]
+        return out
 
     def _lag_terms(self, state: NodeState, k: int, msgs: list[FrameMessage], which: np.ndarray,
                    bounds: list[int], held: np.ndarray, U: np.ndarray, u: np.ndarray,
@@ -478,19 +532,26 @@ class Trust:
 def _entries(state: NodeState, msgs: list[FrameMessage],
              resolve: Callable[[TrackerId], TrackerId]) -> tuple[np.ndarray, ...]:
     """The messages' entries naming a tracker this node holds, in message order: each one's
-    message, its row in the message, the tracker's row here, and its ``U, u, x_bar``."""
+    message, its row in the message, the tracker's row here, and its ``U, u, x_bar``; then the
+    measured entries naming a tracker it does not hold: each one's message, its (sender,
+    resolved id) and ``x_bar``."""
     sizes = [len(m.block) for m in msgs]
     ids = list(chain.from_iterable(m.block.ids() for m in msgs))
     index = state.index  # each id resolved once (the neighbours name mostly the same ones)
     row = {t: index.get(resolve(t), -1) for t in set(ids)}
     here = np.fromiter(map(row.__getitem__, ids), np.intp, len(ids))
     at = np.flatnonzero(here >= 0)  # among all the messages' rows
-    which = np.repeat(np.arange(len(msgs)), sizes)[at]
+    of = np.repeat(np.arange(len(msgs)), sizes)  # each row's message
+    which = of[at]
     rows = at - np.cumsum([0] + sizes[:-1], dtype=np.intp)[which]
-    cols = ([m.block.U for m in msgs] or [np.zeros((0, 6, 6))],
-            [m.block.u for m in msgs] or [np.zeros((0, 6))],
-            [m.block.x_bar for m in msgs] or [np.zeros((0, 6))])
-    return (which, rows, here[at], *(np.concatenate(c).take(at, axis=0) for c in cols))
+    U, u, x = (np.concatenate(c) for c in ([m.block.U for m in msgs] or [np.zeros((0, 6, 6))],
+                                            [m.block.u for m in msgs] or [np.zeros((0, 6))],
+                                            [m.block.x_bar for m in msgs] or [np.zeros((0, 6))]))
+    out = np.flatnonzero((here < 0) & (U[:, 0, 0] > 0.0))  # measured, not held here
+    out_which = of[out]
+    keys = [(msgs[w].sender, resolve(ids[r])) for w, r in zip(out_which.tolist(), out.tolist())]
+    return (which, rows, here[at], U.take(at, axis=0), u.take(at, axis=0), x.take(at, axis=0),
+            (out_which, keys, x.take(out, axis=0)))
 
 
 def _add(a: list[float], b: list[float]) -> list[float]:

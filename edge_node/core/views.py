@@ -138,10 +138,22 @@ class OwnViews:
         n = len(state)
         if not n:
             return
-        x = state.x_bar
-        expected = np.zeros(n, bool)
+        expected = self.expected(state.x_bar, n)
         measured = (state.raw >= 0).any(axis=1)
-        for c, cam in enumerate(self.cameras):
+        if self.s.unseen_runs:  # runs a measurement ends: a real person missed that long
+            ended = state.unseen[measured]
+            self.learn(ended[ended > 0].tolist())
+        state.unseen += expected
+        state.unseen[measured] = 0
+
+    def expected(self, x: np.ndarray, n: int) -> np.ndarray:
+        """Which of the targets ``x`` (states, ``x_bar``'s layout) one of the node's cameras
+        should measure (:meth:`expect`): the predicted box inside its image, the feet in it, the
+        head cut by at most a fifth, and no nearer box of the first ``n`` targets (the node's
+        own; ``x[n:]`` are judged, not occluders) covering ``HIDDEN_COVER`` of it."""
+        m = len(x)
+        expected = np.zeros(m, bool)
+        for cam in self.cameras:
             reg = self.registrations.get(cam.id)
             g = x[:, :2] if reg is None else reg.to_camera_many(x[:, :2])
             W, H = cam.image_size
@@ -157,16 +169,12 @@ class OwnViews:
             a = (inside & ~expected).nonzero()[0]
             if not len(a):
                 continue
-            b = drawn.nonzero()[0]
+            b = drawn[:n].nonzero()[0]
             cover = _overlap(x0, y0, x1, y1, a, b)
             nearer = y1[None, b] > y1[a, None]
             hidden = ((cover * nearer) >= HIDDEN_COVER * (wh[a, 0] * wh[a, 1])[:, None]).any(axis=1)
             expected[a[~hidden]] = True
-        if self.s.unseen_runs:  # runs a measurement ends: a real person missed that long
-            ended = state.unseen[measured]
-            self.learn(ended[ended > 0].tolist())
-        state.unseen += expected
-        state.unseen[measured] = 0
+        return expected
 
     def unseen_limit(self) -> int:
         """Frames of negative evidence after which the node stops reporting a target
