@@ -51,7 +51,8 @@ class Components:
     initiator: Callable[[], Initiator]  # one per camera
     registration: Callable[[Camera], Registration] | None = None  # one per camera, or none
     #: what each camera draws, from the node's cameras and registrations (``saw``, ``boxes``
-    #: and ``unseen_limit``, the reporter's negative-evidence limit, 0: none; ``OwnViews``)
+    #: and ``unseen_limit``, the reporter's negative-evidence limit, 0: none; ``OwnViews``;
+    #: with ``expected`` too, the trust role judges claims against it: "Refuted" in trust.py)
     views: Callable[[Sequence[Camera], Mapping[int, Registration]], Any] | None = None
     predictor: Any = None  # the motion model's prediction (``Predictor``)
     updater: Callable[[NodeStats], Any] | None = None  # eqs. 3-4, given the node's counters
@@ -125,8 +126,7 @@ def roles(cfg: TrackerConfig, parts: Components, cameras: Sequence[Camera],
         lifecycle=lifecycle,
         inbound=Inbound(neighbours, network, cfg.kappa, cfg.max_trackers_per_neighbour, screen,
                         stats, memory),
-        trust=Trust(TrustSettings.of(cfg), neighbours, screen.rejected,
-                    views),
+        trust=Trust(TrustSettings.of(cfg), neighbours, screen.rejected, views),
         updater=pick("updater")(stats),
         registrar=Registrar(registrations, ids),
         outbound=Outbound(network, node_id, cfg.scope_hops, book),

@@ -268,6 +268,7 @@ class Trust:
                 t.refuted_sum = min(2.0 * self.cfg.trust_quarantine,
                                     max(0.0, t.refuted_sum + w * (refuted - allow)))
                 t.refuted_peak = max(t.refuted_peak, t.refuted_sum)
+            draining = t.reason == REFUTED and t.refuted_sum > 0.0  # not calm until drained
             if n in self.scores:
                 # the others' scores this frame, or their usual level when not heard (a lost or
                 # late message must not leave a neighbour alone against the bare drift)
@@ -278,10 +279,9 @@ class Trust:
                 t.cusum = max(0.0, t.cusum + step) + novel[n]
                 dz = lagging.get(n, 0.0)  # the lag's own CUSUM, bounded: fresh again, trusted
                 t.lag_sum = min(2.0 * self.cfg.trust_quarantine, max(0.0, t.lag_sum + dz))
-                draining = t.reason == REFUTED and t.refuted_sum > 0.0
                 t.calm = (t.calm + 1 if step <= 0.0 and dz <= 0.0 and not disputed[n]
                           and not draining else 0)
-            elif disputed[n] or (t.reason == REFUTED and t.refuted_sum > 0.0):
+            elif disputed[n] or draining:
                 t.cusum += novel[n]
                 t.calm = 0
             why = (MERGES if novel[n] else REFUTED if t.refuted_sum > max(t.cusum, t.lag_sum)
@@ -337,14 +337,14 @@ class Trust:
             s22 = np.where(measured, vd, 0.0) + w * P[:, 1, 1] + c2
             stat = (s22 * e1 ** 2 - 2.0 * s12 * e1 * e2 + s11 * e2 ** 2) / (s11 * s22 - s12 * s12)
         stat = np.where(np.isfinite(stat), stat, self.cfg.trust_cap)
-        self._count_refuted(state, msgs, k, which, held, measured, unheld)
+        self._count_refuted(state, msgs, resolve, k, which, held, measured, unheld)
         self._lag_terms(state, k, msgs, which, bounds, held, U, u, stat < self.cfg.trust_cap)
         stat = stat.tolist()
         return [(rows[i:j], stat[i:j]) for i, j in zip(bounds, bounds[1:])]
 
-    def _count_refuted(self, state: NodeState, msgs: list[FrameMessage], k: int,
-                       which: np.ndarray, held: np.ndarray, measured: np.ndarray,
-                       unheld: tuple) -> None:
+    def _count_refuted(self, state: NodeState, msgs: list[FrameMessage],
+                       resolve: Callable[[TrackerId], TrackerId], k: int, which: np.ndarray,
+                       held: np.ndarray, measured: np.ndarray, unheld: tuple) -> None:
         """Per sender, its entries of this frame that claim a measurement of a tracker this
         node's own cameras should have measured and have not, ``unseen_limit()`` frames in a row
         (``_refuted``; module docstring, "Refuted"); a sender of several messages (late ones)
@@ -357,17 +357,18 @@ class Trust:
             return
         per = np.bincount(which, weights=measured & (state.unseen[held] >= limit),
                           minlength=len(msgs)).tolist()
-        refuted = self._judge_unheld(state, msgs, k, limit, *unheld)
+        refuted = self._judge_unheld(state, msgs, resolve, k, limit, *unheld)
         for m, c, d in zip(msgs, per, refuted):
             if c + d:
                 self._refuted[m.sender] = max(self._refuted[m.sender], int(c + d))
 
-    def _judge_unheld(self, state: NodeState, msgs: list[FrameMessage], k: int, limit: int,
-                      which: np.ndarray, keys: list, x: np.ndarray) -> list[int]:
+    def _judge_unheld(self, state: NodeState, msgs: list[FrameMessage],
+                      resolve: Callable[[TrackerId], TrackerId], k: int, limit: int,
+                      which: np.ndarray, ids: list[TrackerId], x: np.ndarray) -> list[int]:
         """Per message of a sender this node distrusts (whose new trackers it does not adopt;
         a trusted one's are adopted this frame and counted by ``state.unseen`` from the next),
         its measured entries of trackers this node does not hold (entry ``i``: message
-        ``which[i]``, ``keys[i]`` its sender and id, ``x[i]`` the sender's state) that are
+        ``which[i]``, ``ids[i]`` the tracker's id, ``x[i]`` the sender's state) that are
         refuted: their state (the sender's ``x_bar``) is where one of this node's cameras should
         measure them (``views.expected``, this node's targets as occluders) and no target this
         node's cameras measure this frame is within ``tau_gda``, ``limit`` frames in a row (a
@@ -375,11 +376,12 @@ class Trust:
         Counts of claims not heard for ``trust_readmit`` frames are forgotten."""
         out = [0] * len(msgs)
         runs = self._unheld
-        of = self.of
-        pick = [i for i, (s, _) in enumerate(keys) if s in of and of[s].state != TRUSTED]
-        if len(pick) < len(keys):
-            which, keys, x = which[pick], [keys[i] for i in pick], x[pick]
-        if keys:
+        distrusted = [m.sender in self.of and self.of[m.sender].state != TRUSTED for m in msgs]
+        pick = np.array(distrusted)[which].nonzero()[0] if any(distrusted) else ()
+        if len(pick):
+            which, x = which[pick], x[pick]
+            keys = [(msgs[i].sender, resolve(ids[r]))
+                    for i, r in zip(which.tolist(), pick.tolist())]
             n = len(state)
             expected = self.views.expected(np.concatenate([state.x_bar, x]), n)[n:]
             own = state.x_bar[(state.raw >= 0).any(axis=1), :2]
@@ -533,8 +535,8 @@ def _entries(state: NodeState, msgs: list[FrameMessage],
              resolve: Callable[[TrackerId], TrackerId]) -> tuple[np.ndarray, ...]:
     """The messages' entries naming a tracker this node holds, in message order: each one's
     message, its row in the message, the tracker's row here, and its ``U, u, x_bar``; then the
-    measured entries naming a tracker it does not hold: each one's message, its (sender,
-    resolved id) and ``x_bar``."""
+    measured entries naming a tracker it does not hold: each one's message, its id and
+    ``x_bar``."""
     sizes = [len(m.block) for m in msgs]
     ids = list(chain.from_iterable(m.block.ids() for m in msgs))
     index = state.index  # each id resolved once (the neighbours name mostly the same ones)
@@ -548,10 +550,8 @@ def _entries(state: NodeState, msgs: list[FrameMessage],
                                             [m.block.u for m in msgs] or [np.zeros((0, 6))],
                                             [m.block.x_bar for m in msgs] or [np.zeros((0, 6))]))
     out = np.flatnonzero((here < 0) & (U[:, 0, 0] > 0.0))  # measured, not held here
-    out_which = of[out]
-    keys = [(msgs[w].sender, resolve(ids[r])) for w, r in zip(out_which.tolist(), out.tolist())]
     return (which, rows, here[at], U.take(at, axis=0), u.take(at, axis=0), x.take(at, axis=0),
-            (out_which, keys, x.take(out, axis=0)))
+            (of[out], [ids[r] for r in out.tolist()], x.take(out, axis=0)))
 
 
 def _add(a: list[float], b: list[float]) -> list[float]:
