@@ -107,9 +107,11 @@ def run(name: str) -> dict[int, list[list]]:
     data = load_scenario(scenario, seed=0)
     # hide_pending (issue 37) only leaves a tracker on its way to a merge out of the report,
     # negative evidence (report_unseen, on by default since issue 39) one its camera should
-    # see and does not; the recorded runs report every tracker the estimator holds, which pins
-    # the estimator
-    cfg = replace(TrackerConfig.for_ablation(config), hide_pending=False, report_unseen=0)
+    # see and does not, report_age (on by default since issue 37) a young tracker beside an
+    # older one; the recorded runs report every tracker the estimator holds, which pins the
+    # estimator
+    cfg = replace(TrackerConfig.for_ablation(config), hide_pending=False, report_unseen=0,
+                  report_age=0)
     result = run_network(data, build(topology, data.num_cameras), cfg,
                          frames=FRAMES, mode=mode, faults=FaultPlan.from_dict(plan))
     return {n: [[(t.id, t.x, t.P) for t in frame] for frame in frames]

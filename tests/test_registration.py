@@ -158,8 +158,10 @@ def test_co_motion_merges_duplicates_without_appearance():
     duplicate shows until the merge."""
     for hide in (False, True):
         # negative evidence off: node 0's camera never measures node 1's tracker, 0.7 m off
-        # its own, and would stop reporting it after 10 frames (the next test has it on)
-        cfg = TrackerConfig(registration=False, hide_pending=hide, **SELECTIVE)
+        # its own, and would stop reporting it after 10 frames (the next test has it on);
+        # report_age off: it would hold the duplicate back for its first 10 frames whatever
+        # hide_pending says (tests/test_reported_ids.py)
+        cfg = TrackerConfig(registration=False, hide_pending=hide, report_age=0, **SELECTIVE)
         nodes = make_nodes({0: (1,), 1: (0,)}, cfg, offsets={1: (0.7, 0.0)})
         rng = np.random.default_rng(5)
         counts, held = [], []

@@ -17,7 +17,7 @@ def _run(alias: bool, frames: int = 60, hidden_from: int = 5):
     calibration is off): too far to merge at once, so the pair gathers co-motion evidence.
     From ``hidden_from`` on camera 0 no longer sees the person: the older tracker, (0, 0),
     coasts unreported while the younger, camera 1's (1, 0), goes on being measured."""
-    cfg = TrackerConfig(registration=False, pending_alias=alias, **SELECTIVE)
+    cfg = TrackerConfig(registration=False, pending_alias=alias, report_age=0, **SELECTIVE)
     nodes = make_nodes({0: (1,), 1: (0,)}, cfg, offsets={1: (0.7, 0.0)})
     rng = np.random.default_rng(5)
     reported, held = [], []
@@ -52,10 +52,11 @@ def test_a_duplicate_is_reported_under_the_older_id_while_the_older_is_unseen():
         assert {i[0] for i in ids_alias} == {(0, 0)}  # one id throughout
 
 
-def _first_reports(age: int, frames: int = 30):
+def _first_reports(age: int, frames: int = 30, near: float = 0.0):
     """A chain of three nodes, only camera 0 sees one person standing at (2, 2) from frame 0;
-    per node, the frame of its first reported track and the ids it reported."""
-    cfg = TrackerConfig(registration=False, report_age=age)
+    per node, the frame of its first reported track and the ids it reported (``near``:
+    ``report_near``, 0 by default: every new tracker is tentative)."""
+    cfg = TrackerConfig(registration=False, report_age=age, report_near=near)
     nodes = make_nodes({0: (1,), 1: (0, 2), 2: (1,)}, cfg)
     rng = np.random.default_rng(7)
     first, ids = {}, {n: set() for n in nodes}
@@ -90,7 +91,7 @@ def test_report_age_delays_an_id_and_keeps_the_alias():
     reported before the older id is 10 frames old, and from then on exactly what is reported
     without it, the person under (0, 0) while the younger (1, 0) carries it."""
     import dataclasses
-    base = TrackerConfig(registration=False, pending_alias=True, **SELECTIVE)
+    base = TrackerConfig(registration=False, pending_alias=True, report_near=0.0, **SELECTIVE)
     runs = {}
     for age in (0, 10):
         nodes = make_nodes({0: (1,), 1: (0,)}, dataclasses.replace(base, report_age=age),
@@ -107,3 +108,74 @@ def test_report_age_delays_an_id_and_keeps_the_alias():
         assert all(not r[n] for r in runs[10][:born + 10])
         assert [r[n] for r in runs[10][born + 10:]] == [r[n] for r in runs[0][born + 10:]]
         assert {i for r in runs[10][born + 10:] for i in r[n]} == {(0, 0)}
+
+
+def test_a_person_who_walks_in_alone_is_reported_at_once():
+    """With the defaults (``report_age`` 10 frames, ``report_near`` 2 m) only a tracker born
+    beside an older one is tentative: a lone person is reported in the same frames as
+    without ``report_age``."""
+    cfg = TrackerConfig()
+    assert cfg.report_age == 10 and cfg.report_near == 2.0
+    born, first, ids = _first_reports(age=0)
+    assert _first_reports(age=cfg.report_age, near=cfg.report_near) == (born, first, ids)
+
+
+def _pair(age: int, frames: int = 40):
+    """The two-camera run of the first test with camera 0 seeing the person throughout and
+    camera 1's calibration 1.3 m off: per frame and node, the ids reported; and the birth frame
+    of camera 1's duplicate (1, 0)."""
+    cfg = TrackerConfig(registration=False, report_age=age, **SELECTIVE)
+    nodes = make_nodes({0: (1,), 1: (0,)}, cfg, offsets={1: (1.3, 0.0)})
+    rng = np.random.default_rng(5)
+    out, born = [], None
+    for k in range(frames):
+        d = [Detection(det(*walk(k), pid=0, rng=rng).box, None)]
+        got = step(nodes, k, {0: d, 1: d})
+        if born is None and (1, 0) in nodes[1].trackers.ids():
+            born = k
+        out.append({n: [t.id for t in got[n]] for n in got})
+    return out, born
+
+
+def test_a_duplicate_beside_a_person_is_tentative_for_report_age_frames():
+    """Camera 1 (calibration 1.3 m off) starts its own tracker (1, 0) of the person camera 0
+    tracks as (0, 0), in the same frame: (1, 0) ranks after (0, 0) and is born 1.3 m from it,
+    within ``report_near`` but beyond the co-motion gate (1 m), so ``hide_pending`` has no
+    evidence to hide it by. Without ``report_age`` the duplicate is reported as a second id in
+    its first frames; with it, it is not reported before it is ``report_age`` frames old, and
+    from then on every node reports exactly what it reports without ``report_age``."""
+    age = TrackerConfig().report_age
+    plain, born = _pair(0)
+    tentative, born_t = _pair(age)
+    assert born == born_t  # only reporting changes
+    window = range(born, born + age)
+    assert any((1, 0) in plain[k][n] for k in window for n in (0, 1))  # the blip it hides
+    for n in (0, 1):
+        for k in window:
+            assert (1, 0) not in tentative[k][n]
+            assert [i for i in plain[k][n] if i != (1, 0)] == tentative[k][n]
+        assert [r[n] for r in tentative[born + age:]] == [r[n] for r in plain[born + age:]]
+
+
+def test_a_second_person_the_network_knows_is_not_held_back():
+    """Camera 0 sees person A from frame 0 and person B 0.6 m beside A from frame 10, both in
+    every frame: B's tracker is born beside an older one, but the co-motion evidence knows
+    them for two people (one camera measures both at once), so B is reported in the same
+    frames as without ``report_age``."""
+    def run(age):
+        cfg = TrackerConfig(registration=False, report_age=age, **SELECTIVE)
+        nodes = make_nodes({0: (1,), 1: (0,)}, cfg)
+        rng = np.random.default_rng(3)
+        out = []
+        for k in range(30):
+            d = [Detection(det(2.0, 2.0, pid=0, rng=rng).box, None)]
+            if k >= 10:
+                d.append(Detection(det(2.6, 2.0, pid=1, rng=rng).box, None))
+            got = step(nodes, k, {0: d, 1: []})
+            out.append({n: sorted(t.id for t in got[n]) for n in got})
+        return out
+    plain, tentative = run(0), run(TrackerConfig().report_age)
+    assert plain[-1][0] == [(0, 0), (0, 1)]  # two people, two ids
+    b = next(k for k, r in enumerate(plain) if (0, 1) in r[0])
+    assert b <= 12
+    assert tentative == plain

@@ -9,11 +9,15 @@ still predicted, fused, merged and kept until eq. 8 drops it). The test is on th
 as a second id: a young tracker on its way to merging into a reported older one
 (``hide_pending``), or reported under the older id while the older is not reported
 (``pending_alias``), and a new tracker that may still be a dropped one re-appearing
-(``reappear``). With ``report_age`` a tracker is tentative, not reported, until the id it is
-reported under is that many frames old, counted from its birth at its camera (so every node
-starts reporting it in the same frame): the trackers of a false detection and the duplicates
-merged within their first frames are never shown (the M-of-N confirmation of track
-initiation, here by age, as the birth already took two observations). By negative evidence
+(``reappear``). A new tracker beside an older one is tentative, not reported, until the id it
+is reported under is ``report_age`` frames old, counted from its birth at its camera (so every
+node starts reporting it in the same frame): a duplicate that some camera started beside a
+person's tracker and that the manager merges within its first frames is never shown (the M-of-N
+confirmation of track initiation, by age, as the birth already took two observations). Beside
+means within ``report_near`` of a tracker of earlier rank (``identity.rank``) that the node's
+co-motion evidence does not know for a second person (``manager.two_people``); a person who
+walks in away from everyone is shown at once, and with ``report_near`` 0 every new tracker is
+tentative. By negative evidence
 a tracker one of the node's own cameras should have measured for
 ``views.unseen_limit()`` frames in a row, and none did, is not reported
 (``views.OwnViews.expect``: a neighbour's false person, or a knocked camera's, that walks where
@@ -39,11 +43,13 @@ class ReporterSettings(Slice):
 
     report_coast: int
     report_age: int
+    report_near: float
     hide_pending: bool
     pending_alias: bool
     comotion_frames: int
     reappear_age: int
     reappear_hide: int
+    units_per_metre: float
 
 
 class Reporter:
@@ -89,9 +95,12 @@ class Reporter:
             hidden |= {ids[i] for i in fresh.tolist()
                        if self.manager.awaiting(self.young(state, i), gone, k)}
         if cfg.report_age:  # tentative while the id it is reported under is young
-            hidden |= {ids[i] for i in shown[age < cfg.report_age].tolist()
-                       if ids[i] not in alias
-                       or k - state.born[state.row(alias[ids[i]])] < cfg.report_age}
+            young = [i for i in shown[age < cfg.report_age].tolist()
+                     if ids[i] not in alias
+                     or k - state.born[state.row(alias[ids[i]])] < cfg.report_age]
+            if young and cfg.report_near:
+                young = self._beside_older(state, young)
+            hidden |= {ids[i] for i in young}
         if hidden:
             shown = np.array([i for i in shown.tolist() if ids[i] not in hidden], np.intp)
         if not len(shown):
@@ -103,3 +112,21 @@ class Reporter:
         ell = state.ell.take(shown).tolist()
         return [Track._built(alias.get(ids[i], ids[i]), k, x, M_i, s, e, b)
                 for i, x, M_i, s, e, b in zip(shown.tolist(), x_hat, M, seen, ell, boxes)]
+
+    def _beside_older(self, state: NodeState, rows: list[int]) -> list[int]:
+        """The ``rows`` (young trackers) within ``report_near`` of an estimated tracker of
+        earlier rank (birth frame, then id) that the manager does not know for a second person:
+        the duplicates the manager may still merge, not a person who walked in alone."""
+        ids, born = state.ids, state.born
+        near = self.cfg.m(self.cfg.report_near)
+        older = np.flatnonzero(state.estimated)
+        xy = state.x_hat[older, :2]
+        out = []
+        for i in rows:
+            rank = (int(born[i]), ids[i])
+            d = np.hypot(*(xy - state.x_hat[i, :2]).T)
+            pairs = [(ids[i], ids[j]) for j in older[d < near].tolist()
+                     if j != i and (int(born[j]), ids[j]) < rank]
+            if pairs and not self.manager.two_people(pairs).all():
+                out.append(i)
+        return out
