@@ -116,17 +116,20 @@ class Reporter:
     def _beside_older(self, state: NodeState, rows: list[int]) -> list[int]:
         """The ``rows`` (young trackers) within ``report_near`` of an estimated tracker of
         earlier rank (birth frame, then id) that the manager does not know for a second person:
-        the duplicates the manager may still merge, not a person who walked in alone."""
+        the duplicates the manager may still merge, not a person who walked in alone. The
+        distances of every young tracker to every other in one array operation; the ranks of
+        the few near pairs compared in Python (ids are tuples)."""
         ids, born = state.ids, state.born
-        near = self.cfg.m(self.cfg.report_near)
         older = np.flatnonzero(state.estimated)
-        xy = state.x_hat[older, :2]
-        out = []
-        for i in rows:
-            rank = (int(born[i]), ids[i])
-            d = np.hypot(*(xy - state.x_hat[i, :2]).T)
-            pairs = [(ids[i], ids[j]) for j in older[d < near].tolist()
-                     if j != i and (int(born[j]), ids[j]) < rank]
-            if pairs and not self.manager.two_people(pairs).all():
-                out.append(i)
-        return out
+        diff = state.x_hat[older, None, :2] - state.x_hat[None, rows, :2]
+        j, c = np.nonzero(np.hypot(diff[..., 0], diff[..., 1]) < self.cfg.m(self.cfg.report_near))
+        pairs, col = [], []
+        for o, y in zip(older[j].tolist(), c.tolist()):
+            i = rows[y]
+            if o != i and (int(born[o]), ids[o]) < (int(born[i]), ids[i]):
+                pairs.append((ids[i], ids[o]))
+                col.append(y)
+        if not pairs:
+            return []
+        apart = self.manager.two_people(pairs).tolist()
+        return [rows[y] for y in sorted({y for y, a in zip(col, apart) if not a})]
