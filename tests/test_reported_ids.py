@@ -179,3 +179,75 @@ def test_a_second_person_the_network_knows_is_not_held_back():
     b = next(k for k, r in enumerate(plain) if (0, 1) in r[0])
     assert b <= 12
     assert tentative == plain
+
+
+def test_an_id_the_alias_keeps_is_not_held_back_beside_itself():
+    """The first test's run with the defaults (``pending_alias``, ``report_age`` 10,
+    ``report_near`` 2 m): camera 0 stops seeing the person at frame 5 and the younger (1, 0),
+    0.7 m from (0, 0), is reported under (0, 0). The alias's own older tracker is not a reason
+    to hold it back: every node reports (0, 0) in every frame from the first, without the
+    5-frame hole a first version left while (0, 0) was younger than ``report_age``."""
+    cfg = TrackerConfig(registration=False, **SELECTIVE)
+    assert cfg.pending_alias and cfg.report_age == 10 and cfg.report_near == 2.0
+    nodes = make_nodes({0: (1,), 1: (0,)}, cfg, offsets={1: (0.7, 0.0)})
+    rng = np.random.default_rng(5)
+    for k in range(30):
+        d = [Detection(det(*walk(k), pid=0, rng=rng).box, None)]
+        out = step(nodes, k, {0: d if k < 5 else [], 1: d})
+        if k >= 1:
+            assert [t.id for t in out[0]] == [t.id for t in out[1]] == [(0, 0)], k
+
+
+def _walk_in(age: int, frames: int = 30):
+    """Camera 0 sees person A standing at (2, 2); from frame 10 camera 1 alone sees person B
+    walk in from 4.3 m towards A at 0.1 m a frame, stopping 0.6 m from A. Per frame and node,
+    the ids reported."""
+    cfg = TrackerConfig(registration=False, report_age=age, **SELECTIVE)
+    nodes = make_nodes({0: (1,), 1: (0,)}, cfg)
+    rng = np.random.default_rng(3)
+    out = []
+    for k in range(frames):
+        a = [Detection(det(2.0, 2.0, pid=0, rng=rng).box, None)]
+        b = ([Detection(det(max(4.3 - 0.1 * (k - 10), 2.6), 2.0, pid=1, rng=rng).box, None)]
+             if k >= 10 else [])
+        got = step(nodes, k, {0: a, 1: b})
+        out.append({n: sorted(t.id for t in got[n]) for n in got})
+    return out
+
+
+def test_a_person_shown_once_is_not_held_back_when_they_come_near_another():
+    """B is born 2.3 m from A (beyond ``report_near``) and reported at once; walking on, B is
+    within 2 m of the older A while still younger than ``report_age``. The rule decides once:
+    B stays reported, every frame the same as without ``report_age`` (a first version judged
+    every frame and withdrew B for six frames)."""
+    plain, tentative = _walk_in(0), _walk_in(TrackerConfig().report_age)
+    assert any((1, 0) in r[0] for r in plain[10:16])  # B is reported within its first frames
+    assert any(abs(4.3 - 0.1 * (k - 10) - 2.0) < 2.0 and (1, 0) in plain[k][0]
+               for k in range(10, 20))  # ...and while young, within report_near of A
+    assert tentative == plain
+
+
+def test_report_near_is_in_metres_on_the_ground_units():
+    """``report_near`` is in metres whatever the ground unit: with 30 units per metre two
+    trackers 1.5 m (45 units) apart are beside each other at 2 m and not at 1 m."""
+    from types import SimpleNamespace
+
+    from edge_node.core.reporter import Reporter, ReporterSettings
+
+    class Apart:  # a manager that knows no pair for two people
+        def two_people(self, pairs):
+            return np.zeros(len(pairs), bool)
+
+    ids = [(0, 0), (1, 0)]
+    x_hat = np.zeros((2, 6))
+    x_hat[1, 0] = 45.0
+    state = SimpleNamespace(ids=ids, born=np.array([0, 5]), estimated=np.array([True, True]),
+                            x_hat=x_hat, row=ids.index)
+
+    def beside(near):
+        s = ReporterSettings(report_coast=1, report_age=10, report_near=near, hide_pending=True,
+                             pending_alias=True, comotion_frames=10, reappear_age=10,
+                             reappear_hide=0, units_per_metre=30.0)
+        return Reporter(Apart(), None, None, None, s)._beside_older(state, [1])
+
+    assert beside(2.0) == [1] and beside(1.0) == []

@@ -257,7 +257,7 @@ class ReporterSection:
 
     report_coast: int = integer(1, lo=0, doc="frames a tracker nobody sees is still reported")
     report_age: int = integer(10, lo=0, doc="frames a new tracker must have lived, counted from its birth at its camera, before it is reported if it is tentative (report_near; docs/tuning.md)")
-    report_near: float = number(2.0, lo=0.0, doc="m, a new tracker is tentative (report_age) while an older one is this near it that the network does not know for a second person; 0: every new tracker is")
+    report_near: float = number(2.0, lo=0.0, doc="m, a new tracker is tentative (report_age) while a tracker of earlier rank is this near it that the node's co-motion evidence does not know for a second person, until it is first reported; 0: every new tracker is")
     hide_pending: bool = boolean(True, "a tracker new on this node (within comotion_frames) that "
                                  "agrees with an older one towards a merge is not reported "
                                  "until the pair merges or parts")

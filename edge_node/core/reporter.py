@@ -10,14 +10,17 @@ as a second id: a young tracker on its way to merging into a reported older one
 (``hide_pending``), or reported under the older id while the older is not reported
 (``pending_alias``), and a new tracker that may still be a dropped one re-appearing
 (``reappear``). A new tracker beside an older one is tentative, not reported, until the id it
-is reported under is ``report_age`` frames old, counted from its birth at its camera (so every
-node starts reporting it in the same frame): a duplicate that some camera started beside a
-person's tracker and that the manager merges within its first frames is never shown (the M-of-N
-confirmation of track initiation, by age, as the birth already took two observations). Beside
-means within ``report_near`` of a tracker of earlier rank (``identity.rank``) that the node's
-co-motion evidence does not know for a second person (``manager.two_people``); a person who
-walks in away from everyone is shown at once, and with ``report_near`` 0 every new tracker is
-tentative. By negative evidence
+is reported under is ``report_age`` frames old, counted from its birth at its camera: a
+duplicate that some camera started beside a person's tracker and that the manager merges
+within its first frames is never shown (the M-of-N confirmation of track initiation, by age,
+as the birth already took two observations). Beside means within ``report_near`` of a tracker
+of earlier rank (``identity.rank``) than the id it is reported under (an alias's own older
+tracker does not count) that the node's co-motion evidence does not know for a second person
+(``manager.two_people``; without the DTM every pair is two people, so nothing is held back). A
+person who walks in away from everyone is shown at once, and an id once shown is not held back
+again while young (the node decides once; a node that hears of the older tracker a frame late
+shows the duplicate from its first frame). With ``report_near`` 0 every new tracker is
+tentative, and every node starts reporting it in the same frame. By negative evidence
 a tracker one of the node's own cameras should have measured for
 ``views.unseen_limit()`` frames in a row, and none did, is not reported
 (``views.OwnViews.expect``: a neighbour's false person, or a knocked camera's, that walks where
@@ -63,6 +66,9 @@ class Reporter:
         self.gone = gone
         self.views = views
         self.cfg = settings
+        # ids a young tracker has been reported under (id -> birth frame): once shown, an id
+        # is not held back again while young (the rule decides once, not frame by frame)
+        self._shown_young: dict[TrackerId, int] = {}
 
     def __call__(self, state: NodeState, k: int) -> list[Track]:
         cfg = self.cfg
@@ -99,10 +105,15 @@ class Reporter:
                      if ids[i] not in alias
                      or k - state.born[state.row(alias[ids[i]])] < cfg.report_age]
             if young and cfg.report_near:
-                young = self._beside_older(state, young)
+                was = self._shown_young
+                young = self._beside_older(state, [i for i in young
+                                                   if alias.get(ids[i], ids[i]) not in was],
+                                           alias)
             hidden |= {ids[i] for i in young}
         if hidden:
             shown = np.array([i for i in shown.tolist() if ids[i] not in hidden], np.intp)
+        if cfg.report_age and cfg.report_near:
+            self._remember_young(state, shown, alias, k)
         if not len(shown):
             return []
         x_hat = state.x_hat.take(shown, axis=0)  # the tracks' own
@@ -113,12 +124,30 @@ class Reporter:
         return [Track._built(alias.get(ids[i], ids[i]), k, x, M_i, s, e, b)
                 for i, x, M_i, s, e, b in zip(shown.tolist(), x_hat, M, seen, ell, boxes)]
 
-    def _beside_older(self, state: NodeState, rows: list[int]) -> list[int]:
+    def _remember_young(self, state: NodeState, shown: np.ndarray,
+                        alias: dict[TrackerId, TrackerId], k: int) -> None:
+        """Note the ids the young trackers of ``shown`` are reported under; forget those no
+        longer young (the memory holds at most the ids born in the last ``report_age``
+        frames)."""
+        ids, born, age = state.ids, state.born, self.cfg.report_age
+        was = {t: b for t, b in self._shown_young.items() if k - b < age}
+        for i in shown[k - born.take(shown) < age].tolist():
+            t = alias.get(ids[i], ids[i])
+            was.setdefault(t, int(born[state.row(t)]))
+        self._shown_young = was
+
+    def _beside_older(self, state: NodeState, rows: list[int],
+                      alias: dict[TrackerId, TrackerId] | None = None) -> list[int]:
         """The ``rows`` (young trackers) within ``report_near`` of an estimated tracker of
-        earlier rank (birth frame, then id) that the manager does not know for a second person:
-        the duplicates the manager may still merge, not a person who walked in alone. The
-        distances of every young tracker to every other in one array operation; the ranks of
-        the few near pairs compared in Python (ids are tuples)."""
+        earlier rank (birth frame, then id) than the id each is reported under (its own, or
+        the older one of ``alias``, which is not judged against itself) that the manager does
+        not know for a second person: the duplicates the manager may still merge, not a
+        person who walked in alone. The distances of every young tracker to every other in
+        one array operation; the ranks of the few near pairs compared in Python (ids are
+        tuples)."""
+        if not rows:
+            return []
+        alias = alias or {}
         ids, born = state.ids, state.born
         older = np.flatnonzero(state.estimated)
         diff = state.x_hat[older, None, :2] - state.x_hat[None, rows, :2]
@@ -126,7 +155,8 @@ class Reporter:
         pairs, col = [], []
         for o, y in zip(older[j].tolist(), c.tolist()):
             i = rows[y]
-            if o != i and (int(born[o]), ids[o]) < (int(born[i]), ids[i]):
+            r = alias.get(ids[i], ids[i])  # the id it is reported under
+            if ids[o] != r and o != i and (int(born[o]), ids[o]) < (int(born[state.row(r)]), r):
                 pairs.append((ids[i], ids[o]))
                 col.append(y)
         if not pairs:
