@@ -251,3 +251,40 @@ def test_report_near_is_in_metres_on_the_ground_units():
         return Reporter(Apart(), None, None, None, s)._beside_older(state, [1])
 
     assert beside(2.0) == [1] and beside(1.0) == []
+
+
+def test_beside_an_older_one_by_rank_by_distance_and_only_among_estimated_trackers():
+    """``_beside_older`` on a hand-made table (one ground unit a metre, ``report_near`` 2 m):
+    rank is the birth frame first and the id only between equal births, the distance is on the
+    ground plane (both axes), and a tracker without an estimate holds nobody back."""
+    from types import SimpleNamespace
+
+    from edge_node.core.reporter import Reporter, ReporterSettings
+
+    class Apart:  # a manager that knows no pair for two people
+        def two_people(self, pairs):
+            return np.zeros(len(pairs), bool)
+
+    s = ReporterSettings(report_coast=1, report_age=10, report_near=2.0, hide_pending=True,
+                         pending_alias=True, comotion_frames=10, reappear_age=10,
+                         reappear_hide=0, units_per_metre=1.0)
+    reporter = Reporter(Apart(), None, None, None, s)
+
+    def beside(ids, born, xy, estimated, rows):
+        x_hat = np.zeros((len(ids), 6))
+        x_hat[:, :2] = xy
+        state = SimpleNamespace(ids=ids, born=np.array(born), estimated=np.array(estimated),
+                                x_hat=x_hat, row=ids.index)
+        return [ids[i] for i in reporter._beside_older(state, rows)]
+
+    # (1, 0) born at 5, (0, 3) born at 8 beside it: the later birth is the younger, whatever
+    # the ids say
+    ids = [(1, 0), (0, 3)]
+    assert beside(ids, [5, 8], [(0.0, 0.0), (1.0, 0.0)], [True, True], [0, 1]) == [(0, 3)]
+    # equal births: the larger id is the younger
+    assert beside(ids, [5, 5], [(0.0, 0.0), (1.0, 0.0)], [True, True], [0, 1]) == [(1, 0)]
+    # 3 m apart along y only: not beside; 1.5 m along y: beside
+    assert beside(ids, [5, 8], [(0.0, 0.0), (0.0, 3.0)], [True, True], [1]) == []
+    assert beside(ids, [5, 8], [(0.0, 0.0), (0.0, 1.5)], [True, True], [1]) == [(0, 3)]
+    # the older tracker has no estimate yet: it holds nobody back
+    assert beside(ids, [5, 8], [(0.0, 0.0), (1.0, 0.0)], [False, True], [1]) == []
