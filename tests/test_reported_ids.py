@@ -12,13 +12,16 @@ def walk(k):
     return 2.0 + 0.002 * k, 2.0
 
 
-def _run(alias: bool, frames: int = 60, hidden_from: int = 5):
-    """Two cameras start their own tracker of one person in frame 1, 0.7 m apart (camera 1's
-    calibration is off): too far to merge at once, so the pair gathers co-motion evidence.
-    From ``hidden_from`` on camera 0 no longer sees the person: the older tracker, (0, 0),
-    coasts unreported while the younger, camera 1's (1, 0), goes on being measured."""
-    cfg = TrackerConfig(registration=False, pending_alias=alias, report_age=0, **SELECTIVE)
-    nodes = make_nodes({0: (1,), 1: (0,)}, cfg, offsets={1: (0.7, 0.0)})
+def _run(alias: bool, frames: int = 60, hidden_from: int = 5, offset: float = 0.7,
+         **changes):
+    """Two cameras start their own tracker of one person in frame 1, ``offset`` m apart
+    (camera 1's calibration is off; 0.7 m: too far to merge at once, so the pair gathers
+    co-motion evidence). From ``hidden_from`` on camera 0 no longer sees the person: the older
+    tracker, (0, 0), coasts unreported while the younger, camera 1's (1, 0), goes on being
+    measured. ``changes``: tracker parameters (``report_age`` 0 unless given)."""
+    cfg = TrackerConfig(registration=False, pending_alias=alias,
+                        **{"report_age": 0, **SELECTIVE, **changes})
+    nodes = make_nodes({0: (1,), 1: (0,)}, cfg, offsets={1: (offset, 0.0)})
     rng = np.random.default_rng(5)
     reported, held = [], []
     for k in range(frames):
@@ -124,17 +127,8 @@ def _pair(age: int, frames: int = 40):
     """The two-camera run of the first test with camera 0 seeing the person throughout and
     camera 1's calibration 1.3 m off: per frame and node, the ids reported; and the birth frame
     of camera 1's duplicate (1, 0)."""
-    cfg = TrackerConfig(registration=False, report_age=age, **SELECTIVE)
-    nodes = make_nodes({0: (1,), 1: (0,)}, cfg, offsets={1: (1.3, 0.0)})
-    rng = np.random.default_rng(5)
-    out, born = [], None
-    for k in range(frames):
-        d = [Detection(det(*walk(k), pid=0, rng=rng).box, None)]
-        got = step(nodes, k, {0: d, 1: d})
-        if born is None and (1, 0) in nodes[1].trackers.ids():
-            born = k
-        out.append({n: [t.id for t in got[n]] for n in got})
-    return out, born
+    _, out, held = _run(True, frames, hidden_from=frames, offset=1.3, report_age=age)
+    return out, next(k for k, h in enumerate(held) if (1, 0) in h[1])
 
 
 def test_a_duplicate_beside_a_person_is_tentative_for_report_age_frames():
@@ -189,13 +183,9 @@ def test_an_id_the_alias_keeps_is_not_held_back_beside_itself():
     5-frame hole a first version left while (0, 0) was younger than ``report_age``."""
     cfg = TrackerConfig(registration=False, **SELECTIVE)
     assert cfg.pending_alias and cfg.report_age == 10 and cfg.report_near == 2.0
-    nodes = make_nodes({0: (1,), 1: (0,)}, cfg, offsets={1: (0.7, 0.0)})
-    rng = np.random.default_rng(5)
-    for k in range(30):
-        d = [Detection(det(*walk(k), pid=0, rng=rng).box, None)]
-        out = step(nodes, k, {0: d if k < 5 else [], 1: d})
-        if k >= 1:
-            assert [t.id for t in out[0]] == [t.id for t in out[1]] == [(0, 0)], k
+    _, reported, _ = _run(True, 30, report_age=cfg.report_age)
+    for k in range(1, 30):
+        assert reported[k][0] == reported[k][1] == [(0, 0)], k
 
 
 def _walk_in(age: int, frames: int = 30):
@@ -227,28 +217,40 @@ def test_a_person_shown_once_is_not_held_back_when_they_come_near_another():
     assert tentative == plain
 
 
+class KnowsNobodyApart:
+    """A manager that knows no pair of trackers for two people."""
+
+    def two_people(self, pairs):
+        return np.zeros(len(pairs), bool)
+
+
+def _table_reporter(near: float = 2.0, units_per_metre: float = 1.0):
+    """A reporter whose ``_beside_older`` is judged on a hand-made table (``_table``)."""
+    from edge_node.core.reporter import Reporter, ReporterSettings
+
+    s = ReporterSettings(report_coast=1, report_age=10, report_near=near, hide_pending=True,
+                         pending_alias=True, comotion_frames=10, reappear_age=10,
+                         reappear_hide=0, units_per_metre=units_per_metre)
+    return Reporter(KnowsNobodyApart(), None, None, None, s)
+
+
+def _table(ids, born, xy, estimated):
+    """The columns ``_beside_older`` reads, for trackers ``ids`` at ground points ``xy``."""
+    from types import SimpleNamespace
+
+    x_hat = np.zeros((len(ids), 6))
+    x_hat[:, :2] = xy
+    return SimpleNamespace(ids=ids, born=np.array(born), estimated=np.array(estimated),
+                           x_hat=x_hat, row=ids.index)
+
+
 def test_report_near_is_in_metres_on_the_ground_units():
     """``report_near`` is in metres whatever the ground unit: with 30 units per metre two
     trackers 1.5 m (45 units) apart are beside each other at 2 m and not at 1 m."""
-    from types import SimpleNamespace
-
-    from edge_node.core.reporter import Reporter, ReporterSettings
-
-    class Apart:  # a manager that knows no pair for two people
-        def two_people(self, pairs):
-            return np.zeros(len(pairs), bool)
-
-    ids = [(0, 0), (1, 0)]
-    x_hat = np.zeros((2, 6))
-    x_hat[1, 0] = 45.0
-    state = SimpleNamespace(ids=ids, born=np.array([0, 5]), estimated=np.array([True, True]),
-                            x_hat=x_hat, row=ids.index)
+    state = _table([(0, 0), (1, 0)], [0, 5], [(0.0, 0.0), (45.0, 0.0)], [True, True])
 
     def beside(near):
-        s = ReporterSettings(report_coast=1, report_age=10, report_near=near, hide_pending=True,
-                             pending_alias=True, comotion_frames=10, reappear_age=10,
-                             reappear_hide=0, units_per_metre=30.0)
-        return Reporter(Apart(), None, None, None, s)._beside_older(state, [1])
+        return _table_reporter(near, units_per_metre=30.0)._beside_older(state, [1])
 
     assert beside(2.0) == [1] and beside(1.0) == []
 
@@ -257,25 +259,10 @@ def test_beside_an_older_one_by_rank_by_distance_and_only_among_estimated_tracke
     """``_beside_older`` on a hand-made table (one ground unit a metre, ``report_near`` 2 m):
     rank is the birth frame first and the id only between equal births, the distance is on the
     ground plane (both axes), and a tracker without an estimate holds nobody back."""
-    from types import SimpleNamespace
-
-    from edge_node.core.reporter import Reporter, ReporterSettings
-
-    class Apart:  # a manager that knows no pair for two people
-        def two_people(self, pairs):
-            return np.zeros(len(pairs), bool)
-
-    s = ReporterSettings(report_coast=1, report_age=10, report_near=2.0, hide_pending=True,
-                         pending_alias=True, comotion_frames=10, reappear_age=10,
-                         reappear_hide=0, units_per_metre=1.0)
-    reporter = Reporter(Apart(), None, None, None, s)
+    reporter = _table_reporter()
 
     def beside(ids, born, xy, estimated, rows):
-        x_hat = np.zeros((len(ids), 6))
-        x_hat[:, :2] = xy
-        state = SimpleNamespace(ids=ids, born=np.array(born), estimated=np.array(estimated),
-                                x_hat=x_hat, row=ids.index)
-        return [ids[i] for i in reporter._beside_older(state, rows)]
+        return [ids[i] for i in reporter._beside_older(_table(ids, born, xy, estimated), rows)]
 
     # (1, 0) born at 5, (0, 3) born at 8 beside it: the later birth is the younger, whatever
     # the ids say

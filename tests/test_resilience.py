@@ -20,16 +20,17 @@ PEOPLE = [(2.0, 2.0), (2.0, 6.5), (6.5, 2.0), (6.5, 6.5), (4.2, 8.8), (8.8, 4.2)
 
 
 def triangle(kind: str | None, frames: int, cfg: TrackerConfig | None = None, people=PEOPLE[:2],
-             record: list | None = None):
+             each=None, stop: int | None = None):
     """Three nodes, each neighbour of the others, every camera seeing ``people`` walking
-    slowly; from ``START`` node 2's messages carry the lies of ``kind`` (its detections, for
-    the kinds of a camera). Returns the nodes and every frame's tracks of nodes 0 and 1, and
-    the people's positions per frame; ``record`` gets each frame's ``stats.trust`` per node."""
+    slowly; from ``START`` (to ``stop``, None: the end) node 2's messages carry the lies of
+    ``kind`` (its detections, for the kinds of a camera). Returns the nodes and every frame's
+    tracks of nodes 0 and 1, and the people's positions per frame; ``each(k, nodes)`` is
+    called after every frame."""
     nodes = make_nodes(graph("complete", 3), cfg or TrackerConfig())
     forger = None
     if kind is not None:
         n2 = nodes[2]
-        forger = Forger([FaultyNode(2, kind, START, None, seed=1)], n2.cameras[0],
+        forger = Forger([FaultyNode(2, kind, START, stop, seed=1)], n2.cameras[0],
                         n2.cfg.units_per_metre, 1.0 / n2.cfg.fps)
     rng = np.random.default_rng(5)
     tracks, truth = [], []
@@ -45,8 +46,8 @@ def triangle(kind: str | None, frames: int, cfg: TrackerConfig | None = None, pe
                for i, n in nodes.items()}
         tracks.append(out)
         truth.append(where)
-        if record is not None:
-            record.append({i: n.stats.trust for i, n in nodes.items()})
+        if each is not None:
+            each(k, nodes)
     return nodes, tracks, truth
 
 
@@ -115,7 +116,9 @@ def test_a_neighbour_whose_detector_sees_people_who_are_not_there_is_quarantined
     node 2's invented people."""
     frames = START + 60
     record = []
-    nodes, tracks, truth = triangle("hallucinate", frames, record=record)
+    nodes, tracks, truth = triangle(
+        "hallucinate", frames,
+        each=lambda k, ns: record.append({i: n.stats.trust for i, n in ns.items()}))
     for i in (0, 1):
         t = nodes[i].trust.of[2]
         total = [0] + [r[i][2]["refuted"] for r in record]
@@ -145,23 +148,15 @@ def test_a_quarantined_hallucinating_neighbour_stays_out_while_it_hallucinates()
     sum drains (2 a frame) and it is trusted again after 25 calm frames."""
     stop = START + 150
     frames = stop + 150
-    nodes = make_nodes(graph("complete", 3), TrackerConfig())
-    n2 = nodes[2]
-    forger = Forger([FaultyNode(2, "hallucinate", START, stop, seed=1)], n2.cameras[0],
-                    n2.cfg.units_per_metre, 1.0 / n2.cfg.fps)
-    rng = np.random.default_rng(5)
     refuted, at_stop = {0: [], 1: []}, {}
-    for k in range(frames):
-        dets = [det(x + 0.01 * k, y, p, rng) for p, (x, y) in enumerate(PEOPLE[:2])]
-        msgs = {i: n.prepare(k, forger.detections(k, dets) if i == 2 else dets)
-                for i, n in nodes.items()}
-        wire = {i: codec.encode(m) for i, m in msgs.items()}
-        for i, n in nodes.items():
-            n.update([codec.decode(wire[j], expect_sender=j) for j in n.neighbours])
+
+    def each(k, nodes):
         for i in (0, 1):
             refuted[i].append(nodes[i].stats.trust[2]["refuted"])
             if k == stop - 1:
                 at_stop[i] = nodes[i].trust.of[2].refuted_sum
+
+    nodes, _, _ = triangle("hallucinate", frames, each=each, stop=stop)
     for i in (0, 1):
         t = nodes[i].trust.of[2]
         (kq, q), (kt, tr) = t.changes

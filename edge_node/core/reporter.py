@@ -33,6 +33,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from edge_node.core.identity import rank
 from edge_node.core.state import NodeState
 from edge_node.core.types import Track
 from protocol.messages import TrackerId
@@ -139,7 +140,7 @@ class Reporter:
     def _beside_older(self, state: NodeState, rows: list[int],
                       alias: dict[TrackerId, TrackerId] | None = None) -> list[int]:
         """The ``rows`` (young trackers) within ``report_near`` of an estimated tracker of
-        earlier rank (birth frame, then id) than the id each is reported under (its own, or
+        earlier rank (``identity.rank``) than the id each is reported under (its own, or
         the older one of ``alias``, which is not judged against itself) that the manager does
         not know for a second person: the duplicates the manager may still merge, not a
         person who walked in alone. The distances of every young tracker to every other in
@@ -156,7 +157,7 @@ class Reporter:
         for o, y in zip(older[j].tolist(), c.tolist()):
             i = rows[y]
             r = alias.get(ids[i], ids[i])  # the id it is reported under
-            if ids[o] != r and o != i and (int(born[o]), ids[o]) < (int(born[state.row(r)]), r):
+            if ids[o] != r and o != i and rank(int(born[o]), ids[o]) < rank(int(born[state.row(r)]), r):
                 pairs.append((ids[i], ids[o]))
                 col.append(y)
         if not pairs:

@@ -364,11 +364,13 @@ class Trust:
 
     def _judge_unheld(self, state: NodeState, msgs: list[FrameMessage],
                       resolve: Callable[[TrackerId], TrackerId], k: int, limit: int,
-                      which: np.ndarray, ids: list[TrackerId], x: np.ndarray) -> list[int]:
+                      which: np.ndarray, pos: np.ndarray, ids: list[TrackerId],
+                      x: np.ndarray) -> list[int]:
         """Per message of a sender this node distrusts (whose new trackers it does not adopt;
         a trusted one's are adopted this frame and counted by ``state.unseen`` from the next),
         its measured entries of trackers this node does not hold (entry ``i``: message
-        ``which[i]``, ``ids[i]`` the tracker's id, ``x[i]`` the sender's state) that are
+        ``which[i]``, at ``pos[i]`` among all the messages' rows, whose ids are ``ids`` and
+        states ``x``; the ids and states taken only when some sender is distrusted) that are
         refuted: their state (the sender's ``x_bar``) is where one of this node's cameras should
         measure them (``views.expected``, this node's targets as occluders) and no target this
         node's cameras measure this frame is within ``tau_gda``, ``limit`` frames in a row (a
@@ -379,9 +381,10 @@ class Trust:
         distrusted = [m.sender in self.of and self.of[m.sender].state != TRUSTED for m in msgs]
         pick = np.array(distrusted)[which].nonzero()[0] if any(distrusted) else ()
         if len(pick):
-            which, x = which[pick], x[pick]
+            which, pos = which[pick], pos[pick]
+            x = x.take(pos, axis=0)
             keys = [(msgs[i].sender, resolve(ids[r]))
-                    for i, r in zip(which.tolist(), pick.tolist())]
+                    for i, r in zip(which.tolist(), pos.tolist())]
             n = len(state)
             expected = self.views.expected(np.concatenate([state.x_bar, x]), n)[n:]
             own = state.x_bar[(state.raw >= 0).any(axis=1), :2]
@@ -551,7 +554,7 @@ def _entries(state: NodeState, msgs: list[FrameMessage],
                                             [m.block.x_bar for m in msgs] or [np.zeros((0, 6))]))
     out = np.flatnonzero((here < 0) & (U[:, 0, 0] > 0.0))  # measured, not held here
     return (which, rows, here[at], U.take(at, axis=0), u.take(at, axis=0), x.take(at, axis=0),
-            (of[out], [ids[r] for r in out.tolist()], x.take(out, axis=0)))
+            (of[out], out, ids, x))
 
 
 def _add(a: list[float], b: list[float]) -> list[float]:
