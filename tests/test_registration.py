@@ -44,6 +44,34 @@ def test_two_cameras_learn_their_relative_offset_and_keep_the_mean_at_zero():
     np.testing.assert_allclose(xs, truth, atol=0.15)
 
 
+@pytest.mark.parametrize("shared", [True, False])
+def test_the_first_residuals_do_not_make_two_cameras_cross(shared):
+    """``reg_shared``: camera 1's map is 1 m off along x and one person is seen by both. Each
+    camera fits its first residual against the other's measurement, and the other fits it back.
+    Weighed by ``V`` alone each takes ``Sigma / (Sigma + V)`` of the disagreement (prior 1 m^2
+    against ``V`` of a few tenths): together they move about 1.7 times the offset and cross.
+    With the other side's uncertainty counted as this side's, each takes ``Sigma / (2 Sigma +
+    V)``, together ``2 Sigma / (2 Sigma + V)``: at most the offset, at least 0.8 of it for ``V``
+    up to 0.5 m^2. Later frames bring both to the offset either way."""
+    offset = 1.0
+    nodes = make_nodes({0: (1,), 1: (0,)}, TrackerConfig(reg_shared=shared),
+                       offsets={1: (offset, 0.0)})
+    rng = np.random.default_rng(0)
+    p = np.array([3.0, 3.5])
+    gaps = []  # camera 0's correction minus camera 1's along x, per frame
+    for k in range(60):
+        step(nodes, k, {c: [det(*walk(k, 0), pid=0, rng=rng)] for c in (0, 1)})
+        gaps.append(float(nodes[0].registrations[0].correction_at(p)[0]
+                          - nodes[1].registrations[1].correction_at(p)[0]))
+    first = next(g for g in gaps if abs(g) > 0.01)  # the first frame with residuals
+    if shared:
+        assert 0.8 * offset <= first <= 1.0 * offset, gaps[:10]
+        assert max(gaps) <= 1.05 * offset
+    else:
+        assert first > 1.4 * offset, gaps[:10]  # crossed
+    assert abs(gaps[-1] - offset) < 0.05
+
+
 def test_the_two_cameras_of_one_node_learn_their_relative_offset():
     """One node owning two cameras, no neighbours: each camera's residuals are against the
     node's other camera (its ``u, U`` of the same targets, this frame). Camera 0 believes

@@ -107,6 +107,10 @@ class RegistrarSection:
     reg_debias: bool = boolean(True, "compensate the errors-in-variables shrink of R2's scale")
     reg_fused: bool = boolean(False, "R2's regressor at the fused point of the camera's and the "
                                      "others' measurements (no shrink at any noise; replaces reg_debias)")
+    reg_shared: bool = boolean(False, "R2 counts the other camera's registration uncertainty as "
+                                      "large as this camera's own (both sides of a residual correct "
+                                      "towards each other): for chains and networks whose cameras "
+                                      "share few people; docs/tuning.md")
     reg_anchor: float = number(0.001, lo=0.0, hi=1.0,
                                doc="per frame, pull of every correction towards zero (common frame)")
     reg_relock: bool = boolean(True, "re-lock a camera whose map jumped (knocked) onto the others' "
